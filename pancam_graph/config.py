@@ -1,0 +1,175 @@
+"""Scenario configuration: pydantic models (extra keys forbidden) loaded from TOML.
+
+Lengths in metres, angles in degrees at this user-facing layer (converted to radians
+where they enter the code), path distances measured along the path from its start.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Literal
+
+import tomli_w
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from .errors import ConfigError
+
+Range = tuple[float, float]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class OriginConfig(_Strict):
+    """Geodetic origin of the local ENU frame (WGS84, ellipsoidal height)."""
+
+    lat_deg: float = Field(ge=-90.0, le=90.0)
+    lon_deg: float = Field(ge=-180.0, le=180.0)
+    h_m: float = 0.0
+
+
+class PathConfig(_Strict):
+    """The driven path: waypoints (east m, north m, elevation m relative to the origin)."""
+
+    waypoints: list[tuple[float, float, float]] = Field(min_length=2)
+    sharp_turns: list[int] = Field(default_factory=list, description="waypoint indices kept as corners")
+    stop_spacing_m: Range = (1.0, 2.0)
+    speed_mps: float = Field(0.1, gt=0.0)
+    dwell_s: float = Field(20.0, ge=0.0)
+
+    @model_validator(mode="after")
+    def _check(self) -> PathConfig:
+        lo, hi = self.stop_spacing_m
+        if not 0.0 < lo <= hi:
+            raise ValueError("stop_spacing_m must be (min, max) with 0 < min <= max")
+        for i in self.sharp_turns:
+            if not 0 < i < len(self.waypoints) - 1:
+                raise ValueError(f"sharp_turns index {i} is not an interior waypoint")
+        return self
+
+
+class TerrainConfig(_Strict):
+    landmark_density_per_m2: float = Field(0.5, gt=0.0)
+    corridor_half_width_m: float = Field(45.0, gt=0.0)
+    undulation_m: float = Field(0.8, ge=0.0)
+    roughness_m: float = Field(0.2, ge=0.0)
+    featureless: list[Range] = Field(default_factory=list, description="path-distance ranges, m")
+    featureless_density_factor: float = Field(0.01, ge=0.0, le=1.0)
+
+
+class CameraConfig(_Strict):
+    image_noise_px: float = Field(0.3, gt=0.0)
+    outlier_fraction: float = Field(0.05, ge=0.0, lt=0.5)
+    traverse_tilt_deg: float = Field(-12.0, ge=-90.0, le=90.0)
+    vo_range_m: Range = (2.0, 25.0)
+
+
+class SitesConfig(_Strict):
+    enabled: bool = True
+    spacing_m: Range = (30.0, 60.0)
+    pan_range_deg: Range = Field((-180.0, 180.0), description="full panorama: (-180, 180)")
+    pan_step_deg: float = Field(30.0, gt=0.0)
+    tilts_deg: list[float] = Field(default_factory=lambda: [-6.0, -22.0])
+    max_range_m: float = Field(40.0, gt=0.0)
+    hrc: bool = True
+    hrc_tilt_deg: float = -5.0
+
+
+class GpsConfig(_Strict):
+    enabled: bool = True
+    sigma_horizontal_m: float = Field(2.0, gt=0.0)
+    sigma_vertical_m: float = Field(3.0, gt=0.0)
+    every_n_stops: int = Field(1, ge=1)
+    dropouts: list[Range] = Field(default_factory=list, description="path-distance ranges, m")
+    multipath_fraction: float = Field(0.0, ge=0.0, lt=1.0)
+    multipath_offset_m: Range = (15.0, 60.0)
+    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 1.8)
+
+
+class DeadReckoningConfig(_Strict):
+    """Wheel odometry (distance with slip) and an IMU (heading with drift, absolute tilt)."""
+
+    enabled: bool = True
+    wheel_slip_mean: float = 0.03
+    wheel_slip_sigma: float = Field(0.03, ge=0.0)
+    heading_noise_deg: float = Field(0.2, ge=0.0)
+    gyro_drift_deg_per_h: float = Field(2.0, ge=0.0)
+    tilt_noise_deg: float = Field(0.1, ge=0.0)
+
+
+class EstimatorConfig(_Strict):
+    vo_min_inliers: int = Field(12, ge=6)
+    vo_ransac_px: float = Field(1.5, gt=0.0)
+    vo_max_step_m: float = Field(5.0, gt=0.0)
+    tie_points_per_site: int = Field(150, ge=3)
+    tie_kernel: Literal["huber", "cauchy", "none"] = "huber"
+    gps_kernel: Literal["huber", "cauchy", "none"] = "huber"
+    start_sigma_deg: float = Field(0.05, gt=0.0)
+    start_sigma_m: float = Field(0.02, gt=0.0)
+
+
+class Scenario(_Strict):
+    name: str
+    description: str = ""
+    seed: int = 0
+    rig: Literal["exomars", "mer_navcam", "mer_pancam", "prototype"] = "exomars"
+    origin: OriginConfig
+    path: PathConfig
+    terrain: TerrainConfig = TerrainConfig()
+    camera: CameraConfig = CameraConfig()
+    sites: SitesConfig = SitesConfig()
+    gps: GpsConfig = GpsConfig()
+    dead_reckoning: DeadReckoningConfig = DeadReckoningConfig()
+    estimator: EstimatorConfig = EstimatorConfig()
+
+
+def _describe(err: dict) -> str:
+    field = ".".join(str(p) for p in err["loc"]) or "(top level)"
+    if err["type"] == "extra_forbidden":
+        return f"field '{field}': unknown key"
+    got = err.get("input")
+    got_text = f" (got {got!r})" if got is not None and not isinstance(got, dict) else ""
+    return f"field '{field}': {err['msg']}{got_text}"
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario TOML file; every problem names the file and the field."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read scenario file: {exc.strerror}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    try:
+        return Scenario.model_validate(data)
+    except ValidationError as exc:
+        lines = "\n  ".join(_describe(e) for e in exc.errors())
+        raise ConfigError(f"{path}: invalid scenario:\n  {lines}") from None
+
+
+def bundled_scenarios() -> dict[str, Path]:
+    folder = resources.files("pancam_graph.scenarios")
+    return {Path(p.name).stem: Path(str(p)) for p in folder.iterdir() if p.name.endswith(".toml")}
+
+
+def resolve_scenario(name_or_path: str) -> Path:
+    """A bundled scenario name (e.g. `denver_trail`) or a path to a TOML file."""
+    candidate = Path(name_or_path)
+    if candidate.suffix == ".toml" or candidate.exists():
+        if not candidate.is_file():
+            raise ConfigError(f"{candidate}: scenario file not found")
+        return candidate
+    bundled = bundled_scenarios()
+    if name_or_path not in bundled:
+        raise ConfigError(f"unknown scenario {name_or_path!r}; bundled: {', '.join(sorted(bundled))}")
+    return bundled[name_or_path]
+
+
+def dump_scenario(scenario: Scenario) -> str:
+    return tomli_w.dumps(scenario.model_dump(mode="json"))

@@ -1,0 +1,28 @@
+"""Typed errors of the package: one base class, one subclass per area.
+
+Library code raises these; only the CLI turns them into messages and exit codes.
+"""
+
+
+class PancamGraphError(Exception):
+    """Base class of every error this package raises on purpose."""
+
+
+class ConfigError(PancamGraphError):
+    """A scenario or configuration file is missing, malformed or out of range."""
+
+
+class GeodesyError(PancamGraphError):
+    """A coordinate conversion got invalid input (non-finite, out of range)."""
+
+
+class FrontendError(PancamGraphError):
+    """Observations could not be turned into measurements (e.g. malformed arrays)."""
+
+
+class GraphError(PancamGraphError):
+    """The factor graph is ill-posed or the smoother failed."""
+
+
+class ResultsError(PancamGraphError):
+    """A results folder cannot be written or read."""

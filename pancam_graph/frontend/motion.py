@@ -1,0 +1,45 @@
+"""The motion between consecutive stops: stereo VO, or a bridge when VO fails.
+
+Never zero motion (what broke the seed's field result): dead reckoning with its own
+covariance when the rover has it, otherwise the previous motion with a wide covariance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import gtsam
+import numpy as np
+
+from ..records import Stop
+from .stereo_vo import StereoVO
+
+# Without any dead reckoning the bridge only says "the rover moved about as before":
+# 2 m per axis, 5 deg roll/pitch and 60 deg heading (1 sigma).
+_WIDE_SIGMAS = np.array([np.deg2rad(5.0), np.deg2rad(5.0), np.deg2rad(60.0), 2.0, 2.0, 2.0])
+
+
+@dataclass(frozen=True)
+class Motion:
+    prev_T_curr: gtsam.Pose3
+    covariance: np.ndarray  # [rotation, translation] in the current body frame
+    source: Literal["vo", "dead_reckoning", "constant_velocity"]
+    vo_inliers: int
+    vo_failure: str = ""
+
+    @property
+    def bridged(self) -> bool:
+        return self.source != "vo"
+
+
+def motion_between(vo: StereoVO, prev: Stop, curr: Stop, last: Motion | None) -> Motion:
+    result = vo.estimate(prev.stereo, curr.stereo)
+    if result.ok:
+        return Motion(result.prev_T_curr, result.covariance, "vo", result.inliers)
+    if curr.dead_reckoning is not None:
+        dr = curr.dead_reckoning
+        return Motion(gtsam.Pose3(dr.prev_T_curr), dr.covariance, "dead_reckoning", result.inliers,
+                      result.reason)
+    guess = last.prev_T_curr if last is not None else gtsam.Pose3()
+    return Motion(guess, np.diag(_WIDE_SIGMAS**2), "constant_velocity", result.inliers, result.reason)

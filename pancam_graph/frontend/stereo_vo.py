@@ -1,0 +1,106 @@
+"""Stereo visual odometry from matched stereo observations of two consecutive stops.
+
+Method: triangulate the previous stop's matches (seed eq. 2.28), estimate the motion by
+3-D to 2-D PnP with RANSAC (OpenCV), then refine it by a bundle adjustment over the two
+stops (GTSAM stereo factors, previous pose held fixed) whose marginal gives the 6x6
+covariance of the relative pose. Outliers left after RANSAC are removed by a chi-square
+test on the bundle-adjustment residuals.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import gtsam
+import numpy as np
+
+from ..graph import noise
+from ..graph.keys import L, X
+from ..records import StereoObservations
+from ..rig import Rig, triangulate_rectified
+
+_CHI2_6DOF_99 = 16.812  # a point's two stereo residuals (2 x 3 px components): outlier gate
+
+
+@dataclass(frozen=True)
+class VoResult:
+    """prev_T_curr of the rover body and its covariance ([rotation, translation], current frame)."""
+
+    ok: bool
+    prev_T_curr: gtsam.Pose3 | None
+    covariance: np.ndarray | None
+    matches: int
+    inliers: int
+    reason: str = ""
+
+
+class StereoVO:
+    def __init__(self, rig: Rig, body_T_left: gtsam.Pose3, pixel_sigma: float, min_inliers: int = 12,
+                 ransac_px: float = 1.5, max_step_m: float = 5.0):
+        self.rig = rig
+        self.body_T_left = body_T_left
+        self.left_T_body = body_T_left.inverse()
+        self.calibration = rig.stereo_calibration()
+        self.K = rig.wac.matrix()
+        self.noise = noise.stereo_pixels(pixel_sigma)
+        self.min_inliers = min_inliers
+        self.ransac_px = max(ransac_px, 4.0 * pixel_sigma)
+        self.max_step_m = max_step_m
+
+    def estimate(self, prev: StereoObservations, curr: StereoObservations) -> VoResult:
+        _, ip, ic = np.intersect1d(prev.track_ids, curr.track_ids, assume_unique=True, return_indices=True)
+        matches = len(ip)
+        if matches < self.min_inliers:
+            return VoResult(False, None, None, matches, 0, f"{matches} matches < {self.min_inliers}")
+        a, b = prev.uvv[ip], curr.uvv[ic]
+        p_prev = triangulate_rectified(a[:, 0], a[:, 1], a[:, 2], self.rig.wac, self.rig.baseline_m)
+        usable = np.isfinite(p_prev[:, 2]) & (p_prev[:, 2] > 0.5) & (b[:, 0] > b[:, 1])
+        a, b, p_prev = a[usable], b[usable], p_prev[usable]
+        if len(a) < self.min_inliers:
+            return VoResult(False, None, None, matches, 0, "too few matches with positive disparity")
+
+        found, rvec, tvec, inliers = cv2.solvePnPRansac(
+            p_prev, b[:, [0, 2]].copy(), self.K, None, iterationsCount=200,
+            reprojectionError=self.ransac_px, confidence=0.999, flags=cv2.SOLVEPNP_EPNP,
+        )
+        if not found or inliers is None or len(inliers) < self.min_inliers:
+            n = 0 if inliers is None else len(inliers)
+            return VoResult(False, None, None, matches, n, f"PnP RANSAC found {n} inliers")
+        inl = inliers.ravel()
+        rot, _ = cv2.Rodrigues(rvec)
+        curr_T_prev_cam = gtsam.Pose3(gtsam.Rot3(rot), tvec.ravel())
+        guess = self.body_T_left.compose(curr_T_prev_cam.inverse()).compose(self.left_T_body)
+
+        pose, cov, keep = self._bundle_adjust(a[inl], b[inl], p_prev[inl], guess)
+        if keep.sum() < self.min_inliers:
+            return VoResult(False, None, None, matches, int(keep.sum()), "too few inliers after BA")
+        if keep.sum() < len(keep):
+            pose, cov, _ = self._bundle_adjust(a[inl][keep], b[inl][keep], p_prev[inl][keep], pose)
+        step = float(np.linalg.norm(pose.translation()))
+        if step > self.max_step_m:
+            return VoResult(False, None, None, matches, int(keep.sum()), f"implausible step {step:.1f} m")
+        return VoResult(True, pose, cov, matches, int(keep.sum()))
+
+    def _bundle_adjust(self, a, b, p_prev_cam, guess: gtsam.Pose3):
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        # A tight prior rather than a hard equality: Marginals needs an ordinary Gaussian system.
+        graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-9)))
+        values.insert(X(0), gtsam.Pose3())
+        values.insert(X(1), guess)
+        for j in range(len(a)):
+            graph.add(gtsam.GenericStereoFactor3D(
+                gtsam.StereoPoint2(*a[j]), self.noise, X(0), L(j), self.calibration, self.body_T_left))
+            graph.add(gtsam.GenericStereoFactor3D(
+                gtsam.StereoPoint2(*b[j]), self.noise, X(1), L(j), self.calibration, self.body_T_left))
+            values.insert(L(j), self.body_T_left.transformFrom(p_prev_cam[j]))
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(15)
+        result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+        # Whitened residual of each stereo pair of factors: index 1 + 2j and 2 + 2j.
+        err = np.array([graph.at(1 + 2 * j).error(result) + graph.at(2 + 2 * j).error(result)
+                        for j in range(len(a))])
+        keep = 2.0 * err < _CHI2_6DOF_99
+        cov = gtsam.Marginals(graph, result).marginalCovariance(X(1))
+        return result.atPose3(X(1)), cov, keep

@@ -1,0 +1,53 @@
+"""Factor builders: one function per measurement type, taking records, returning GTSAM factors."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from ..errors import GraphError
+from . import noise
+from .keys import L, X
+
+
+def start_prior(world_T_body: np.ndarray, sigmas: np.ndarray) -> gtsam.PriorFactorPose3:
+    """Fixes the gauge: the surveyed start pose."""
+    return gtsam.PriorFactorPose3(X(0), gtsam.Pose3(world_T_body), noise.pose_sigmas(sigmas[:3], sigmas[3:]))
+
+
+def motion(i: int, j: int, prev_T_curr: gtsam.Pose3, covariance: np.ndarray) -> gtsam.BetweenFactorPose3:
+    """Relative body motion between stops i and j (VO or dead reckoning)."""
+    return gtsam.BetweenFactorPose3(X(i), X(j), prev_T_curr, noise.pose_covariance(covariance))
+
+
+def stereo(
+    stop: int, track: int, uvv: np.ndarray, calibration: gtsam.Cal3_S2Stereo, body_T_left: gtsam.Pose3,
+    model: gtsam.noiseModel.Base,
+) -> gtsam.GenericStereoFactor3D:
+    """A rectified stereo measurement (u_left, u_right, v) of landmark L(track) from stop X(stop);
+    the camera pose is body pose * (mast pan/tilt and extrinsics)."""
+    if not np.all(np.isfinite(uvv)):
+        raise GraphError(f"non-finite stereo measurement of track {track} at stop {stop}")
+    return gtsam.GenericStereoFactor3D(
+        gtsam.StereoPoint2(*map(float, uvv)), model, X(stop), L(track), calibration, body_T_left
+    )
+
+
+def projection(
+    stop: int, track: int, uv: np.ndarray, calibration: gtsam.Cal3_S2, body_T_cam: gtsam.Pose3,
+    model: gtsam.noiseModel.Base,
+) -> gtsam.GenericProjectionFactorCal3_S2:
+    """A monocular (HRC) measurement (u, v) of landmark L(track) from stop X(stop)."""
+    if not np.all(np.isfinite(uv)):
+        raise GraphError(f"non-finite HRC measurement of track {track} at stop {stop}")
+    return gtsam.GenericProjectionFactorCal3_S2(
+        np.asarray(uv, dtype=float), model, X(stop), L(track), calibration, body_T_cam
+    )
+
+
+def gps(stop: int, antenna_enu: np.ndarray, lever_arm_m: np.ndarray, model: gtsam.noiseModel.Base):
+    """An ENU antenna position (never latitude/longitude) with the body-frame lever arm."""
+    antenna_enu = np.asarray(antenna_enu, dtype=float)
+    if not np.all(np.isfinite(antenna_enu)):
+        raise GraphError(f"non-finite GPS position at stop {stop}")
+    return gtsam.GPSFactorArm(X(stop), antenna_enu, np.asarray(lever_arm_m, dtype=float), model)

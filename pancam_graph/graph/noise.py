@@ -1,0 +1,50 @@
+"""Named noise models with units."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from ..errors import GraphError
+
+_KERNELS = {
+    "huber": lambda: gtsam.noiseModel.mEstimator.Huber.Create(1.345),
+    "cauchy": lambda: gtsam.noiseModel.mEstimator.Cauchy.Create(1.0),
+}
+
+
+def robust(kind: str, base: gtsam.noiseModel.Base) -> gtsam.noiseModel.Base:
+    """Wrap `base` in an M-estimator ('huber', 'cauchy') or return it ('none')."""
+    if kind == "none":
+        return base
+    return gtsam.noiseModel.Robust.Create(_KERNELS[kind](), base)
+
+
+def stereo_pixels(sigma_px: float) -> gtsam.noiseModel.Base:
+    """(u_left, u_right, v) measurement noise in pixels."""
+    return gtsam.noiseModel.Isotropic.Sigma(3, sigma_px)
+
+
+def image_pixels(sigma_px: float) -> gtsam.noiseModel.Base:
+    """(u, v) measurement noise in pixels."""
+    return gtsam.noiseModel.Isotropic.Sigma(2, sigma_px)
+
+
+def pose_sigmas(rot_rad: np.ndarray, pos_m: np.ndarray) -> gtsam.noiseModel.Base:
+    """Pose noise: rotation sigmas (rad) then translation sigmas (m), GTSAM order."""
+    return gtsam.noiseModel.Diagonal.Sigmas(np.concatenate([rot_rad, pos_m]))
+
+
+def pose_covariance(cov: np.ndarray) -> gtsam.noiseModel.Base:
+    """A full 6x6 pose covariance ([rotation, translation], rad^2 / m^2)."""
+    cov = 0.5 * (cov + cov.T)
+    if cov.shape != (6, 6) or not np.all(np.isfinite(cov)) or np.linalg.eigvalsh(cov).min() <= 0:
+        raise GraphError("pose covariance must be a finite, positive-definite 6x6 matrix")
+    return gtsam.noiseModel.Gaussian.Covariance(cov)
+
+
+def gps_position(sigma_horizontal_m: float, sigma_vertical_m: float) -> gtsam.noiseModel.Base:
+    """ENU position noise of a GPS fix in metres."""
+    return gtsam.noiseModel.Diagonal.Sigmas(
+        np.array([sigma_horizontal_m, sigma_horizontal_m, sigma_vertical_m])
+    )

@@ -1,0 +1,185 @@
+"""The run loop: simulate the traverse, estimate the motion of every stop once, feed every
+configuration's localizer stop by stop, then evaluate each against truth and GPS."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .config import Scenario
+from .evaluation.metrics import TrajectoryMetrics, compare, decimated_length
+from .frontend.motion import Motion, motion_between
+from .frontend.stereo_vo import StereoVO
+from .localizer import Localizer, LocalizerOptions
+from .records import GroundTruth, Traverse
+from .sim import simulate
+
+CONFIGURATIONS: dict[str, LocalizerOptions] = {
+    "vo": LocalizerOptions(use_sites=False, use_hrc=False, use_gps=False),
+    "vo_sites": LocalizerOptions(use_sites=True, use_hrc=False, use_gps=False),
+    "vo_sites_hrc": LocalizerOptions(use_sites=True, use_hrc=True, use_gps=False),
+    "full": LocalizerOptions(use_sites=True, use_hrc=True, use_gps=True),
+}
+GPS_REFERENCE_STEP_M = 20.0  # GPS track length is measured through fixes this far apart
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    seed: int | None = None
+    use_gps: bool = True
+    use_sites: bool = True
+    use_hrc: bool = True
+    batch: bool = False
+
+    def configurations(self) -> list[str]:
+        names = []
+        for name, opt in CONFIGURATIONS.items():
+            if (opt.use_gps and not self.use_gps) or (opt.use_sites and not self.use_sites):
+                continue
+            if opt.use_hrc and not self.use_hrc:
+                continue
+            names.append(name)
+        return names
+
+
+@dataclass(frozen=True)
+class ConfigurationResult:
+    name: str
+    world_T_body: np.ndarray  # (N, 4, 4)
+    update_ms: np.ndarray  # (N,) one iSAM2 update per stop
+    bridged_stops: int
+    landmarks: int
+    rejected_tie_points: int
+    gps_fixes_used: int
+    solver: str
+    metrics: TrajectoryMetrics
+    metrics_vs_gps: TrajectoryMetrics | None
+
+
+@dataclass(frozen=True)
+class RunResult:
+    scenario: Scenario
+    seed: int
+    traverse: Traverse
+    truth: GroundTruth
+    motions: list[Motion | None]
+    configurations: dict[str, ConfigurationResult]
+    wall_s: float
+    vo_s: float
+
+    @property
+    def update_ms(self) -> np.ndarray:
+        return np.concatenate([c.update_ms for c in self.configurations.values()])
+
+
+ProgressCallback = Callable[[str, int, int], None]
+
+
+def gps_enu(traverse: Traverse) -> tuple[np.ndarray, np.ndarray]:
+    """Stop indices with a fix and the fixes converted to ENU (N, 3) with pyproj."""
+    idx = np.array([s.index for s in traverse.stops if s.gps is not None], dtype=int)
+    if len(idx) == 0:
+        return idx, np.zeros((0, 3))
+    fixes = [traverse.stops[i].gps for i in idx]
+    enu = traverse.origin.to_enu([f.lat_deg for f in fixes], [f.lon_deg for f in fixes], [f.h_m for f in fixes])
+    return idx, enu
+
+
+def evaluate_against_gps(traverse: Traverse, world_T_body: np.ndarray) -> TrajectoryMetrics | None:
+    idx, enu = gps_enu(traverse)
+    if len(idx) < 2:
+        return None
+    antenna = np.einsum("nij,j->ni", world_T_body[idx, :3, :3], traverse.gps_lever_arm_m)
+    antenna += world_T_body[idx, :3, 3]
+    return compare(antenna, enu, "none", reference_length_m=decimated_length(enu, GPS_REFERENCE_STEP_M))
+
+
+def run(scenario: Scenario, options: RunOptions = RunOptions(), progress: ProgressCallback | None = None) -> RunResult:
+    start = time.perf_counter()
+    seed = scenario.seed if options.seed is None else options.seed
+    traverse, truth = simulate(scenario, seed)
+    n = len(traverse.stops)
+    est = scenario.estimator
+    vo = StereoVO(
+        traverse.rig, traverse.rig.body_T_left(0.0, traverse.traverse_tilt_rad), traverse.image_noise_px,
+        min_inliers=est.vo_min_inliers, ransac_px=est.vo_ransac_px, max_step_m=est.vo_max_step_m,
+    )
+    names = options.configurations()
+    localizers = {name: Localizer(traverse, CONFIGURATIONS[name], est, seed=seed) for name in names}
+
+    motions: list[Motion | None] = [None]
+    vo_s = 0.0
+    for k, stop in enumerate(traverse.stops):
+        if k > 0:
+            t0 = time.perf_counter()
+            motions.append(motion_between(vo, traverse.stops[k - 1], stop, motions[-1]))
+            vo_s += time.perf_counter() - t0
+        for localizer in localizers.values():
+            localizer.step(stop, motions[k])
+        if progress is not None:
+            progress("stops", k + 1, n)
+
+    results = {}
+    for name, localizer in localizers.items():
+        if progress is not None:
+            progress(f"finishing {name}", 0, 1)
+        poses = localizer.trajectory(batch=options.batch)
+        alignment = "none" if CONFIGURATIONS[name].use_gps else "se3"
+        results[name] = ConfigurationResult(
+            name=name,
+            world_T_body=poses,
+            update_ms=np.asarray(localizer.smoother.update_ms),
+            bridged_stops=localizer.bridged_stops,
+            landmarks=len(localizer.landmarks),
+            rejected_tie_points=localizer.rejected_ties,
+            gps_fixes_used=localizer.gps_fixes_used,
+            solver="isam2+batch_lm" if options.batch else "isam2",
+            metrics=compare(poses[:, :3, 3], truth.positions, alignment, poses, truth.world_T_body),
+            metrics_vs_gps=evaluate_against_gps(traverse, poses),
+        )
+    return RunResult(scenario, seed, traverse, truth, motions, results, time.perf_counter() - start, vo_s)
+
+
+def _percentiles(ms: np.ndarray) -> dict[str, float]:
+    return {"median": float(np.median(ms)), "p99": float(np.percentile(ms, 99)), "max": float(ms.max())}
+
+
+def metrics_document(result: RunResult) -> dict:
+    """The content of metrics.json."""
+    vo_motions = [m for m in result.motions[1:] if m is not None]
+    configs = {}
+    for name, c in result.configurations.items():
+        entry = c.metrics.as_dict()
+        entry.update(
+            bridged_stops=c.bridged_stops,
+            landmarks=c.landmarks,
+            rejected_tie_points=c.rejected_tie_points,
+            gps_fixes_used=c.gps_fixes_used,
+            solver=c.solver,
+            isam2_update_ms=_percentiles(c.update_ms),
+            vs_gps=c.metrics_vs_gps.as_dict() if c.metrics_vs_gps is not None else None,
+        )
+        configs[name] = entry
+    return {
+        "scenario": result.scenario.name,
+        "seed": result.seed,
+        "rig": result.traverse.rig.name,
+        "stops": len(result.traverse.stops),
+        "sites": sum(s.is_site for s in result.traverse.stops),
+        "gps_fixes": sum(s.gps is not None for s in result.traverse.stops),
+        "reference": "simulation ground truth (configs.*), GPS fixes (configs.*.vs_gps)",
+        "vo": {
+            "stops_bridged": sum(m.bridged for m in vo_motions),
+            "bridge_sources": sorted({m.source for m in vo_motions if m.bridged}),
+            "median_inliers": float(np.median([m.vo_inliers for m in vo_motions])) if vo_motions else 0.0,
+        },
+        "configs": configs,
+        "timing": {
+            "isam2_update_ms": _percentiles(result.update_ms),
+            "vo_s": result.vo_s,
+            "wall_s": result.wall_s,
+        },
+    }

@@ -1,0 +1,119 @@
+"""Frozen records that cross module borders: what a traverse source hands the back-end.
+
+The border between front-end and back-end is the stereo observation (track id,
+u_left, u_right, v per stop): the back-end never needs an image. Ground truth
+travels separately (`GroundTruth`) and is used only for evaluation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .geodesy import LocalFrame
+from .rig import Rig
+
+
+@dataclass(frozen=True)
+class StereoObservations:
+    """Rectified stereo measurements of tracked features: `uvv` rows are (u_left, u_right, v) px."""
+
+    track_ids: np.ndarray  # (N,) int64
+    uvv: np.ndarray  # (N, 3) float
+
+    def __post_init__(self) -> None:
+        if self.uvv.shape != (len(self.track_ids), 3):
+            raise ValueError(f"uvv must be ({len(self.track_ids)}, 3), got {self.uvv.shape}")
+
+    def __len__(self) -> int:
+        return len(self.track_ids)
+
+    @staticmethod
+    def empty() -> StereoObservations:
+        return StereoObservations(np.zeros(0, dtype=np.int64), np.zeros((0, 3)))
+
+
+@dataclass(frozen=True)
+class PanoramaFrame:
+    """One stereo frame of a site panorama at known mast angles (radians)."""
+
+    pan_rad: float
+    tilt_rad: float
+    observations: StereoObservations
+
+
+@dataclass(frozen=True)
+class HrcFrame:
+    """Projection measurements (u, v) px of the high-resolution camera at known mast angles."""
+
+    pan_rad: float
+    tilt_rad: float
+    track_ids: np.ndarray  # (N,)
+    uv: np.ndarray  # (N, 2)
+
+
+@dataclass(frozen=True)
+class GpsFix:
+    """A WGS84 fix of the antenna; height is ellipsoidal. Sigmas are 1-sigma in metres."""
+
+    time_s: float
+    lat_deg: float
+    lon_deg: float
+    h_m: float
+    sigma_horizontal_m: float
+    sigma_vertical_m: float
+
+
+@dataclass(frozen=True)
+class DeadReckoning:
+    """Wheel odometry + IMU increment from the previous stop: prev_T_curr (4x4) and its 6x6
+    covariance ordered [rotation, translation] in the current body frame (GTSAM convention)."""
+
+    prev_T_curr: np.ndarray
+    covariance: np.ndarray
+
+
+@dataclass(frozen=True)
+class Stop:
+    """Everything the rover recorded at one stop."""
+
+    index: int
+    time_s: float
+    stereo: StereoObservations
+    site_id: int | None = None
+    panorama: tuple[PanoramaFrame, ...] = ()
+    hrc: tuple[HrcFrame, ...] = ()
+    gps: GpsFix | None = None
+    dead_reckoning: DeadReckoning | None = None
+
+    @property
+    def is_site(self) -> bool:
+        return self.site_id is not None
+
+
+@dataclass(frozen=True)
+class Traverse:
+    """A recorded (or simulated) traverse plus the sensor set-up the estimator may know."""
+
+    name: str
+    rig: Rig
+    origin: LocalFrame
+    stops: tuple[Stop, ...]
+    traverse_tilt_rad: float  # mast tilt of the navigation stereo pairs (pan = 0)
+    image_noise_px: float
+    gps_lever_arm_m: np.ndarray  # antenna in the body frame
+    start_world_T_body: np.ndarray  # 4x4, surveyed start pose
+    start_sigmas: np.ndarray  # (6,) [rot rad x3, pos m x3]
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """True poses and landmarks; only evaluation may look at these."""
+
+    world_T_body: np.ndarray  # (N, 4, 4)
+    landmarks: np.ndarray  # (M, 3)
+
+    @property
+    def positions(self) -> np.ndarray:
+        return self.world_T_body[:, :3, 3]

@@ -1,0 +1,200 @@
+"""Camera and rig models: intrinsics, stereo pairs, HRC and pan/tilt mast kinematics.
+
+Frames (DESIGN.md section 3): rover body x forward, y left, z up with the origin on
+the ground under the mast; the mast head frame has the same axes after pan (about z)
+and tilt (about the panned y axis, positive looks up); camera frames are OpenCV
+(x right, y down, z forward).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+# Rotation taking camera-frame vectors (x right, y down, z forward) into the
+# head frame (x forward, y left, z up).
+HEAD_R_CAM = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole camera with radial (k1, k2) and tangential (p1, p2) distortion, OpenCV order."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+    k1: float = 0.0
+    k2: float = 0.0
+    p1: float = 0.0
+    p2: float = 0.0
+
+    @property
+    def hfov_rad(self) -> float:
+        return 2.0 * math.atan(self.width / (2.0 * self.fx))
+
+    @property
+    def vfov_rad(self) -> float:
+        return 2.0 * math.atan(self.height / (2.0 * self.fy))
+
+    @property
+    def ifov_rad(self) -> float:
+        """Angular resolution at the image centre (radians per pixel)."""
+        return 1.0 / self.fx
+
+    def matrix(self) -> np.ndarray:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def distortion(self) -> np.ndarray:
+        return np.array([self.k1, self.k2, self.p1, self.p2])
+
+    def project(self, p_cam: np.ndarray, distort: bool = True) -> np.ndarray:
+        """Pixel coordinates (N, 2) of camera-frame points (N, 3); points must have z > 0."""
+        p = np.atleast_2d(np.asarray(p_cam, dtype=float))
+        x = p[:, 0] / p[:, 2]
+        y = p[:, 1] / p[:, 2]
+        if distort:
+            r2 = x * x + y * y
+            radial = 1.0 + self.k1 * r2 + self.k2 * r2 * r2
+            xd = x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x)
+            yd = y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y
+            x, y = xd, yd
+        return np.column_stack([self.fx * x + self.cx, self.fy * y + self.cy])
+
+    def in_image(self, uv: np.ndarray, margin_px: float = 0.0) -> np.ndarray:
+        uv = np.atleast_2d(uv)
+        return (
+            (uv[:, 0] >= margin_px)
+            & (uv[:, 0] <= self.width - 1 - margin_px)
+            & (uv[:, 1] >= margin_px)
+            & (uv[:, 1] <= self.height - 1 - margin_px)
+        )
+
+    def gtsam_calibration(self) -> gtsam.Cal3_S2:
+        """Calibration of the rectified (undistorted) image."""
+        return gtsam.Cal3_S2(self.fx, self.fy, 0.0, self.cx, self.cy)
+
+
+def camera_from_angular_resolution(ifov_urad: float, size_px: int = 1024) -> Camera:
+    f = 1.0 / (ifov_urad * 1e-6)
+    c = (size_px - 1) / 2.0
+    return Camera(fx=f, fy=f, cx=c, cy=c, width=size_px, height=size_px)
+
+
+def camera_from_optics(focal_mm: float, pixel_um: float, size_px: int = 1024) -> Camera:
+    f = focal_mm * 1e3 / pixel_um
+    c = (size_px - 1) / 2.0
+    return Camera(fx=f, fy=f, cx=c, cy=c, width=size_px, height=size_px)
+
+
+@dataclass(frozen=True)
+class Rig:
+    """A stereo camera pair (rectified, left camera is the reference) and an optional HRC
+    on a pan/tilt mast.
+
+    `hrc_offset_m` is the HRC's position along the head's -y axis (to the right) from the
+    left WAC; both WACs and the HRC look along the head's x axis.
+    """
+
+    name: str
+    wac: Camera
+    baseline_m: float
+    mast_height_m: float
+    hrc: Camera | None = None
+    hrc_offset_m: float = 0.0
+    head_forward_offset_m: float = 0.0  # optical centres ahead of the tilt axis
+
+    def head_T_left(self) -> gtsam.Pose3:
+        t = np.array([self.head_forward_offset_m, self.baseline_m / 2.0, 0.0])
+        return gtsam.Pose3(gtsam.Rot3(HEAD_R_CAM), t)
+
+    def head_T_hrc(self) -> gtsam.Pose3:
+        if self.hrc is None:
+            raise ValueError(f"rig {self.name!r} has no HRC")
+        t = np.array([self.head_forward_offset_m, self.baseline_m / 2.0 - self.hrc_offset_m, 0.0])
+        return gtsam.Pose3(gtsam.Rot3(HEAD_R_CAM), t)
+
+    def body_T_head(self, pan_rad: float, tilt_rad: float) -> gtsam.Pose3:
+        """Mast kinematics: body -> pan (about z, positive left) -> tilt (positive up)."""
+        body_T_pan = gtsam.Pose3(gtsam.Rot3.Rz(pan_rad), np.array([0.0, 0.0, self.mast_height_m]))
+        pan_T_head = gtsam.Pose3(gtsam.Rot3.Ry(-tilt_rad), np.zeros(3))
+        return body_T_pan.compose(pan_T_head)
+
+    def body_T_left(self, pan_rad: float, tilt_rad: float) -> gtsam.Pose3:
+        return self.body_T_head(pan_rad, tilt_rad).compose(self.head_T_left())
+
+    def body_T_hrc(self, pan_rad: float, tilt_rad: float) -> gtsam.Pose3:
+        return self.body_T_head(pan_rad, tilt_rad).compose(self.head_T_hrc())
+
+    def stereo_calibration(self) -> gtsam.Cal3_S2Stereo:
+        c = self.wac
+        return gtsam.Cal3_S2Stereo(c.fx, c.fy, 0.0, c.cx, c.cy, self.baseline_m)
+
+
+def _exomars() -> Rig:
+    # DESIGN.md section 2: WAC 580 urad/px (f = 1724 px), HRC 82 urad/px (f = 12195 px),
+    # HRC 0.154 m right of the rig centre -> 0.404 m from the left WAC.
+    return Rig(
+        name="exomars",
+        wac=camera_from_angular_resolution(580.0),
+        baseline_m=0.50,
+        mast_height_m=1.5,
+        hrc=camera_from_angular_resolution(82.0),
+        hrc_offset_m=0.404,
+    )
+
+
+def _mer_navcam() -> Rig:
+    return Rig("mer_navcam", camera_from_angular_resolution(820.0), baseline_m=0.20, mast_height_m=1.54)
+
+
+def _mer_pancam() -> Rig:
+    return Rig("mer_pancam", camera_from_angular_resolution(280.0), baseline_m=0.30, mast_height_m=1.54)
+
+
+def _prototype() -> Rig:
+    # 21 mm lens, 12 um pixels; HRC 50 mm lens, 2.2 um pixels binned 2x2 (4.4 um), ~5 deg FOV.
+    return Rig(
+        name="prototype",
+        wac=camera_from_optics(21.0, 12.0),
+        baseline_m=0.50,
+        mast_height_m=1.5,
+        hrc=camera_from_optics(50.0, 4.4, size_px=992),
+        hrc_offset_m=0.404,
+    )
+
+
+RIG_PRESETS = {
+    "exomars": _exomars,
+    "mer_navcam": _mer_navcam,
+    "mer_pancam": _mer_pancam,
+    "prototype": _prototype,
+}
+
+
+def rig_preset(name: str) -> Rig:
+    try:
+        return RIG_PRESETS[name]()
+    except KeyError:
+        raise ValueError(f"unknown rig preset {name!r}; choose one of {sorted(RIG_PRESETS)}") from None
+
+
+def triangulate_rectified(u_left, u_right, v, camera: Camera, baseline_m: float) -> np.ndarray:
+    """Seed eq. (2.28): points (N, 3) in the left camera frame from a rectified stereo pair.
+
+    X = B (x - u0) / d, Y = B (y - v0) / d, Z = B f / d with disparity d = x - x'.
+    Rows with non-positive disparity come back as NaN.
+    """
+    u_left = np.asarray(u_left, dtype=float)
+    d = u_left - np.asarray(u_right, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(d > 0, baseline_m / d, np.nan)
+    x = scale * (u_left - camera.cx)
+    y = scale * (np.asarray(v, dtype=float) - camera.cy) * camera.fx / camera.fy
+    z = scale * camera.fx
+    return np.column_stack([x, y, z])

@@ -1,0 +1,91 @@
+"""Scenario -> simulated traverse (what the rover records) and ground truth (kept apart)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..config import Scenario
+from ..geodesy import LocalFrame
+from ..records import GroundTruth, PanoramaFrame, Stop, Traverse
+from ..rig import rig_preset
+from .sensors import LandmarkField, dead_reckoning, gps_fix, observe_hrc, observe_stereo
+from .world import dense_path, landmark_field, rover_poses, site_stops, stop_distances
+
+_SITE_DWELL_S = 900.0  # a full panorama takes a while
+
+
+def _in_ranges(s: float, ranges: list[tuple[float, float]]) -> bool:
+    return any(a <= s <= b for a, b in ranges)
+
+
+def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, GroundTruth]:
+    """Simulate the scenario. The same (scenario, seed) always gives the same traverse."""
+    seed = scenario.seed if seed is None else seed
+    rng = np.random.default_rng(seed)
+    rig = rig_preset(scenario.rig)
+    frame = LocalFrame(scenario.origin.lat_deg, scenario.origin.lon_deg, scenario.origin.h_m)
+    cam_cfg = scenario.camera
+
+    path = dense_path(scenario.path)
+    stop_s = stop_distances(path, scenario.path, rng)
+    poses = rover_poses(path, stop_s)
+    field = LandmarkField(landmark_field(path, scenario.terrain, rng))
+    sites = set(site_stops(stop_s, scenario.sites, rng)) if scenario.sites.enabled else set()
+
+    tilt = np.deg2rad(cam_cfg.traverse_tilt_deg)
+    body_T_nav = rig.body_T_left(0.0, tilt)
+    pans = np.deg2rad(np.arange(*scenario.sites.pan_range_deg, scenario.sites.pan_step_deg))
+    site_range = (1.0, scenario.sites.max_range_m)
+
+    stops, time_s, site_id = [], 0.0, 0
+    for k, s in enumerate(stop_s):
+        dr = None
+        if k > 0:
+            dt = (s - stop_s[k - 1]) / scenario.path.speed_mps + scenario.path.dwell_s
+            time_s += dt
+            if scenario.dead_reckoning.enabled:
+                dr = dead_reckoning(poses[k - 1], poses[k], dt, scenario.dead_reckoning, rng)
+        stereo = observe_stereo(field, poses[k], body_T_nav, rig, cam_cfg.vo_range_m, cam_cfg, rng)
+        panorama, hrc, this_site = (), (), None
+        if k in sites:
+            this_site, site_id = site_id, site_id + 1
+            panorama = tuple(
+                PanoramaFrame(
+                    float(p), float(np.deg2rad(t)),
+                    observe_stereo(
+                        field, poses[k], rig.body_T_left(p, np.deg2rad(t)), rig, site_range, cam_cfg, rng
+                    ),
+                )
+                for p in pans
+                for t in scenario.sites.tilts_deg
+            )
+            if scenario.sites.hrc and rig.hrc is not None:
+                hrc_tilt = np.deg2rad(scenario.sites.hrc_tilt_deg)
+                hrc = tuple(
+                    observe_hrc(field, poses[k], float(p), hrc_tilt, rig, site_range, cam_cfg, rng)
+                    for p in pans
+                )
+        gps = None
+        if (
+            scenario.gps.enabled
+            and k % scenario.gps.every_n_stops == 0
+            and not _in_ranges(s, scenario.gps.dropouts)
+        ):
+            gps = gps_fix(poses[k], time_s, scenario.gps, frame, rng)
+        stops.append(Stop(k, time_s, stereo, this_site, panorama, hrc, gps, dr))
+        if k in sites:
+            time_s += _SITE_DWELL_S
+
+    est = scenario.estimator
+    traverse = Traverse(
+        name=scenario.name,
+        rig=rig,
+        origin=frame,
+        stops=tuple(stops),
+        traverse_tilt_rad=float(tilt),
+        image_noise_px=cam_cfg.image_noise_px,
+        gps_lever_arm_m=np.asarray(scenario.gps.lever_arm_m, dtype=float),
+        start_world_T_body=poses[0].copy(),
+        start_sigmas=np.array([np.deg2rad(est.start_sigma_deg)] * 3 + [est.start_sigma_m] * 3),
+    )
+    return traverse, GroundTruth(world_T_body=poses, landmarks=field.points)

@@ -1,0 +1,121 @@
+"""The simulated world: a smoothed path with elevation, true rover poses at stops, sites,
+and a seeded landmark field on undulating terrain around the path."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..config import PathConfig, SitesConfig, TerrainConfig
+
+_DENSE_STEP_M = 0.25
+
+
+@dataclass(frozen=True)
+class DensePath:
+    """The path sampled every 0.25 m: positions (N, 3) and cumulative distance (N,)."""
+
+    points: np.ndarray
+    distance_m: np.ndarray
+
+    @property
+    def length_m(self) -> float:
+        return float(self.distance_m[-1])
+
+    def at(self, s: np.ndarray) -> np.ndarray:
+        return np.column_stack([np.interp(s, self.distance_m, self.points[:, i]) for i in range(3)])
+
+
+def _chaikin(points: np.ndarray, keep: set[int], iterations: int = 3) -> np.ndarray:
+    """Chaikin corner cutting that rounds every vertex except the end points and `keep`."""
+    pts = np.asarray(points, dtype=float)
+    fixed = {0, len(pts) - 1} | keep
+    for _ in range(iterations):
+        out, out_fixed = [pts[0]], {0}
+        for i in range(len(pts) - 1):
+            a, b = pts[i], pts[i + 1]
+            if i not in fixed:
+                out.append(0.75 * a + 0.25 * b)
+            if i + 1 in fixed:
+                out_fixed.add(len(out))
+                out.append(b)
+            else:
+                out.append(0.25 * a + 0.75 * b)
+        pts, fixed = np.array(out), out_fixed
+    return pts
+
+
+def dense_path(cfg: PathConfig) -> DensePath:
+    way = np.asarray(cfg.waypoints, dtype=float)
+    smooth = _chaikin(way, set(cfg.sharp_turns))
+    seg = np.linalg.norm(np.diff(smooth, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    n = max(int(s[-1] / _DENSE_STEP_M) + 1, 2)
+    grid = np.linspace(0.0, s[-1], n)
+    pts = np.column_stack([np.interp(grid, s, smooth[:, i]) for i in range(3)])
+    # A dense polyline keeps sharp corners sharp and gentle ones smooth.
+    return DensePath(points=pts, distance_m=grid)
+
+
+def stop_distances(path: DensePath, cfg: PathConfig, rng: np.random.Generator) -> np.ndarray:
+    lo, hi = cfg.stop_spacing_m
+    steps = rng.uniform(lo, hi, size=int(path.length_m / lo) + 2)
+    s = np.concatenate([[0.0], np.cumsum(steps)])
+    return s[s <= path.length_m]
+
+
+def site_stops(stop_s: np.ndarray, cfg: SitesConfig, rng: np.random.Generator) -> list[int]:
+    """Stop indices of sites: the first stop, then every 30-60 m (configurable) of path."""
+    sites = [0]
+    next_s = rng.uniform(*cfg.spacing_m)
+    for k, s in enumerate(stop_s):
+        if s >= next_s:
+            sites.append(k)
+            next_s = s + rng.uniform(*cfg.spacing_m)
+    return sites
+
+
+def rover_poses(path: DensePath, stop_s: np.ndarray) -> np.ndarray:
+    """world_T_body (N, 4, 4): heading along the path, pitch from its slope, gentle roll."""
+    look = 0.5  # m either side for the tangent; small enough to keep sharp corners sharp
+    ahead = path.at(np.minimum(stop_s + look, path.length_m))
+    behind = path.at(np.maximum(stop_s - look, 0.0))
+    here = path.at(stop_s)
+    # At a corner the rover faces the leg it is about to drive.
+    forward = np.where((stop_s + look <= path.length_m)[:, None], ahead - here, here - behind)
+    poses = np.zeros((len(stop_s), 4, 4))
+    for k, (p, d) in enumerate(zip(here, forward, strict=True)):
+        yaw = np.arctan2(d[1], d[0])
+        pitch = np.arctan2(d[2], np.hypot(d[0], d[1]))
+        roll = 0.03 * np.sin(stop_s[k] / 17.0)
+        rot = gtsam.Rot3.Ypr(yaw, -pitch, roll)  # body y is left: nose-up is a negative y rotation
+        poses[k] = gtsam.Pose3(rot, p).matrix()
+    return poses
+
+
+def landmark_field(path: DensePath, cfg: TerrainConfig, rng: np.random.Generator) -> np.ndarray:
+    """Landmarks (M, 3) uniformly in a corridor around the path, on undulating terrain;
+    thinned to nearly nothing along the featureless stretches."""
+    w = cfg.corridor_half_width_m
+    lo = path.points[:, :2].min(axis=0) - w
+    hi = path.points[:, :2].max(axis=0) + w
+    area = float(np.prod(hi - lo))
+    xy = rng.uniform(lo, hi, size=(rng.poisson(cfg.landmark_density_per_m2 * area), 2))
+    tree = cKDTree(path.points[:, :2])
+    dist, nearest = tree.query(xy)
+    keep = dist <= w
+    s_near = path.distance_m[nearest]
+    for a, b in cfg.featureless:
+        in_gap = (s_near >= a) & (s_near <= b)
+        keep &= ~in_gap | (rng.random(len(xy)) < cfg.featureless_density_factor)
+    xy, nearest = xy[keep], nearest[keep]
+    phase = rng.uniform(0, 2 * np.pi, size=4)
+    undulation = cfg.undulation_m * 0.5 * (
+        np.sin(xy[:, 0] / 23.0 + phase[0]) * np.cos(xy[:, 1] / 31.0 + phase[1])
+        + np.sin(xy[:, 0] / 11.0 + phase[2]) * np.sin(xy[:, 1] / 13.0 + phase[3])
+    )
+    z = path.points[nearest, 2] + undulation + rng.normal(0.0, cfg.roughness_m, len(xy))
+    return np.column_stack([xy, z])

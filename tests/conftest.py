@@ -1,0 +1,15 @@
+import pytest
+
+from pancam_graph.config import load_scenario, resolve_scenario
+from pancam_graph.pipeline import RunOptions, run
+
+
+@pytest.fixture(scope="session")
+def short_scenario():
+    return load_scenario(resolve_scenario("short_trail"))
+
+
+@pytest.fixture(scope="session")
+def short_run(short_scenario):
+    """All four configurations of the short scenario, seed 0 (shared by several tests)."""
+    return run(short_scenario, RunOptions(seed=0))

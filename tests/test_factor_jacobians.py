@@ -1,0 +1,96 @@
+"""Every factor the graph uses: analytic Jacobians (GTSAM's linearization) against central
+differences of the whitened error on the manifold."""
+
+import gtsam
+import numpy as np
+import pytest
+
+from pancam_graph.graph import factors, noise
+from pancam_graph.graph.keys import L, X
+from pancam_graph.rig import rig_preset
+
+RIG = rig_preset("exomars")
+POSE_A = gtsam.Pose3(gtsam.Rot3.Ypr(0.4, -0.05, 0.02), np.array([3.0, -2.0, 0.3]))
+POSE_B = gtsam.Pose3(gtsam.Rot3.Ypr(0.45, -0.03, 0.01), np.array([4.4, -1.5, 0.35]))
+
+
+def _perturb(values: gtsam.Values, key: int, delta: np.ndarray) -> gtsam.Values:
+    out = gtsam.Values(values)
+    if gtsam.Symbol(key).chr() == ord("x"):
+        out.update(key, values.atPose3(key).retract(delta))
+    else:
+        out.update(key, values.atPoint3(key) + delta)
+    return out
+
+
+def _check(factor, values, eps=1e-6, rtol=1e-5):
+    model = factor.noiseModel()
+
+    def whitened(v):
+        return model.whiten(factor.unwhitenedError(v))
+
+    analytic = factor.linearize(values).jacobian()[0]
+    numeric = []
+    for key in factor.keys():
+        dim = 6 if gtsam.Symbol(key).chr() == ord("x") else 3
+        for i in range(dim):
+            d = np.zeros(dim)
+            d[i] = eps
+            numeric.append((whitened(_perturb(values, key, d)) - whitened(_perturb(values, key, -d))) / (2 * eps))
+    numeric = np.column_stack(numeric)
+    scale = np.abs(analytic).max()
+    np.testing.assert_allclose(analytic, numeric, atol=rtol * scale)
+
+
+def _values(point=None):
+    v = gtsam.Values()
+    v.insert(X(0), POSE_A)
+    v.insert(X(1), POSE_B)
+    if point is not None:
+        v.insert(L(7), point)
+    return v
+
+
+def test_prior_jacobian():
+    f = factors.start_prior(POSE_B.matrix(), np.array([0.01, 0.01, 0.02, 0.1, 0.1, 0.1]))
+    _check(f, _values())
+
+
+def test_motion_jacobian_with_full_covariance():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(6, 6)) * 0.01
+    cov = a @ a.T + np.eye(6) * 1e-4
+    f = factors.motion(0, 1, POSE_A.between(POSE_B).compose(gtsam.Pose3.Expmap(np.full(6, 0.01))), cov)
+    _check(f, _values())
+
+
+@pytest.mark.parametrize("pan,tilt", [(0.0, -0.2), (2.1, -0.1), (-1.2, 0.3)])
+def test_stereo_jacobian_with_mast_mount(pan, tilt):
+    mount = RIG.body_T_left(pan, tilt)
+    world_cam = POSE_A.compose(mount)
+    point = world_cam.transformFrom(np.array([0.8, 0.3, 14.0]))
+    cam = gtsam.StereoCamera(world_cam, RIG.stereo_calibration())
+    measured = cam.project(point).vector() + np.array([0.7, -0.4, 0.5])
+    f = factors.stereo(0, 7, measured, RIG.stereo_calibration(), mount, noise.stereo_pixels(0.3))
+    _check(f, _values(point))
+
+
+def test_hrc_projection_jacobian():
+    mount = RIG.body_T_hrc(0.9, -0.08)
+    point = POSE_A.compose(mount).transformFrom(np.array([0.3, -0.2, 30.0]))
+    cam = gtsam.PinholeCameraCal3_S2(POSE_A.compose(mount), RIG.hrc.gtsam_calibration())
+    measured = cam.project(point) + np.array([2.0, -1.5])
+    f = factors.projection(0, 7, measured, RIG.hrc.gtsam_calibration(), mount, noise.image_pixels(0.3))
+    _check(f, _values(point))
+
+
+def test_gps_lever_arm_jacobian():
+    f = factors.gps(1, np.array([4.0, -1.0, 2.5]), np.array([0.1, -0.2, 1.8]), noise.gps_position(2.0, 3.0))
+    _check(f, _values())
+
+
+def test_gps_factor_uses_the_lever_arm():
+    lever = np.array([0.0, 0.0, 1.8])
+    antenna = POSE_A.transformFrom(lever)
+    f = factors.gps(0, antenna, lever, noise.gps_position(2.0, 3.0))
+    assert f.error(_values()) == pytest.approx(0.0, abs=1e-18)
