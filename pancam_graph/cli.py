@@ -113,32 +113,50 @@ def run_command(
 @app.command("bench")
 def bench_command(
     scenario: str = typer.Argument("denver_trail", help="bundled scenario name or path to a TOML file"),
-    seed: int | None = typer.Option(None, "--seed"),
+    seed: int | None = typer.Option(None, "--seed", help="first seed (default: the scenario's)"),
+    seeds: int = typer.Option(1, "--seeds", min=1, help="run this many consecutive seeds and summarise"),
 ) -> None:
-    """Time a full run (all configurations) and print one JSON object."""
+    """Time full runs (all configurations) and print one JSON object."""
     try:
         sc = _load(scenario)
-        start = time.perf_counter()
-        result = run(sc, RunOptions(seed=seed))
-        wall = time.perf_counter() - start
+        first = sc.seed if seed is None else seed
+        results, walls = [], []
+        for s in range(first, first + seeds):
+            start = time.perf_counter()
+            results.append(run(sc, RunOptions(seed=s)))
+            walls.append(time.perf_counter() - start)
+            if seeds > 1:
+                console.print(f"seed {s}: {walls[-1]:.1f} s")
     except PancamGraphError as exc:
         raise _fail(exc) from None
-    ms = result.update_ms
+    ms = np.concatenate([r.update_ms for r in results])
     report = {
         "scenario": sc.name,
-        "seed": result.seed,
-        "stops": len(result.traverse.stops),
-        "configurations": list(result.configurations),
+        "seeds": [r.seed for r in results],
+        "stops": [len(r.traverse.stops) for r in results],
         "isam2_update_ms": {"median": float(np.median(ms)), "p99": float(np.percentile(ms, 99)),
                             "max": float(ms.max()), "count": int(len(ms))},
         "isam2_update_ms_per_config": {
-            n: {"median": float(np.median(c.update_ms)), "p99": float(np.percentile(c.update_ms, 99))}
-            for n, c in result.configurations.items()
+            n: {"median": float(np.median(np.concatenate([r.configurations[n].update_ms for r in results]))),
+                "p99": float(np.percentile(np.concatenate([r.configurations[n].update_ms for r in results]), 99))}
+            for n in results[0].configurations
         },
-        "vo_s": result.vo_s,
-        "wall_s": wall,
+        "vo_s": float(np.mean([r.vo_s for r in results])),
+        "wall_s": float(np.mean(walls)),
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
     }
+    if seeds > 1:
+        report["over_seeds"] = {
+            n: {
+                stat: {"mean": float(np.mean(v)), "std": float(np.std(v)), "max": float(np.max(v))}
+                for stat, v in (
+                    ("relative_closure_pct", [r.configurations[n].metrics.relative_closure_pct for r in results]),
+                    ("ate_rmse_m", [r.configurations[n].metrics.ate_rmse_m for r in results]),
+                    ("bridged_stops", [r.configurations[n].bridged_stops for r in results]),
+                )
+            }
+            for n in results[0].configurations
+        }
     print(json.dumps(report, indent=2))
 
 

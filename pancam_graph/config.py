@@ -105,6 +105,7 @@ class EstimatorConfig(_Strict):
     vo_ransac_px: float = Field(1.5, gt=0.0)
     vo_max_step_m: float = Field(5.0, gt=0.0)
     tie_points_per_site: int = Field(150, ge=3)
+    hrc_gate_px: float = Field(30.0, gt=0.0, description="HRC measurement vs WAC landmark prediction")
     tie_kernel: Literal["huber", "cauchy", "none"] = "huber"
     gps_kernel: Literal["huber", "cauchy", "none"] = "huber"
     start_sigma_deg: float = Field(0.05, gt=0.0)

@@ -60,6 +60,7 @@ class Localizer:
         # HRC residuals start large (landmarks come from the WAC), so only a convex kernel keeps
         # them pulling: Huber, whatever the tie-point kernel is.
         self.hrc_noise = noise.robust("huber", noise.image_pixels(traverse.image_noise_px))
+        self.hrc_gate_px = estimator.hrc_gate_px
         self.gps_kernel = estimator.gps_kernel
         self.tie_points_per_site = estimator.tie_points_per_site
         self.rng = np.random.default_rng(seed)
@@ -68,6 +69,7 @@ class Localizer:
         self.stops: list[int] = []
         self.bridged_stops = 0
         self.rejected_ties = 0
+        self.rejected_hrc = 0
         self.gps_fixes_used = 0
 
     # -- the step ---------------------------------------------------------------------------
@@ -144,6 +146,7 @@ class Localizer:
                 rejected += 1
                 continue
             self.smoother.insert(L(track), p_then)
+            self.smoother.add(factors.landmark_anchor(track, p_then))
             self.landmarks.add(track)
             for site in recent:
                 self._add_observations(site, track)
@@ -159,7 +162,19 @@ class Localizer:
     def _add_observations(self, site: _SiteObservations, track: int) -> None:
         for mount, uvv in site.stereo.get(track, ()):
             self.smoother.add(factors.stereo(site.stop, track, uvv, self.stereo_calibration, mount, self.tie_noise))
-        for mount, uv in site.hrc.get(track, ()):
+        hrc = site.hrc.get(track, ())
+        if not hrc:
+            return
+        p_world = self.smoother.point(L(track))
+        world_T_body = self.smoother.pose(X(site.stop))
+        for mount, uv in hrc:
+            # An HRC false match pulls harder than the WAC can resist (7x the angular
+            # resolution), so HRC measurements must agree with the WAC landmark first.
+            camera = gtsam.PinholeCameraCal3_S2(world_T_body.compose(mount), self.hrc_calibration)
+            p_cam = camera.pose().transformTo(p_world)
+            if p_cam[2] <= 0 or np.linalg.norm(camera.project(p_world) - uv) > self.hrc_gate_px:
+                self.rejected_hrc += 1
+                continue
             self.smoother.add(factors.projection(site.stop, track, uv, self.hrc_calibration, mount, self.hrc_noise))
 
     # -- GPS -------------------------------------------------------------------------------

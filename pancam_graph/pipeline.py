@@ -53,6 +53,7 @@ class ConfigurationResult:
     bridged_stops: int
     landmarks: int
     rejected_tie_points: int
+    rejected_hrc_measurements: int
     gps_fixes_used: int
     solver: str
     metrics: TrajectoryMetrics
@@ -135,6 +136,7 @@ def run(scenario: Scenario, options: RunOptions = RunOptions(), progress: Progre
             bridged_stops=localizer.bridged_stops,
             landmarks=len(localizer.landmarks),
             rejected_tie_points=localizer.rejected_ties,
+            rejected_hrc_measurements=localizer.rejected_hrc,
             gps_fixes_used=localizer.gps_fixes_used,
             solver="isam2+batch_lm" if options.batch else "isam2",
             metrics=compare(poses[:, :3, 3], truth.positions, alignment, poses, truth.world_T_body),
@@ -157,6 +159,7 @@ def metrics_document(result: RunResult) -> dict:
             bridged_stops=c.bridged_stops,
             landmarks=c.landmarks,
             rejected_tie_points=c.rejected_tie_points,
+            rejected_hrc_measurements=c.rejected_hrc_measurements,
             gps_fixes_used=c.gps_fixes_used,
             solver=c.solver,
             isam2_update_ms=_percentiles(c.update_ms),

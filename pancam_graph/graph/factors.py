@@ -20,6 +20,11 @@ def motion(i: int, j: int, prev_T_curr: gtsam.Pose3, covariance: np.ndarray) -> 
     return gtsam.BetweenFactorPose3(X(i), X(j), prev_T_curr, noise.pose_covariance(covariance))
 
 
+def landmark_anchor(track: int, p_world: np.ndarray) -> gtsam.PriorFactorPoint3:
+    """Weak prior holding a new landmark near its first triangulation (see noise.landmark_anchor)."""
+    return gtsam.PriorFactorPoint3(L(track), np.asarray(p_world, dtype=float), noise.landmark_anchor())
+
+
 def stereo(
     stop: int, track: int, uvv: np.ndarray, calibration: gtsam.Cal3_S2Stereo, body_T_left: gtsam.Pose3,
     model: gtsam.noiseModel.Base,

@@ -43,6 +43,14 @@ def pose_covariance(cov: np.ndarray) -> gtsam.noiseModel.Base:
     return gtsam.noiseModel.Gaussian.Covariance(cov)
 
 
+def landmark_anchor(sigma_m: float = 3.0) -> gtsam.noiseModel.Base:
+    """Weak prior (m) on a landmark at its first triangulation. Worth ~1/1000 of its stereo
+    factors, so it does not bias the estimate; it keeps the landmark's block non-singular if a
+    Gauss-Newton step carries it behind the cameras, where stereo factors give zero Jacobians
+    (denver_trail seed 18 diverged to 1e168 m and then stopped iSAM2 without it)."""
+    return gtsam.noiseModel.Isotropic.Sigma(3, sigma_m)
+
+
 def gps_position(sigma_horizontal_m: float, sigma_vertical_m: float) -> gtsam.noiseModel.Base:
     """ENU position noise of a GPS fix in metres."""
     return gtsam.noiseModel.Diagonal.Sigmas(

@@ -65,10 +65,24 @@ class Smoother:
     def pose(self, key: int) -> gtsam.Pose3:
         if self._new_values.exists(key):
             return self._new_values.atPose3(key)
-        return self.isam.calculateEstimatePose3(key)
+        try:
+            return self.isam.calculateEstimatePose3(key)
+        except RuntimeError as exc:
+            raise GraphError(f"iSAM2 estimate of {gtsam.Symbol(key).string()} failed: {exc}") from None
+
+    def point(self, key: int) -> np.ndarray:
+        if self._new_values.exists(key):
+            return self._new_values.atPoint3(key)
+        try:
+            return self.isam.calculateEstimatePoint3(key)
+        except RuntimeError as exc:
+            raise GraphError(f"iSAM2 estimate of {gtsam.Symbol(key).string()} failed: {exc}") from None
 
     def estimate(self) -> gtsam.Values:
-        return self.isam.calculateEstimate()
+        try:
+            return self.isam.calculateEstimate()
+        except RuntimeError as exc:
+            raise GraphError(f"iSAM2 estimate failed: {exc}") from None
 
     def batch_polish(self, start: gtsam.Values, max_iterations: int = 50) -> gtsam.Values:
         """Levenberg-Marquardt over the whole graph, started from `start`."""
