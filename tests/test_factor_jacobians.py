@@ -94,3 +94,10 @@ def test_gps_factor_uses_the_lever_arm():
     antenna = POSE_A.transformFrom(lever)
     f = factors.gps(0, antenna, lever, noise.gps_position(2.0, 3.0))
     assert f.error(_values()) == pytest.approx(0.0, abs=1e-18)
+
+
+def test_landmark_anchor_jacobian():
+    f = factors.landmark_anchor(7, np.array([10.0, 4.0, 1.0]))
+    v = gtsam.Values()
+    v.insert(L(7), np.array([10.5, 3.0, 1.2]))
+    _check(f, v)
