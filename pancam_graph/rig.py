@@ -8,7 +8,6 @@ and tilt (about the panned y axis, positive looks up); camera frames are OpenCV
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import gtsam
@@ -33,14 +32,6 @@ class Camera:
     k2: float = 0.0
     p1: float = 0.0
     p2: float = 0.0
-
-    @property
-    def hfov_rad(self) -> float:
-        return 2.0 * math.atan(self.width / (2.0 * self.fx))
-
-    @property
-    def vfov_rad(self) -> float:
-        return 2.0 * math.atan(self.height / (2.0 * self.fy))
 
     @property
     def ifov_rad(self) -> float:
