@@ -63,18 +63,17 @@ class Smoother:
             self.isam.update()
 
     def pose(self, key: int) -> gtsam.Pose3:
-        if self._new_values.exists(key):
-            return self._new_values.atPose3(key)
-        try:
-            return self.isam.calculateEstimatePose3(key)
-        except RuntimeError as exc:
-            raise GraphError(f"iSAM2 estimate of {gtsam.Symbol(key).string()} failed: {exc}") from None
+        return self._current(key, gtsam.Values.atPose3, gtsam.ISAM2.calculateEstimatePose3)
 
     def point(self, key: int) -> np.ndarray:
+        return self._current(key, gtsam.Values.atPoint3, gtsam.ISAM2.calculateEstimatePoint3)
+
+    def _current(self, key: int, pending_getter, estimate_getter):
+        """A variable's value: its initial value if not yet in iSAM2, else the current estimate."""
         if self._new_values.exists(key):
-            return self._new_values.atPoint3(key)
+            return pending_getter(self._new_values, key)
         try:
-            return self.isam.calculateEstimatePoint3(key)
+            return estimate_getter(self.isam, key)
         except RuntimeError as exc:
             raise GraphError(f"iSAM2 estimate of {gtsam.Symbol(key).string()} failed: {exc}") from None
 
