@@ -16,7 +16,7 @@ from rich.table import Table
 
 from .config import ConfigError, dump_scenario, load_scenario, resolve_scenario
 from .errors import PancamGraphError
-from .pipeline import RunOptions, RunResult, metrics_document, run
+from .pipeline import RunOptions, RunResult, metrics_document, percentiles, run
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="Rover localization over long traverses with a GTSAM factor graph.")
@@ -134,11 +134,9 @@ def bench_command(
         "scenario": sc.name,
         "seeds": [r.seed for r in results],
         "stops": [len(r.traverse.stops) for r in results],
-        "isam2_update_ms": {"median": float(np.median(ms)), "p99": float(np.percentile(ms, 99)),
-                            "max": float(ms.max()), "count": int(len(ms))},
+        "isam2_update_ms": {**percentiles(ms), "count": int(len(ms))},
         "isam2_update_ms_per_config": {
-            n: {"median": float(np.median(np.concatenate([r.configurations[n].update_ms for r in results]))),
-                "p99": float(np.percentile(np.concatenate([r.configurations[n].update_ms for r in results]), 99))}
+            n: percentiles(np.concatenate([r.configurations[n].update_ms for r in results]))
             for n in results[0].configurations
         },
         "vo_s": float(np.mean([r.vo_s for r in results])),

@@ -104,10 +104,7 @@ def run(scenario: Scenario, options: RunOptions = RunOptions(), progress: Progre
     traverse, truth = simulate(scenario, seed)
     n = len(traverse.stops)
     est = scenario.estimator
-    vo = StereoVO(
-        traverse.rig, traverse.rig.body_T_left(0.0, traverse.traverse_tilt_rad), traverse.image_noise_px,
-        min_inliers=est.vo_min_inliers, ransac_px=est.vo_ransac_px, max_step_m=est.vo_max_step_m,
-    )
+    vo = StereoVO.for_traverse(traverse, est)
     names = options.configurations()
     localizers = {name: Localizer(traverse, CONFIGURATIONS[name], est, seed=seed) for name in names}
 
@@ -145,7 +142,7 @@ def run(scenario: Scenario, options: RunOptions = RunOptions(), progress: Progre
     return RunResult(scenario, seed, traverse, truth, motions, results, time.perf_counter() - start, vo_s)
 
 
-def _percentiles(ms: np.ndarray) -> dict[str, float]:
+def percentiles(ms: np.ndarray) -> dict[str, float]:
     return {"median": float(np.median(ms)), "p99": float(np.percentile(ms, 99)), "max": float(ms.max())}
 
 
@@ -162,7 +159,7 @@ def metrics_document(result: RunResult) -> dict:
             rejected_hrc_measurements=c.rejected_hrc_measurements,
             gps_fixes_used=c.gps_fixes_used,
             solver=c.solver,
-            isam2_update_ms=_percentiles(c.update_ms),
+            isam2_update_ms=percentiles(c.update_ms),
             vs_gps=c.metrics_vs_gps.as_dict() if c.metrics_vs_gps is not None else None,
         )
         configs[name] = entry
@@ -181,7 +178,7 @@ def metrics_document(result: RunResult) -> dict:
         },
         "configs": configs,
         "timing": {
-            "isam2_update_ms": _percentiles(result.update_ms),
+            "isam2_update_ms": percentiles(result.update_ms),
             "vo_s": result.vo_s,
             "wall_s": result.wall_s,
         },

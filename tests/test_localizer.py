@@ -10,7 +10,7 @@ from pancam_graph.sim import simulate
 
 def _solve(scenario, options, seed=4):
     traverse, truth = simulate(scenario, seed)
-    vo = StereoVO(traverse.rig, traverse.rig.body_T_left(0.0, traverse.traverse_tilt_rad), traverse.image_noise_px)
+    vo = StereoVO.for_traverse(traverse, scenario.estimator)
     loc = Localizer(traverse, options, scenario.estimator)
     last = None
     for k, stop in enumerate(traverse.stops):

@@ -9,17 +9,13 @@ from pancam_graph.sim import simulate
 THREE_SIGMA_6DOF = chi2.ppf(0.9973, 6)  # the 6-D counterpart of "within 3 sigma"
 
 
-def _vo(traverse):
-    return StereoVO(traverse.rig, traverse.rig.body_T_left(0.0, traverse.traverse_tilt_rad), traverse.image_noise_px)
-
-
 def test_vo_poses_within_reported_three_sigma(short_scenario):
     """Hundreds of simulated two-stop trials (with 5 % outlier matches): the VO error is inside
     the reported covariance's 3-sigma region in at least 95 % of them."""
     d2 = []
     for seed in (1, 2):
         traverse, truth = simulate(short_scenario, seed)
-        vo = _vo(traverse)
+        vo = StereoVO.for_traverse(traverse)
         for k in range(1, len(traverse.stops)):
             r = vo.estimate(traverse.stops[k - 1].stereo, traverse.stops[k].stereo)
             if not r.ok:
@@ -36,7 +32,7 @@ def test_vo_poses_within_reported_three_sigma(short_scenario):
 
 def test_vo_fails_at_sharp_turn_and_is_bridged_by_dead_reckoning(short_scenario):
     traverse, truth = simulate(short_scenario, 0)
-    vo = _vo(traverse)
+    vo = StereoVO.for_traverse(traverse)
     motions, last = [], None
     for k in range(1, len(traverse.stops)):
         last = motion_between(vo, traverse.stops[k - 1], traverse.stops[k], last)
@@ -58,5 +54,5 @@ def test_vo_without_matches_reports_failure(short_scenario):
     traverse, _ = simulate(short_scenario, 0)
     from pancam_graph.records import StereoObservations
 
-    r = _vo(traverse).estimate(traverse.stops[0].stereo, StereoObservations.empty())
+    r = StereoVO.for_traverse(traverse).estimate(traverse.stops[0].stereo, StereoObservations.empty())
     assert not r.ok and "matches" in r.reason

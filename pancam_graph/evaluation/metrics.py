@@ -27,7 +27,6 @@ class TrajectoryMetrics:
     drift_translation_pct: float | None = None  # KITTI-style, mean over segments
     drift_rotation_deg_per_m: float | None = None
     drift_segments_m: list[float] = field(default_factory=list)
-    note: str = ""
 
     def as_dict(self) -> dict:
         return asdict(self)

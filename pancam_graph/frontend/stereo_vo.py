@@ -15,9 +15,10 @@ import cv2
 import gtsam
 import numpy as np
 
+from ..config import EstimatorConfig
 from ..graph import noise
 from ..graph.keys import L, X
-from ..records import StereoObservations
+from ..records import StereoObservations, Traverse
 from ..rig import Rig, triangulate_rectified
 
 _CHI2_6DOF_99 = 16.812  # a point's two stereo residuals (2 x 3 px components): outlier gate
@@ -47,6 +48,15 @@ class StereoVO:
         self.min_inliers = min_inliers
         self.ransac_px = max(ransac_px, 4.0 * pixel_sigma)
         self.max_step_m = max_step_m
+
+    @classmethod
+    def for_traverse(cls, traverse: Traverse, estimator: EstimatorConfig | None = None) -> StereoVO:
+        """The VO of a traverse's navigation stereo pair (pan 0, traverse tilt)."""
+        est = estimator or EstimatorConfig()
+        return cls(
+            traverse.rig, traverse.rig.body_T_left(0.0, traverse.traverse_tilt_rad), traverse.image_noise_px,
+            min_inliers=est.vo_min_inliers, ransac_px=est.vo_ransac_px, max_step_m=est.vo_max_step_m,
+        )
 
     def estimate(self, prev: StereoObservations, curr: StereoObservations) -> VoResult:
         _, ip, ic = np.intersect1d(prev.track_ids, curr.track_ids, assume_unique=True, return_indices=True)

@@ -39,9 +39,6 @@ class Smoother:
     def insert(self, key: int, value) -> None:
         self._new_values.insert(key, value)
 
-    def exists(self, key: int) -> bool:
-        return self._new_values.exists(key) or self.isam.valueExists(key)
-
     def update(self, context: str = "") -> float:
         """One iSAM2 update with the collected factors; returns its wall time in ms."""
         start = time.perf_counter()
