@@ -14,9 +14,9 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from .config import ConfigError, dump_scenario, load_scenario, resolve_scenario
+from .config import ConfigError, load_scenario, resolve_scenario
 from .errors import PancamGraphError
-from .pipeline import RunOptions, RunResult, metrics_document, percentiles, run
+from .pipeline import RunOptions, RunResult, percentiles, run
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="Rover localization over long traverses with a GTSAM factor graph.")
@@ -29,12 +29,12 @@ def _load(scenario: str):
     return load_scenario(resolve_scenario(scenario))
 
 
-def _fail(exc: PancamGraphError) -> typer.Exit:
-    console.print(f"[bold red]error:[/] {exc}", markup=True, highlight=False)
-    return typer.Exit(EXIT_USAGE if isinstance(exc, ConfigError) else EXIT_FAILURE)
+def _fail(exc: PancamGraphError, bad_input: bool = False) -> typer.Exit:
+    console.print(f"[bold red]error:[/] {exc}", markup=True, highlight=False, soft_wrap=True)
+    return typer.Exit(EXIT_USAGE if bad_input or isinstance(exc, ConfigError) else EXIT_FAILURE)
 
 
-def _run_with_progress(scenario, options: RunOptions, quiet: bool = False) -> RunResult:
+def _run_with_progress(scenario, options: RunOptions, quiet: bool = False, listener=None) -> RunResult:
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=console, transient=True, disable=quiet) as bar:
         task = bar.add_task(f"{scenario.name}: stops", total=None)
@@ -42,7 +42,39 @@ def _run_with_progress(scenario, options: RunOptions, quiet: bool = False) -> Ru
         def report(stage: str, done: int, total: int) -> None:
             bar.update(task, description=f"{scenario.name}: {stage}", completed=done, total=total)
 
-        return run(scenario, options, progress=report)
+        return run(scenario, options, progress=report, listener=listener)
+
+
+RERUN_HELP = ("rerun viewer: 'spawn', 'save' (recording.rrd in the results folder), 'save:FILE.rrd', "
+              "'serve' (gRPC + web viewer), 'connect:URL' (a running viewer, e.g. rerun+http://host:9876/proxy)")
+
+
+def _rerun_target(text: str, memory_limit: str):
+    """Parse --rerun; bad values are usage errors. `save` alone leaves the path to the caller."""
+    from .viz.rerun_sink import RerunTarget
+
+    mode, _, arg = text.partition(":")
+    if mode in ("spawn", "serve") and not arg:
+        return RerunTarget(mode, memory_limit=memory_limit)
+    if mode == "save":
+        if arg and not arg.endswith(".rrd"):
+            raise ConfigError(f"--rerun save:{arg}: the recording file must end in .rrd")
+        return RerunTarget("save", path=Path(arg) if arg else None)
+    if mode == "connect":
+        return RerunTarget("connect", url=arg or None)
+    raise ConfigError(f"--rerun {text!r}: expected spawn, save, save:FILE.rrd, serve or connect:URL")
+
+
+def _serve_until_interrupted(url: str | None) -> None:
+    import rerun as rr
+
+    rr.serve_web_viewer(connect_to=url, open_browser=False)
+    console.print(f"rerun: serving {url}; web viewer on http://localhost:9090 (Ctrl-C to stop)")
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
 
 
 def _summary_table(result: RunResult) -> Table:
@@ -62,29 +94,6 @@ def _summary_table(result: RunResult) -> Table:
     return table
 
 
-def _write_results(result: RunResult, out: Path) -> None:
-    from .io.results import results_folder, write_csv, write_json, write_tum
-    from .viz.plots import plot_error_vs_distance, plot_trajectories
-
-    times = np.array([s.time_s for s in result.traverse.stops])
-    with results_folder(out) as folder:
-        (folder / "scenario.toml").write_text(dump_scenario(result.scenario), encoding="utf-8")
-        write_json(folder / "metrics.json", metrics_document(result))
-        write_tum(folder / "truth.tum", times, result.truth.world_T_body)
-        for name, c in result.configurations.items():
-            write_tum(folder / f"trajectory_{name}.tum", times, c.world_T_body)
-        write_csv(folder / "gps_fixes.csv",
-                  ["stop", "time_s", "lat_deg", "lon_deg", "h_ellipsoidal_m", "sigma_h_m", "sigma_v_m"],
-                  [(s.index, s.time_s, f"{s.gps.lat_deg:.9f}", f"{s.gps.lon_deg:.9f}", f"{s.gps.h_m:.4f}",
-                    s.gps.sigma_horizontal_m, s.gps.sigma_vertical_m)
-                   for s in result.traverse.stops if s.gps is not None])
-        write_csv(folder / "motions.csv", ["stop", "source", "vo_inliers", "vo_failure"],
-                  [(k, m.source, m.vo_inliers, m.vo_failure)
-                   for k, m in enumerate(result.motions) if m is not None])
-        plot_trajectories(result, folder / "trajectories.png")
-        plot_error_vs_distance(result, folder / "error_vs_distance.png")
-
-
 @app.command("run")
 def run_command(
     scenario: str = typer.Argument("denver_trail", help="bundled scenario name or path to a TOML file"),
@@ -95,19 +104,85 @@ def run_command(
     no_hrc: bool = typer.Option(False, "--no-hrc", help="skip configurations that use the HRC"),
     batch: bool = typer.Option(False, "--batch", help="polish every estimate with batch Levenberg-Marquardt"),
     quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
+    rerun: str | None = typer.Option(None, "--rerun", help=RERUN_HELP),
+    viewer_memory: str = typer.Option("25%", "--viewer-memory", help="memory limit of a spawned or served viewer"),
 ) -> None:
-    """Simulate a traverse, solve every configuration with iSAM2, compare with truth and GPS."""
+    """Simulate a traverse, solve every configuration with iSAM2, compare with truth and GPS.
+
+    Writes metrics.json, trajectories (TUM), covariances, landmarks, per-stop steps, plots and
+    report.md into the results folder; a failed run leaves <out>.partial with what was done.
+    """
+    from .io.results import results_folder, write_run
+    from .viz.report import write_report
+
+    recording = None
     try:
         sc = _load(scenario)
         options = RunOptions(seed=seed, use_gps=not no_gps, use_sites=not no_sites, use_hrc=not no_hrc, batch=batch)
         seed_used = sc.seed if seed is None else seed
         out = out or Path("results") / f"{sc.name}-seed{seed_used}-{datetime.now():%Y%m%d-%H%M%S}"
-        result = _run_with_progress(sc, options, quiet)
-        _write_results(result, out)
+        target = _rerun_target(rerun, viewer_memory) if rerun is not None else None
+        with results_folder(out) as folder:
+            listener = None
+            if target is not None:
+                from dataclasses import replace
+
+                from .viz.rerun_live import RerunRecorder
+                from .viz.rerun_sink import open_recording
+
+                if target.mode == "save" and target.path is None:
+                    target = replace(target, path=folder / "recording.rrd")
+                recording = open_recording(target, f"{sc.name} seed {seed_used}")
+                listener = RerunRecorder(recording.stream)
+            try:
+                result = _run_with_progress(sc, options, quiet, listener)
+                write_run(result, folder)
+                report = write_report(result, folder)
+            finally:
+                if recording is not None:  # also on failure: keep what was recorded
+                    recording.close()
     except PancamGraphError as exc:
         raise _fail(exc) from None
     Console(width=150).print(_summary_table(result))
-    console.print(f"wall {result.wall_s:.1f} s; results in {out}")
+    console.print(f"wall {result.wall_s:.1f} s; results in {out} (report: {out / report.name})")
+    if recording is not None and recording.target.mode == "save":
+        path = recording.target.path
+        shown = out / path.name if path.parent == folder else path
+        console.print(f"rerun recording: {shown} (open with `rerun {shown}` or `pancam-graph view {out}`)")
+    if recording is not None and recording.target.mode == "serve":
+        _serve_until_interrupted(recording.served_url)
+
+
+@app.command("view")
+def view_command(
+    results: Path = typer.Argument(..., help="a results folder written by `pancam-graph run`"),
+    rerun: str = typer.Option("spawn", "--rerun", help=RERUN_HELP.replace("results folder", "results folder's name")),
+    viewer_memory: str = typer.Option("25%", "--viewer-memory", help="memory limit of a spawned or served viewer"),
+) -> None:
+    """Replay a finished results folder into rerun with the live run's layout."""
+    from dataclasses import replace
+
+    from .io.results import read_run
+    from .viz.rerun_replay import replay
+    from .viz.rerun_sink import open_recording
+
+    try:
+        target = _rerun_target(rerun, viewer_memory)
+        if target.mode == "save" and target.path is None:
+            target = replace(target, path=results / "replay.rrd")
+        try:
+            saved = read_run(results)
+        except PancamGraphError as exc:  # the folder given is the input: a usage error
+            raise _fail(exc, bad_input=True) from None
+        recording = open_recording(target, f"{saved.scenario.name} (replay of {results.name})")
+        replay(saved, recording.stream)
+        recording.close()
+    except PancamGraphError as exc:
+        raise _fail(exc) from None
+    if target.mode == "save":
+        console.print(f"rerun recording: {target.path}")
+    elif target.mode == "serve":
+        _serve_until_interrupted(recording.served_url)
 
 
 @app.command("bench")
@@ -115,18 +190,23 @@ def bench_command(
     scenario: str = typer.Argument("denver_trail", help="bundled scenario name or path to a TOML file"),
     seed: int | None = typer.Option(None, "--seed", help="first seed (default: the scenario's)"),
     seeds: int = typer.Option(1, "--seeds", min=1, help="run this many consecutive seeds and summarise"),
+    rerun: bool = typer.Option(False, "--rerun", help="also time each run with `--rerun save` (alternating) "
+                                                      "and report the overhead"),
 ) -> None:
     """Time full runs (all configurations) and print one JSON object."""
     try:
         sc = _load(scenario)
         first = sc.seed if seed is None else seed
-        results, walls = [], []
+        results, walls, recorded_walls = [], [], []
         for s in range(first, first + seeds):
             start = time.perf_counter()
             results.append(run(sc, RunOptions(seed=s)))
             walls.append(time.perf_counter() - start)
-            if seeds > 1:
-                console.print(f"seed {s}: {walls[-1]:.1f} s")
+            if rerun:
+                recorded_walls.append(_time_recorded_run(sc, s))
+            if seeds > 1 or rerun:
+                extra = f", with --rerun save {recorded_walls[-1]:.1f} s" if rerun else ""
+                console.print(f"seed {s}: {walls[-1]:.1f} s{extra}")
     except PancamGraphError as exc:
         raise _fail(exc) from None
     ms = np.concatenate([r.update_ms for r in results])
@@ -143,6 +223,12 @@ def bench_command(
         "wall_s": float(np.mean(walls)),
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
     }
+    if rerun:
+        report["rerun_save"] = {
+            "wall_s": float(np.mean(recorded_walls)),
+            "overhead_pct": 100.0 * (float(np.median(recorded_walls)) / float(np.median(walls)) - 1.0),
+            "note": "median wall with a RerunRecorder saving to a temporary .rrd vs without, same seeds",
+        }
     if seeds > 1:
         report["over_seeds"] = {
             n: {
@@ -156,6 +242,20 @@ def bench_command(
             for n in results[0].configurations
         }
     print(json.dumps(report, indent=2))
+
+
+def _time_recorded_run(scenario, seed: int) -> float:
+    import tempfile
+
+    from .viz.rerun_live import RerunRecorder
+    from .viz.rerun_sink import RerunTarget, open_recording
+
+    with tempfile.TemporaryDirectory() as tmp:
+        start = time.perf_counter()
+        recording = open_recording(RerunTarget("save", path=Path(tmp) / "bench.rrd"), "bench")
+        run(scenario, RunOptions(seed=seed), listener=RerunRecorder(recording.stream))
+        recording.close()
+        return time.perf_counter() - start
 
 
 @app.command("scenarios")

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
+from scipy.stats import chi2
 
 from .config import EstimatorConfig
 from .frontend.motion import Motion
@@ -17,6 +18,9 @@ from .records import Stop, Traverse
 from .rig import triangulate_rectified
 
 _SITE_MEMORY = 3  # earlier sites searched for tie points
+# A GPS fix whose residual at the updated estimate fails this 3-dof chi-square test is
+# flagged as an outlier (the robust kernel has already down-weighted it).
+GPS_OUTLIER_GATE = float(chi2.ppf(0.99, 3))
 
 
 @dataclass(frozen=True)
@@ -39,11 +43,29 @@ class _SiteObservations:
 
 @dataclass(frozen=True)
 class StepResult:
+    """What one stop's iSAM2 update did."""
+
     stop: int
     update_ms: float
+    relinearized: int  # variables iSAM2 relinearized in this update
     new_landmarks: int
     rejected_ties: int
-    gps_used: bool
+    gps_mahalanobis2: float | None  # squared Mahalanobis distance of this stop's fix after the update
+    gps_outlier: bool
+
+    @property
+    def gps_used(self) -> bool:
+        return self.gps_mahalanobis2 is not None
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """The current estimate of one configuration: every pose so far and every landmark."""
+
+    stops: np.ndarray  # (N,)
+    world_T_body: np.ndarray  # (N, 4, 4)
+    landmark_ids: np.ndarray  # (M,)
+    landmarks: np.ndarray  # (M, 3) world
 
 
 class Localizer:
@@ -66,11 +88,13 @@ class Localizer:
         self.rng = np.random.default_rng(seed)
         self.sites: list[_SiteObservations] = []
         self.landmarks: set[int] = set()
+        self.landmark_sites: dict[int, list[int]] = defaultdict(list)  # track -> site stops seeing it
         self.stops: list[int] = []
         self.bridged_stops = 0
         self.rejected_ties = 0
         self.rejected_hrc = 0
         self.gps_fixes_used = 0
+        self.gps_outliers = 0
 
     # -- the step ---------------------------------------------------------------------------
 
@@ -89,12 +113,14 @@ class Localizer:
         new_landmarks = rejected = 0
         if stop.is_site and self.options.use_sites:
             new_landmarks, rejected = self._add_site(stop)
-        gps_used = False
+        gps_enu = None
         if stop.gps is not None and self.options.use_gps:
-            self._add_gps(stop)
-            gps_used = True
+            gps_enu = self._add_gps(stop)
         ms = self.smoother.update(context=f"at stop {k}")
-        return StepResult(k, ms, new_landmarks, rejected, gps_used)
+        d2 = self._gps_mahalanobis2(stop, gps_enu) if gps_enu is not None else None
+        outlier = d2 is not None and d2 > GPS_OUTLIER_GATE
+        self.gps_outliers += outlier
+        return StepResult(k, ms, self.smoother.relinearized[-1], new_landmarks, rejected, d2, outlier)
 
     # -- sites: tie points between panoramas ------------------------------------------------
 
@@ -160,8 +186,11 @@ class Localizer:
         return added, rejected
 
     def _add_observations(self, site: _SiteObservations, track: int) -> None:
-        for mount, uvv in site.stereo.get(track, ()):
+        stereo = site.stereo.get(track, ())
+        for mount, uvv in stereo:
             self.smoother.add(factors.stereo(site.stop, track, uvv, self.stereo_calibration, mount, self.tie_noise))
+        if stereo:
+            self.landmark_sites[track].append(site.stop)
         hrc = site.hrc.get(track, ())
         if not hrc:
             return
@@ -179,12 +208,45 @@ class Localizer:
 
     # -- GPS -------------------------------------------------------------------------------
 
-    def _add_gps(self, stop: Stop) -> None:
+    def _add_gps(self, stop: Stop) -> np.ndarray:
         fix = stop.gps
         enu = self.traverse.origin.to_enu(fix.lat_deg, fix.lon_deg, fix.h_m)[0]
         model = noise.robust(self.gps_kernel, noise.gps_position(fix.sigma_horizontal_m, fix.sigma_vertical_m))
         self.smoother.add(factors.gps(stop.index, enu, self.traverse.gps_lever_arm_m, model))
         self.gps_fixes_used += 1
+        return enu
+
+    def _gps_mahalanobis2(self, stop: Stop, enu: np.ndarray) -> float:
+        antenna = self.smoother.pose(X(stop.index)).transformFrom(self.traverse.gps_lever_arm_m)
+        sigmas = np.array([stop.gps.sigma_horizontal_m, stop.gps.sigma_horizontal_m, stop.gps.sigma_vertical_m])
+        return float(np.sum(((antenna - enu) / sigmas) ** 2))
+
+    # -- queries (for listeners and results) -------------------------------------------------
+
+    def pose(self, k: int) -> np.ndarray:
+        """Current estimate of world_T_body at stop k (4x4)."""
+        return self.smoother.pose(X(k)).matrix()
+
+    def position_covariance(self, k: int) -> np.ndarray:
+        """3x3 covariance (m^2) of the body position at stop k in the world (ENU) frame."""
+        cov = self.smoother.marginal_covariance(X(k))[3:, 3:]  # GTSAM: translation in the body frame
+        rot = self.smoother.pose(X(k)).rotation().matrix()
+        return rot @ cov @ rot.T
+
+    def snapshot(self) -> Snapshot:
+        values = self.smoother.estimate()
+        flat = gtsam.utilities.extractPose3(values)  # rows: R row-major (9), t (3); in key order
+        poses = np.zeros((len(flat), 4, 4))
+        poses[:, :3, :3] = flat[:, :9].reshape(-1, 3, 3)
+        poses[:, :3, 3] = flat[:, 9:]
+        poses[:, 3, 3] = 1.0
+        ids = np.array(sorted(self.landmarks), dtype=np.int64)
+        points = gtsam.utilities.extractPoint3(values) if len(ids) else np.zeros((0, 3))
+        return Snapshot(np.asarray(self.stops), poses, ids, points)
+
+    def tie_links(self) -> list[tuple[int, int]]:
+        """(track, site stop) for every landmark and every site whose panorama observed it."""
+        return [(track, stop) for track in sorted(self.landmark_sites) for stop in self.landmark_sites[track]]
 
     # -- results ---------------------------------------------------------------------------
 

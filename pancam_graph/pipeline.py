@@ -6,6 +6,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -13,8 +14,8 @@ from .config import Scenario
 from .evaluation.metrics import TrajectoryMetrics, compare, decimated_length
 from .frontend.motion import Motion, motion_between
 from .frontend.stereo_vo import StereoVO
-from .localizer import Localizer, LocalizerOptions
-from .records import GroundTruth, Traverse
+from .localizer import Localizer, LocalizerOptions, StepResult
+from .records import GroundTruth, Stop, Traverse
 from .sim import simulate
 
 CONFIGURATIONS: dict[str, LocalizerOptions] = {
@@ -24,6 +25,7 @@ CONFIGURATIONS: dict[str, LocalizerOptions] = {
     "full": LocalizerOptions(use_sites=True, use_hrc=True, use_gps=True),
 }
 GPS_REFERENCE_STEP_M = 20.0  # GPS track length is measured through fixes this far apart
+CHECKPOINT_EVERY_STOPS = 25  # listeners checkpoint at every site and at least this often
 
 
 @dataclass(frozen=True)
@@ -49,15 +51,25 @@ class RunOptions:
 class ConfigurationResult:
     name: str
     world_T_body: np.ndarray  # (N, 4, 4)
-    update_ms: np.ndarray  # (N,) one iSAM2 update per stop
+    position_covariance: np.ndarray  # (N, 3, 3) world-frame marginal of each position, m^2 (iSAM2)
+    steps: list[StepResult]  # one per stop
+    landmark_ids: np.ndarray  # (M,)
+    landmark_positions: np.ndarray  # (M, 3) final landmark estimates, world
+    tie_links: list[tuple[int, int]]  # (track, site stop)
     bridged_stops: int
     landmarks: int
     rejected_tie_points: int
     rejected_hrc_measurements: int
     gps_fixes_used: int
+    gps_outliers: int  # fixes failing the 99 % chi-square test at the estimate after their update
     solver: str
     metrics: TrajectoryMetrics
     metrics_vs_gps: TrajectoryMetrics | None
+
+    @property
+    def update_ms(self) -> np.ndarray:
+        """Wall time of each stop's iSAM2 update."""
+        return np.array([s.update_ms for s in self.steps])
 
 
 @dataclass(frozen=True)
@@ -79,6 +91,33 @@ class RunResult:
 ProgressCallback = Callable[[str, int, int], None]
 
 
+class RunListener(Protocol):
+    """Watches a run stop by stop (the rerun recorder is one). Core code knows only this."""
+
+    def start(self, traverse: Traverse, truth: GroundTruth | None, localizers: dict[str, Localizer]) -> None: ...
+
+    def step(self, stop: Stop, motion: Motion | None, steps: dict[str, StepResult]) -> None: ...
+
+    def checkpoint(self, stop: Stop) -> None:
+        """Everything up to `stop` must now survive a crash."""
+
+    def finish(self, result: RunResult) -> None: ...
+
+
+class NullListener:
+    def start(self, traverse, truth, localizers) -> None:
+        pass
+
+    def step(self, stop, motion, steps) -> None:
+        pass
+
+    def checkpoint(self, stop) -> None:
+        pass
+
+    def finish(self, result) -> None:
+        pass
+
+
 def gps_enu(traverse: Traverse) -> tuple[np.ndarray, np.ndarray]:
     """Stop indices with a fix and the fixes converted to ENU (N, 3) with pyproj."""
     idx = np.array([s.index for s in traverse.stops if s.gps is not None], dtype=int)
@@ -98,8 +137,14 @@ def evaluate_against_gps(traverse: Traverse, world_T_body: np.ndarray) -> Trajec
     return compare(antenna, enu, "none", reference_length_m=decimated_length(enu, GPS_REFERENCE_STEP_M))
 
 
-def run(scenario: Scenario, options: RunOptions = RunOptions(), progress: ProgressCallback | None = None) -> RunResult:
+def run(
+    scenario: Scenario,
+    options: RunOptions = RunOptions(),
+    progress: ProgressCallback | None = None,
+    listener: RunListener | None = None,
+) -> RunResult:
     start = time.perf_counter()
+    listener = listener or NullListener()
     seed = scenario.seed if options.seed is None else options.seed
     traverse, truth = simulate(scenario, seed)
     n = len(traverse.stops)
@@ -107,16 +152,22 @@ def run(scenario: Scenario, options: RunOptions = RunOptions(), progress: Progre
     vo = StereoVO.for_traverse(traverse, est)
     names = options.configurations()
     localizers = {name: Localizer(traverse, CONFIGURATIONS[name], est, seed=seed) for name in names}
+    listener.start(traverse, truth, localizers)
 
     motions: list[Motion | None] = [None]
+    steps: dict[str, list[StepResult]] = {name: [] for name in names}
     vo_s = 0.0
     for k, stop in enumerate(traverse.stops):
         if k > 0:
             t0 = time.perf_counter()
             motions.append(motion_between(vo, traverse.stops[k - 1], stop, motions[-1]))
             vo_s += time.perf_counter() - t0
-        for localizer in localizers.values():
-            localizer.step(stop, motions[k])
+        now = {name: localizer.step(stop, motions[k]) for name, localizer in localizers.items()}
+        for name, step in now.items():
+            steps[name].append(step)
+        listener.step(stop, motions[k], now)
+        if stop.is_site or (k + 1) % CHECKPOINT_EVERY_STOPS == 0:
+            listener.checkpoint(stop)
         if progress is not None:
             progress("stops", k + 1, n)
 
@@ -125,21 +176,29 @@ def run(scenario: Scenario, options: RunOptions = RunOptions(), progress: Progre
         if progress is not None:
             progress(f"finishing {name}", 0, 1)
         poses = localizer.trajectory(batch=options.batch)
+        snapshot = localizer.snapshot()
         alignment = "none" if CONFIGURATIONS[name].use_gps else "se3"
         results[name] = ConfigurationResult(
             name=name,
             world_T_body=poses,
-            update_ms=np.asarray(localizer.smoother.update_ms),
+            position_covariance=np.stack([localizer.position_covariance(k) for k in localizer.stops]),
+            steps=steps[name],
+            landmark_ids=snapshot.landmark_ids,
+            landmark_positions=snapshot.landmarks,
+            tie_links=localizer.tie_links(),
             bridged_stops=localizer.bridged_stops,
             landmarks=len(localizer.landmarks),
             rejected_tie_points=localizer.rejected_ties,
             rejected_hrc_measurements=localizer.rejected_hrc,
             gps_fixes_used=localizer.gps_fixes_used,
+            gps_outliers=localizer.gps_outliers,
             solver="isam2+batch_lm" if options.batch else "isam2",
             metrics=compare(poses[:, :3, 3], truth.positions, alignment, poses, truth.world_T_body),
             metrics_vs_gps=evaluate_against_gps(traverse, poses),
         )
-    return RunResult(scenario, seed, traverse, truth, motions, results, time.perf_counter() - start, vo_s)
+    result = RunResult(scenario, seed, traverse, truth, motions, results, time.perf_counter() - start, vo_s)
+    listener.finish(result)
+    return result
 
 
 def percentiles(ms: np.ndarray) -> dict[str, float]:
@@ -158,6 +217,7 @@ def metrics_document(result: RunResult) -> dict:
             rejected_tie_points=c.rejected_tie_points,
             rejected_hrc_measurements=c.rejected_hrc_measurements,
             gps_fixes_used=c.gps_fixes_used,
+            gps_outliers=c.gps_outliers,
             solver=c.solver,
             isam2_update_ms=percentiles(c.update_ms),
             vs_gps=c.metrics_vs_gps.as_dict() if c.metrics_vs_gps is not None else None,

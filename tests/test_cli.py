@@ -1,9 +1,12 @@
 import json
 
+import numpy as np
 import pytest
+from rrd import Recording, array
 from typer.testing import CliRunner
 
 from pancam_graph.cli import app
+from pancam_graph.io.results import read_tum
 
 runner = CliRunner()
 
@@ -43,15 +46,24 @@ def test_missing_scenario_file(tmp_path):
     assert result.exit_code == 2 and "nope.toml" in result.output
 
 
-def test_run_writes_a_complete_results_folder(tmp_path):
-    out = tmp_path / "res"
-    result = runner.invoke(app, ["run", "short_trail", "--out", str(out), "--quiet", "--seed", "3"])
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    """One CLI run of the short scenario, seed 3, recorded with `--rerun save`."""
+    out = tmp_path_factory.mktemp("cli") / "res"
+    result = runner.invoke(app, ["run", "short_trail", "--out", str(out), "--quiet", "--seed", "3",
+                                 "--rerun", "save"])
     assert result.exit_code == 0, result.output
+    return out
+
+
+def test_run_writes_a_complete_results_folder(results, tmp_path):
+    out = results
     names = {p.name for p in out.iterdir()}
-    assert {"scenario.toml", "metrics.json", "truth.tum", "gps_fixes.csv", "trajectories.png",
-            "error_vs_distance.png", "motions.csv"} <= names
+    assert {"scenario.toml", "metrics.json", "truth.tum", "gps_fixes.csv", "motions.csv", "steps.csv",
+            "panoramas.csv", "truth_landmarks.npy", "recording.rrd", "report.md", "trajectories.png",
+            "error_vs_distance.png", "distance_relation.png", "elevation_profile.png"} <= names
     for config in ("vo", "vo_sites", "vo_sites_hrc", "full"):
-        assert f"trajectory_{config}.tum" in names
+        assert {f"trajectory_{config}.tum", f"covariance_{config}.csv", f"landmarks_{config}.csv"} <= names
     metrics = json.loads((out / "metrics.json").read_text())
     for config in metrics["configs"].values():
         for key in ("average_error_m", "closure_error_m", "relative_closure_pct", "ate_rmse_m",
@@ -71,6 +83,64 @@ def test_run_writes_a_complete_results_folder(tmp_path):
     # a results folder is never overwritten
     clash = runner.invoke(app, ["run", "short_trail", "--out", str(out), "--quiet"])
     assert clash.exit_code == 1 and "not empty" in clash.output
+
+
+def test_report_tabulates_the_metrics_and_shows_the_figures(results):
+    report = (results / "report.md").read_text()
+    metrics = json.loads((results / "metrics.json").read_text())
+    for name, m in metrics["configs"].items():
+        row = next(line for line in report.splitlines() if line.startswith(f"| {name} |"))
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert float(cells[3]) == pytest.approx(m["relative_closure_pct"], abs=5e-5)
+        assert float(cells[1]) == pytest.approx(m["average_error_m"], abs=5e-4)
+    for png in ("trajectories.png", "error_vs_distance.png", "distance_relation.png", "elevation_profile.png"):
+        assert f"]({png})" in report
+        assert (results / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_saved_recording_is_complete_and_has_its_footer(results, recwarn):
+    rec = Recording(results / "recording.rrd")
+    assert not [w for w in recwarn if "footer" in str(w.message)]
+    _, truth = read_tum(results / "truth.tum")
+    assert len(rec.stops("/world/estimate/full/trajectory")) >= len(truth)
+
+
+def test_view_replays_a_results_folder_with_the_same_entities(results, tmp_path):
+    replay = tmp_path / "replay.rrd"
+    result = runner.invoke(app, ["view", str(results), "--rerun", f"save:{replay}"])
+    assert result.exit_code == 0, result.output
+    live, again = Recording(results / "recording.rrd"), Recording(replay)
+    # the same scene, less what a results folder does not hold (camera features, the event log)
+    assert live.entity_paths - again.entity_paths <= {"/world/rover/left_cam/features", "/events", "/map/rover",
+                                                      "/__properties"}
+    times, final = read_tum(results / "trajectory_vo_sites.tum")
+    for k in (0, 17, len(times) - 1):
+        strip = array(again.at("/world/estimate/vo_sites/trajectory", k, "LineStrips3D:strips")[0])
+        np.testing.assert_allclose(strip, final[: k + 1, :3, 3], atol=1e-4)
+    assert len(again.temporal["/plots/error_m/full"]) == len(times)
+
+
+def test_view_names_what_is_wrong_with_a_results_folder(results, tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    result = runner.invoke(app, ["view", str(empty), "--rerun", f"save:{tmp_path / 'x.rrd'}"])
+    assert result.exit_code == 2 and "scenario.toml" in result.output and "Traceback" not in result.output
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    for f in results.iterdir():
+        (broken / f.name).write_bytes(f.read_bytes())
+    lines = (broken / "steps.csv").read_text().splitlines()
+    (broken / "steps.csv").write_text("\n".join([lines[0].replace("update_ms", "update")] + lines[1:]))
+    result = runner.invoke(app, ["view", str(broken), "--rerun", f"save:{tmp_path / 'y.rrd'}"])
+    assert result.exit_code == 2 and "steps.csv" in result.output and "update_ms" in result.output
+    assert not (tmp_path / "y.rrd").exists() or (tmp_path / "y.rrd").stat().st_size < 10_000
+
+
+def test_bad_rerun_option_is_a_usage_error_and_writes_nothing(tmp_path):
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["run", "short_trail", "--out", str(out), "--rerun", "sav"])
+    assert result.exit_code == 2 and "expected spawn, save" in result.output
+    assert not out.exists() and not (tmp_path / "out.partial").exists()
 
 
 def test_bench_prints_json():

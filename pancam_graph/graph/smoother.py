@@ -31,7 +31,8 @@ class Smoother:
         self.initial = gtsam.Values()  # every initial value ever added
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
-        self.update_ms: list[float] = []
+        self.update_ms: list[float] = []  # wall time of each update
+        self.relinearized: list[int] = []  # variables relinearized by each update
 
     def add(self, factor: gtsam.NonlinearFactor) -> None:
         self._new_factors.add(factor)
@@ -43,7 +44,7 @@ class Smoother:
         """One iSAM2 update with the collected factors; returns its wall time in ms."""
         start = time.perf_counter()
         try:
-            self.isam.update(self._new_factors, self._new_values)
+            result = self.isam.update(self._new_factors, self._new_values)
         except RuntimeError as exc:
             raise GraphError(f"iSAM2 update failed {context}: {exc}") from None
         elapsed = (time.perf_counter() - start) * 1e3
@@ -52,6 +53,7 @@ class Smoother:
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
         self.update_ms.append(elapsed)
+        self.relinearized.append(result.getVariablesRelinearized())
         return elapsed
 
     def settle(self, iterations: int = 3) -> None:
@@ -73,6 +75,14 @@ class Smoother:
             return estimate_getter(self.isam, key)
         except RuntimeError as exc:
             raise GraphError(f"iSAM2 estimate of {gtsam.Symbol(key).string()} failed: {exc}") from None
+
+    def marginal_covariance(self, key: int) -> np.ndarray:
+        """Marginal covariance of a variable from the Bayes tree (tangent space; for a Pose3,
+        [rotation, translation] in the body frame)."""
+        try:
+            return self.isam.marginalCovariance(key)
+        except RuntimeError as exc:
+            raise GraphError(f"marginal covariance of {gtsam.Symbol(key).string()} failed: {exc}") from None
 
     def estimate(self) -> gtsam.Values:
         try:

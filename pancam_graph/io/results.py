@@ -8,6 +8,7 @@ import json
 import os
 import shutil
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import gtsam
@@ -65,3 +66,196 @@ def write_csv(path: Path, header: list[str], rows) -> None:
         writer = csv.writer(f)
         writer.writerow(header)
         writer.writerows(rows)
+
+
+# -- a run's results folder -----------------------------------------------------------------
+
+STEP_COLUMNS = ["config", "stop", "update_ms", "relinearized", "new_landmarks", "rejected_ties",
+                "gps_mahalanobis2", "gps_outlier"]
+COVARIANCE_COLUMNS = ["stop", "cxx", "cxy", "cxz", "cyy", "cyz", "czz"]
+_UPPER = ([0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2])
+
+
+def write_run(result, folder: Path) -> None:
+    """Everything a run computed, as plain files (see the README's "Outputs")."""
+    from ..config import dump_scenario
+    from ..pipeline import metrics_document
+
+    stops = result.traverse.stops
+    times = np.array([s.time_s for s in stops])
+    (folder / "scenario.toml").write_text(dump_scenario(result.scenario), encoding="utf-8")
+    write_json(folder / "metrics.json", metrics_document(result))
+    write_tum(folder / "truth.tum", times, result.truth.world_T_body)
+    np.save(folder / "truth_landmarks.npy", result.truth.landmarks.astype(np.float32))
+    write_csv(folder / "gps_fixes.csv",
+              ["stop", "time_s", "lat_deg", "lon_deg", "h_ellipsoidal_m", "sigma_h_m", "sigma_v_m"],
+              [(s.index, s.time_s, f"{s.gps.lat_deg:.9f}", f"{s.gps.lon_deg:.9f}", f"{s.gps.h_m:.4f}",
+                s.gps.sigma_horizontal_m, s.gps.sigma_vertical_m) for s in stops if s.gps is not None])
+    write_csv(folder / "motions.csv", ["stop", "source", "vo_inliers", "vo_failure", "translation_m"],
+              [(k, m.source, m.vo_inliers, m.vo_failure, f"{np.linalg.norm(m.prev_T_curr.translation()):.6f}")
+               for k, m in enumerate(result.motions) if m is not None])
+    write_csv(folder / "panoramas.csv", ["stop", "site_id", "camera", "pan_deg", "tilt_deg"],
+              [(s.index, s.site_id, camera, f"{np.rad2deg(f.pan_rad):.6f}", f"{np.rad2deg(f.tilt_rad):.6f}")
+               for s in stops if s.is_site
+               for camera, frames in (("wac", s.panorama), ("hrc", s.hrc)) for f in frames])
+    rows = []
+    for name, c in result.configurations.items():
+        write_tum(folder / f"trajectory_{name}.tum", times, c.world_T_body)
+        write_csv(folder / f"covariance_{name}.csv", COVARIANCE_COLUMNS,
+                  [(s.index, *(f"{v:.9g}" for v in cov[_UPPER])) for s, cov in zip(stops, c.position_covariance,
+                                                                                 strict=True)])
+        sites_of: dict[int, list[int]] = {}
+        for track, stop in c.tie_links:
+            sites_of.setdefault(track, []).append(stop)
+        write_csv(folder / f"landmarks_{name}.csv", ["track", "x_m", "y_m", "z_m", "site_stops"],
+                  [(int(t), *(f"{v:.6f}" for v in p), " ".join(map(str, sites_of.get(int(t), []))))
+                   for t, p in zip(c.landmark_ids, c.landmark_positions, strict=True)])
+        rows += [(name, s.stop, f"{s.update_ms:.4f}", s.relinearized, s.new_landmarks, s.rejected_ties,
+                  "" if s.gps_mahalanobis2 is None else f"{s.gps_mahalanobis2:.4f}", int(s.gps_outlier))
+                 for s in c.steps]
+    write_csv(folder / "steps.csv", STEP_COLUMNS, rows)
+
+
+@dataclass(frozen=True)
+class SavedConfiguration:
+    name: str
+    world_T_body: np.ndarray  # (N, 4, 4)
+    position_covariance: np.ndarray  # (N, 3, 3)
+    update_ms: np.ndarray  # (N,)
+    relinearized: np.ndarray  # (N,)
+    gps_outlier: np.ndarray  # (N,) bool
+    gps_used: np.ndarray  # (N,) bool
+    landmark_ids: np.ndarray  # (M,)
+    landmark_positions: np.ndarray  # (M, 3)
+    tie_links: list[tuple[int, int]]
+
+
+@dataclass(frozen=True)
+class SavedRun:
+    """A results folder read back (what `pancam-graph view` replays)."""
+
+    folder: Path
+    scenario: object  # config.Scenario
+    metrics: dict
+    stops: np.ndarray  # (N,)
+    times_s: np.ndarray  # (N,)
+    truth_world_T_body: np.ndarray | None
+    truth_landmarks: np.ndarray | None
+    configurations: dict[str, SavedConfiguration]
+    motion_translation_m: np.ndarray  # (N,), 0 at the first stop
+    vo_inliers: np.ndarray  # (N,), -1 where there is no motion
+    bridged: list[tuple[int, str, str]]  # (stop, source, VO failure)
+    gps_stops: np.ndarray
+    gps_lat_lon_h: np.ndarray  # (G, 3)
+    panoramas: list[tuple[int, int, str, float, float]]  # (stop, site id, camera, pan deg, tilt deg)
+
+
+def read_run(folder: Path) -> SavedRun:
+    from ..config import load_scenario
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ResultsError(f"{folder}: not a results folder (no such directory)")
+    scenario = load_scenario(_need(folder / "scenario.toml"))
+    try:
+        metrics = json.loads(_need(folder / "metrics.json").read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise ResultsError(f"{folder / 'metrics.json'}: line {exc.lineno}: not JSON ({exc.msg})") from None
+    names = list(metrics.get("configs", {}))
+    if not names:
+        raise ResultsError(f"{folder / 'metrics.json'}: no 'configs' entry")
+    truth_path = folder / "truth.tum"
+    truth = _read_tum_checked(truth_path)[1] if truth_path.exists() else None
+    landmarks_path = folder / "truth_landmarks.npy"
+    truth_landmarks = np.load(landmarks_path).astype(float) if landmarks_path.exists() else None
+
+    steps = _read_csv(folder / "steps.csv", STEP_COLUMNS)
+    configurations = {}
+    times = None
+    for name in names:
+        times, poses = _read_tum_checked(folder / f"trajectory_{name}.tum")
+        cov_rows = _read_csv(folder / f"covariance_{name}.csv", COVARIANCE_COLUMNS)
+        cov = np.zeros((len(cov_rows), 3, 3))
+        for i, row in enumerate(cov_rows):
+            cov[i][_UPPER] = [row.number(c) for c in COVARIANCE_COLUMNS[1:]]
+            cov[i] = np.triu(cov[i]) + np.triu(cov[i], 1).T
+        mine = [r for r in steps if r["config"] == name]
+        lm_rows = _read_csv(folder / f"landmarks_{name}.csv", ["track", "x_m", "y_m", "z_m", "site_stops"])
+        ids = np.array([int(r.number("track")) for r in lm_rows], dtype=np.int64)
+        links = [(int(r.number("track")), int(s)) for r in lm_rows for s in r["site_stops"].split()]
+        configurations[name] = SavedConfiguration(
+            name=name,
+            world_T_body=poses,
+            position_covariance=cov,
+            update_ms=np.array([r.number("update_ms") for r in mine]),
+            relinearized=np.array([r.number("relinearized") for r in mine]),
+            gps_outlier=np.array([r["gps_outlier"] == "1" for r in mine]),
+            gps_used=np.array([r["gps_mahalanobis2"] != "" for r in mine]),
+            landmark_ids=ids,
+            landmark_positions=np.array([[r.number(c) for c in ("x_m", "y_m", "z_m")] for r in lm_rows]).reshape(-1, 3),
+            tie_links=links,
+        )
+        for what, n in (("covariance", len(cov)), ("steps.csv rows", len(mine))):
+            if n != len(poses):
+                raise ResultsError(f"{folder}: {name}: {what} has {n} stops, the trajectory {len(poses)}")
+    n = len(times)
+    translation, inliers, bridged = np.zeros(n), np.full(n, -1), []
+    for r in _read_csv(folder / "motions.csv", ["stop", "source", "vo_inliers", "vo_failure", "translation_m"]):
+        k = int(r.number("stop"))
+        translation[k], inliers[k] = r.number("translation_m"), int(r.number("vo_inliers"))
+        if r["source"] != "vo":
+            bridged.append((k, r["source"], r["vo_failure"]))
+    gps = _read_csv(folder / "gps_fixes.csv", ["stop", "lat_deg", "lon_deg", "h_ellipsoidal_m"])
+    panoramas = [(int(r.number("stop")), int(r.number("site_id")), r["camera"], r.number("pan_deg"),
+                  r.number("tilt_deg"))
+                 for r in _read_csv(folder / "panoramas.csv", ["stop", "site_id", "camera", "pan_deg", "tilt_deg"])]
+    return SavedRun(
+        folder=folder, scenario=scenario, metrics=metrics, stops=np.arange(n), times_s=times,
+        truth_world_T_body=truth, truth_landmarks=truth_landmarks, configurations=configurations,
+        motion_translation_m=translation, vo_inliers=inliers, bridged=bridged,
+        gps_stops=np.array([int(r.number("stop")) for r in gps], dtype=int),
+        gps_lat_lon_h=np.array([[r.number("lat_deg"), r.number("lon_deg"), r.number("h_ellipsoidal_m")]
+                                for r in gps]).reshape(-1, 3),
+        panoramas=panoramas,
+    )
+
+
+class _Row(dict):
+    """A CSV row that names its file and line when a value is not a number."""
+
+    path: Path
+    line: int
+
+    def number(self, column: str) -> float:
+        try:
+            return float(self[column])
+        except ValueError:
+            raise ResultsError(f"{self.path}: line {self.line}: column '{column}': expected a number, "
+                               f"got {self[column]!r}") from None
+
+
+def _need(path: Path) -> Path:
+    if not path.exists():
+        raise ResultsError(f"{path}: missing from the results folder")
+    return path
+
+
+def _read_csv(path: Path, columns: list[str]) -> list[_Row]:
+    with _need(path).open(encoding="utf-8", newline="") as f:
+        reader = csv.DictReader(f)
+        missing = [c for c in columns if c not in (reader.fieldnames or [])]
+        if missing:
+            raise ResultsError(f"{path}: line 1: missing column(s) {', '.join(missing)}")
+        rows = []
+        for row in reader:
+            r = _Row(row)
+            r.path, r.line = path, reader.line_num
+            rows.append(r)
+    return rows
+
+
+def _read_tum_checked(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        return read_tum(_need(path))
+    except ValueError as exc:
+        raise ResultsError(f"{path}: not a TUM trajectory (time tx ty tz qx qy qz qw): {exc}") from None

@@ -1,4 +1,6 @@
-"""Static PNG plots of a run: trajectories (like the seed's Fig. 4.10) and error vs distance."""
+"""Static PNG plots of a run, after the seed's Chapter 4 figures: trajectories (Fig. 4.10),
+error and travelled distance against the reference distance (Figs. 4.12-4.13) and the
+elevation profile (Fig. 4.14)."""
 
 from __future__ import annotations
 
@@ -40,13 +42,34 @@ def plot_trajectories(result: RunResult, path: Path) -> None:
     plt.close(fig)
 
 
+def reference_distance(result: RunResult) -> np.ndarray:
+    """Distance travelled along the true trajectory at each stop (m)."""
+    return _accumulated(result.truth.positions)
+
+
+def _accumulated(positions: np.ndarray) -> np.ndarray:
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))])
+
+
+def distance_scale(result: RunResult, name: str) -> float:
+    """Least-squares slope (through the origin) of estimated against reference travelled distance:
+    below 1, the estimate comes out short (the seed's Fig. 4.12 found 0.93 for its VO)."""
+    ref = reference_distance(result)
+    est = _accumulated(result.configurations[name].world_T_body[:, :3, 3])
+    return float(ref @ est / (ref @ ref))
+
+
 def plot_error_vs_distance(result: RunResult, path: Path) -> None:
     truth = result.truth.positions
-    dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(truth, axis=0), axis=1))])
+    dist = reference_distance(result)
     fig, ax = plt.subplots(figsize=(9, 4.5), dpi=110)
     for name, c in result.configurations.items():
         err = np.linalg.norm(c.world_T_body[:, :3, 3] - truth, axis=1)
         ax.plot(dist, err, color=_COLOURS.get(name), lw=1.2, label=name)
+        # sqrt(trace) of the marginal is the RMS error the estimator expects of itself
+        predicted = np.sqrt(np.trace(c.position_covariance, axis1=1, axis2=2))
+        ax.plot(dist, predicted, color=_COLOURS.get(name), lw=0.8, ls=":")
+    ax.plot([], [], color="0.3", lw=0.8, ls=":", label="expected RMS (iSAM2 marginal)")
     bridged = [k for k, m in enumerate(result.motions) if m is not None and m.bridged]
     if bridged:
         ax.plot(dist[bridged], np.zeros(len(bridged)), "|", color="k", ms=12, label="VO bridged")
@@ -56,6 +79,53 @@ def plot_error_vs_distance(result: RunResult, path: Path) -> None:
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title("position error against distance travelled")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def plot_distance_relation(result: RunResult, path: Path) -> None:
+    """Estimated against reference travelled distance (seed Fig. 4.12) and their difference."""
+    ref = reference_distance(result)
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.5), dpi=110)
+    left.plot(ref, ref, "k-", lw=2.0, label="reference (truth)")
+    for name, c in result.configurations.items():
+        est = _accumulated(c.world_T_body[:, :3, 3])
+        label = f"{name} (scale {distance_scale(result, name):.4f})"
+        left.plot(ref, est, color=_COLOURS.get(name), lw=1.2, label=label)
+        right.plot(ref, est - ref, color=_COLOURS.get(name), lw=1.2, label=name)
+    left.set_xlabel("reference distance travelled (m)")
+    left.set_ylabel("estimated distance travelled (m)")
+    left.legend(fontsize=8)
+    left.set_title("accumulated distance: estimate vs reference")
+    right.axhline(0.0, color="k", lw=1.0)
+    right.set_xlabel("reference distance travelled (m)")
+    right.set_ylabel("estimated - reference distance (m)")
+    right.set_title("distance difference (scale error shows as a slope)")
+    for ax in (left, right):
+        ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def plot_elevation_profile(result: RunResult, path: Path) -> None:
+    """Height against reference travelled distance (seed Fig. 4.14)."""
+    ref = reference_distance(result)
+    fig, ax = plt.subplots(figsize=(9, 4.5), dpi=110)
+    idx, gps = gps_enu(result.traverse)
+    if len(idx):
+        arm = result.traverse.gps_lever_arm_m[2]
+        ax.scatter(ref[idx], gps[:, 2] - arm, s=3, c="0.6", zorder=1,
+                   label=f"GPS fixes (antenna height - {arm:.2f} m lever arm)")
+    ax.plot(ref, result.truth.positions[:, 2], "k-", lw=2.0, label="truth", zorder=2)
+    for name, c in result.configurations.items():
+        ax.plot(ref, c.world_T_body[:, 2, 3], color=_COLOURS.get(name), lw=1.2, label=name, zorder=3)
+    ax.set_xlabel("reference distance travelled (m)")
+    ax.set_ylabel("up (m, local ENU)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("elevation profile")
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

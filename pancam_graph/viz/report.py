@@ -1,0 +1,75 @@
+"""The run report: a Markdown page with the seed's Chapter 4 figures and the metric table."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..pipeline import RunResult
+from . import plots
+
+FIGURES = (
+    ("trajectories.png", plots.plot_trajectories,
+     "Estimated and true trajectories with GPS fixes and sites (cf. seed Fig. 4.10)."),
+    ("error_vs_distance.png", plots.plot_error_vs_distance,
+     "3-D position error against distance travelled; dotted: the RMS error each configuration expects "
+     "of itself (square root of the trace of its iSAM2 marginal)."),
+    ("distance_relation.png", plots.plot_distance_relation,
+     "Estimated against reference distance travelled and their difference (cf. seed Figs. 4.12-4.13: "
+     "the seed's VO came out short)."),
+    ("elevation_profile.png", plots.plot_elevation_profile,
+     "Height against distance travelled (cf. seed Fig. 4.14)."),
+)
+
+
+def write_report(result: RunResult, folder: Path) -> Path:
+    """Write the PNG figures and `report.md` into `folder`; return the report's path."""
+    for filename, plot, _ in FIGURES:
+        plot(result, folder / filename)
+    path = folder / "report.md"
+    path.write_text(report_markdown(result), encoding="utf-8")
+    return path
+
+
+def report_markdown(result: RunResult) -> str:
+    tr = result.traverse
+    stops = tr.stops
+    length = plots.reference_distance(result)[-1]
+    lines = [
+        f"# {result.scenario.name}, seed {result.seed}",
+        "",
+        f"{result.scenario.description}",
+        "",
+        f"- rig: {tr.rig.name}; {len(stops)} stops over {length:.1f} m (reference); "
+        f"{sum(s.is_site for s in stops)} sites with panoramas; {sum(s.gps is not None for s in stops)} GPS fixes",
+        f"- reference: simulation ground truth; wall time {result.wall_s:.1f} s (VO {result.vo_s:.1f} s)",
+        f"- reproduce: `pancam-graph run scenario.toml --seed {result.seed}` in this folder",
+        "",
+        "## Metrics",
+        "",
+        "| config | avg err m | closure m | rel. closure % | ATE m (alignment) | length ratio | distance scale "
+        "| KITTI drift % | bridged | landmarks | GPS used / outliers | avg err vs GPS m |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, c in result.configurations.items():
+        m, vs = c.metrics, c.metrics_vs_gps
+        drift = "-" if m.drift_translation_pct is None else f"{m.drift_translation_pct:.3f}"
+        scale = plots.distance_scale(result, name)
+        lines.append(
+            f"| {name} | {m.average_error_m:.3f} | {m.closure_error_m:.3f} | {m.relative_closure_pct:.4f} "
+            f"| {m.ate_rmse_m:.3f} ({m.ate_alignment}) | {m.length_ratio:.5f} | {scale:.5f} "
+            f"| {drift} | {c.bridged_stops} | {c.landmarks} | {c.gps_fixes_used} / {c.gps_outliers} "
+            f"| {'-' if vs is None else f'{vs.average_error_m:.2f}'} |"
+        )
+    lines += [
+        "",
+        "Relative closure is the closure error over the reference length (DESIGN.md section 5); "
+        "ATE is the RMS position error after the stated alignment (none for configurations with GPS); "
+        "distance scale is the least-squares slope of estimated against reference distance travelled; "
+        "a GPS outlier is a fix failing the 99 % chi-square test at the estimate after its update.",
+        "",
+        "## Figures",
+        "",
+    ]
+    for filename, _, caption in FIGURES:
+        lines += [f"![{filename}]({filename})", "", caption, ""]
+    return "\n".join(lines)

@@ -1,0 +1,238 @@
+"""The rerun scene of a run: entity paths, the default blueprint and the archetypes, shared by
+the live recorder and the replay of a results folder so both look the same.
+
+Entities (world = local ENU, z up):
+    world/terrain                     true landmark field (simulations only), static
+    world/truth                       true trajectory, static
+    world/gps                         GPS fixes in ENU (grey used, red flagged outlier)
+    world/sites                       site markers; world/sites/panoramas: frustums of every frame
+    world/estimate/<config>/trajectory, /covariance (95 % ellipsoids), /landmarks, /ties
+    world/rover, world/rover/left_cam  current pose of the primary configuration, its left WAC
+    world/rover/left_cam/features     the stop's stereo features (green: tracked from the last stop)
+    map/gps, map/truth, map/estimate/<config>, map/rover   the same in WGS84 latitude/longitude
+    plots/<series>/<config>           time series
+    events                            text log: VO bridges, sites, GPS outliers
+Timelines: `stop` (index), `sensor_time` (the stop's time) and `distance_cm` (odometer:
+the sum of the estimated motions, available live and for recorded data).
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+from ..geodesy import LocalFrame
+from ..rig import Camera, Rig
+
+APP_ID = "pancam_graph"
+COLOURS = {  # the matplotlib tab10 colours of the report plots
+    "vo": (214, 39, 40),
+    "vo_sites": (255, 127, 14),
+    "vo_sites_hrc": (44, 160, 44),
+    "full": (31, 119, 180),
+}
+TRUTH_COLOUR = (235, 235, 235)
+GPS_COLOUR = (150, 150, 150)
+OUTLIER_COLOUR = (230, 30, 30)
+ELLIPSOID_SCALE_95 = float(np.sqrt(chi2.ppf(0.95, 3)))  # 95 % of a 3-D Gaussian
+FRUSTUM_DEPTH_M = 0.6
+SERIES = {  # entity under plots/ -> (title, per configuration)
+    "error_m": ("position error vs truth (m)", True),
+    "vo_inliers": ("VO inliers per stop", False),
+    "isam2_update_ms": ("iSAM2 update (ms)", True),
+    "relinearized": ("variables relinearized", True),
+    "gps_outliers": ("GPS fixes flagged outlier (cumulative)", True),
+}
+
+
+def colour(config: str) -> tuple[int, int, int]:
+    return COLOURS.get(config, (200, 200, 0))
+
+
+def trajectory_path(config: str) -> str:
+    return f"world/estimate/{config}/trajectory"
+
+
+def covariance_path(config: str) -> str:
+    return f"world/estimate/{config}/covariance"
+
+
+def landmarks_path(config: str) -> str:
+    return f"world/estimate/{config}/landmarks"
+
+
+def ties_path(config: str) -> str:
+    return f"world/estimate/{config}/ties"
+
+
+def map_path(config: str) -> str:
+    return f"map/estimate/{config}"
+
+
+def series_path(name: str, config: str | None = None) -> str:
+    return f"plots/{name}" + (f"/{config}" if config else "")
+
+
+def blueprint(configs: list[str]) -> rrb.Blueprint:
+    """3-D view left; map, camera and time series right; the stop timeline selected."""
+    plots = [rrb.TimeSeriesView(origin=series_path(name), name=title) for name, (title, _) in SERIES.items()]
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(origin="world", name="traverse (local ENU)"),
+            rrb.Vertical(
+                rrb.Horizontal(
+                    rrb.MapView(origin="map", name="map (WGS84)"),
+                    rrb.Spatial2DView(origin="world/rover/left_cam", name="left WAC features"),
+                ),
+                rrb.Grid(*plots),
+                row_shares=[2, 3],
+            ),
+            column_shares=[3, 2],
+        ),
+        rrb.TimePanel(timeline="stop"),
+        collapse_panels=True,
+    )
+
+
+def set_stop_time(rec: rr.RecordingStream, stop: int, time_s: float, distance_m: float) -> None:
+    rec.set_time("stop", sequence=stop)
+    rec.set_time("distance_cm", sequence=int(round(distance_m * 100.0)))
+    if time_s > 1e8:  # looks like UNIX time (recorded data)
+        rec.set_time("sensor_time", timestamp=time_s)
+    else:
+        rec.set_time("sensor_time", duration=time_s)
+
+
+def time_columns(stops, times_s, distances_m) -> list[rr.TimeColumn]:
+    times_s = np.asarray(times_s, dtype=float)
+    sensor = (rr.TimeColumn("sensor_time", timestamp=times_s) if len(times_s) and times_s[0] > 1e8
+              else rr.TimeColumn("sensor_time", duration=times_s))
+    return [
+        rr.TimeColumn("stop", sequence=np.asarray(stops, dtype=np.int64)),
+        rr.TimeColumn("distance_cm", sequence=np.round(np.asarray(distances_m) * 100.0).astype(np.int64)),
+        sensor,
+    ]
+
+
+def log_static(
+    rec: rr.RecordingStream,
+    configs: list[str],
+    rig: Rig,
+    left_mount: np.ndarray,
+    origin: LocalFrame,
+    truth_positions: np.ndarray | None,
+    truth_landmarks: np.ndarray | None,
+) -> None:
+    """Coordinates, calibration, series styles and the truth: logged once."""
+    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    rec.log("world/rover/left_cam", rr.Transform3D(translation=left_mount[:3, 3], mat3x3=left_mount[:3, :3]),
+            static=True)
+    rec.log("world/rover/left_cam", pinhole(rig.wac), static=True)
+    if truth_landmarks is not None and len(truth_landmarks):
+        rec.log("world/terrain", rr.Points3D(truth_landmarks, radii=0.03, colors=(120, 100, 80)), static=True)
+    if truth_positions is not None:
+        rec.log("world/truth", rr.LineStrips3D([truth_positions], radii=0.08, colors=TRUTH_COLOUR,
+                                               labels=["truth"]), static=True)
+        rec.log("map/truth", rr.GeoLineStrings(lat_lon=[lat_lon(origin, truth_positions)],
+                                               radii=rr.Radius.ui_points(2.0), colors=TRUTH_COLOUR), static=True)
+    # Styles are static so the per-stop logs carry geometry only (from_fields: ~3x cheaper).
+    for config in configs:
+        rgb = colour(config)
+        rec.log(trajectory_path(config), rr.LineStrips3D.from_fields(radii=0.05, colors=rgb, labels=[config]),
+                static=True)
+        rec.log(covariance_path(config), rr.Ellipsoids3D.from_fields(
+            colors=rgb, fill_mode=rr.components.FillMode.MajorWireframe), static=True)
+    for name, (_, per_config) in SERIES.items():
+        for config in configs if per_config else [None]:
+            rgb = colour(config) if config else (220, 220, 220)
+            rec.log(series_path(name, config), rr.SeriesLines(colors=rgb, names=config or name), static=True)
+
+
+def pinhole(camera: Camera) -> rr.Pinhole:
+    return rr.Pinhole(focal_length=[camera.fx, camera.fy], principal_point=[camera.cx, camera.cy],
+                      resolution=[camera.width, camera.height], camera_xyz=rr.ViewCoordinates.RDF,
+                      image_plane_distance=FRUSTUM_DEPTH_M)
+
+
+def lat_lon(origin: LocalFrame, enu: np.ndarray) -> np.ndarray:
+    return origin.to_geodetic(np.atleast_2d(enu))[:, :2]
+
+
+def geo_line(origin: LocalFrame, positions: np.ndarray, config: str) -> rr.GeoLineStrings:
+    return rr.GeoLineStrings(lat_lon=[lat_lon(origin, positions)], radii=rr.Radius.ui_points(2.0),
+                             colors=colour(config))
+
+
+def trajectory(positions: np.ndarray) -> rr.LineStrips3D:
+    """Geometry only: the style was logged statically by `log_static`."""
+    return rr.LineStrips3D.from_fields(strips=[np.asarray(positions, dtype=np.float32)])
+
+
+def ellipsoids(centers: np.ndarray, covariances: np.ndarray) -> rr.Ellipsoids3D:
+    """95 % position ellipsoids from world-frame 3x3 covariances (geometry only)."""
+    half_sizes, quaternions = ellipsoid_axes(covariances)
+    return rr.Ellipsoids3D.from_fields(centers=centers, half_sizes=half_sizes, quaternions=quaternions)
+
+
+def ellipsoid_axes(covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(half sizes (N, 3), quaternions xyzw (N, 4)) of the 95 % ellipsoids of covariances (N, 3, 3)."""
+    covariances = np.asarray(covariances).reshape(-1, 3, 3)
+    values, vectors = np.linalg.eigh(0.5 * (covariances + np.swapaxes(covariances, 1, 2)))
+    half = ELLIPSOID_SCALE_95 * np.sqrt(np.clip(values, 0.0, None))
+    vectors[np.linalg.det(vectors) < 0, :, 2] *= -1.0  # a proper rotation
+    return half, Rotation.from_matrix(vectors).as_quat()  # x, y, z, w
+
+
+def frustum_segments(world_T_cam: np.ndarray, camera: Camera, depth_m: float = FRUSTUM_DEPTH_M) -> np.ndarray:
+    """Outline of a camera's field of view as 8 segments (8, 2, 3): centre to each image corner,
+    then the image rectangle."""
+    corners_px = np.array([[0.0, 0.0], [camera.width, 0.0], [camera.width, camera.height], [0.0, camera.height]])
+    rays = np.column_stack([(corners_px[:, 0] - camera.cx) / camera.fx, (corners_px[:, 1] - camera.cy) / camera.fy,
+                            np.ones(4)]) * depth_m
+    corners = rays @ world_T_cam[:3, :3].T + world_T_cam[:3, 3]
+    centre = np.broadcast_to(world_T_cam[:3, 3], (4, 3))
+    edges = np.stack([centre, corners], axis=1)
+    rectangle = np.stack([corners, np.roll(corners, -1, axis=0)], axis=1)
+    return np.concatenate([edges, rectangle]).astype(np.float32)
+
+
+def tie_strips(links: list[tuple[int, int]], landmark_ids: np.ndarray, landmarks: np.ndarray,
+               site_positions: dict[int, np.ndarray]) -> np.ndarray:
+    """A segment from each site to each landmark it tied, (N, 2, 3): one array, not a list of
+    small ones, which rerun converts 40x slower."""
+    index = {int(t): i for i, t in enumerate(landmark_ids)}
+    pairs = [(index[track], stop) for track, stop in links if track in index and stop in site_positions]
+    if not pairs:
+        return np.zeros((0, 2, 3), dtype=np.float32)
+    rows, stops = zip(*pairs, strict=True)
+    ends = np.asarray(landmarks)[list(rows)]
+    starts = np.array([site_positions[s] for s in stops])
+    return np.stack([starts, ends], axis=1).astype(np.float32)
+
+
+def transform(world_T_body: np.ndarray) -> rr.Transform3D:
+    return rr.Transform3D(translation=world_T_body[:3, 3], mat3x3=world_T_body[:3, :3])
+
+
+@dataclass
+class SeriesBuffer:
+    """Scalars gathered stop by stop and sent as columns (one call per series) at checkpoints."""
+
+    rows: dict[str, list[tuple[int, float, float, float]]] = field(default_factory=lambda: defaultdict(list))
+
+    def add(self, path: str, stop: int, time_s: float, distance_m: float, value: float) -> None:
+        self.rows[path].append((stop, time_s, distance_m, value))
+
+    def send(self, rec: rr.RecordingStream) -> None:
+        for path, rows in self.rows.items():
+            if rows:
+                stops, times, dist, values = zip(*rows, strict=True)
+                rec.send_columns(path, indexes=time_columns(stops, times, dist),
+                                 columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=float)))
+        self.rows.clear()

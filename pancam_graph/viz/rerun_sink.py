@@ -1,0 +1,63 @@
+"""Where a rerun recording goes: a spawned viewer, a file, a served gRPC endpoint or a running viewer."""
+
+from __future__ import annotations
+
+import sys
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import rerun as rr
+
+from ..errors import ResultsError
+from .rerun_scene import APP_ID
+
+DEFAULT_VIEWER_MEMORY = "25%"  # of system RAM; the viewer drops the oldest data beyond it
+
+
+@dataclass(frozen=True)
+class RerunTarget:
+    mode: Literal["spawn", "save", "serve", "connect"]
+    path: Path | None = None  # save
+    url: str | None = None  # connect
+    memory_limit: str = DEFAULT_VIEWER_MEMORY  # spawn and serve
+
+
+@dataclass
+class OpenRecording:
+    stream: rr.RecordingStream
+    target: RerunTarget
+    served_url: str | None = None  # serve: where viewers connect
+
+    def close(self) -> None:
+        """Flush everything; a saved file gets its footer."""
+        self.stream.flush()
+        if self.target.mode == "save":
+            self.stream.disconnect()
+
+
+def open_recording(target: RerunTarget, name: str) -> OpenRecording:
+    stream = rr.RecordingStream(APP_ID, recording_id=str(uuid.uuid4()))
+    stream.send_recording_name(name)
+    served = None
+    try:
+        if target.mode == "save":
+            target.path.parent.mkdir(parents=True, exist_ok=True)
+            stream.save(target.path)
+        elif target.mode == "spawn":
+            stream.spawn(memory_limit=target.memory_limit, executable_path=_viewer_executable())
+        elif target.mode == "serve":
+            served = stream.serve_grpc(server_memory_limit=target.memory_limit)
+        else:
+            stream.connect_grpc(target.url)
+    except (OSError, RuntimeError) as exc:
+        where = target.path or target.url or target.mode
+        raise ResultsError(f"rerun: cannot open the recording ({where}): {exc}") from None
+    return OpenRecording(stream, target, served)
+
+
+def _viewer_executable() -> str | None:
+    """The `rerun` viewer installed beside this Python, found even when the venv is not on PATH."""
+    candidate = Path(sys.executable).parent / "rerun"
+    return str(candidate) if candidate.exists() else None

@@ -1,0 +1,147 @@
+"""The rerun recording of a run, read back with rerun's own reader."""
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rrd import Recording, array
+from scipy.stats import chi2
+
+from pancam_graph.geodesy import LocalFrame
+from pancam_graph.pipeline import CHECKPOINT_EVERY_STOPS, RunOptions, run
+from pancam_graph.viz.rerun_live import RerunRecorder
+from pancam_graph.viz.rerun_sink import RerunTarget, open_recording
+
+TESTS = Path(__file__).parent
+
+
+@pytest.fixture(scope="module")
+def recorded(short_scenario, tmp_path_factory):
+    path = tmp_path_factory.mktemp("rerun") / "run.rrd"
+    recording = open_recording(RerunTarget("save", path=path), "test")
+    recorder = RerunRecorder(recording.stream)
+    result = run(short_scenario, RunOptions(seed=0), listener=recorder)
+    recording.close()
+    return result, recorder, Recording(path)
+
+
+def test_recording_has_the_documented_entities(recorded):
+    result, _, rec = recorded
+    expected = {"/world", "/world/terrain", "/world/truth", "/world/gps", "/world/sites", "/world/sites/panoramas",
+                "/world/rover", "/world/rover/left_cam", "/world/rover/left_cam/features", "/map/gps", "/map/truth",
+                "/map/rover", "/events", "/plots/vo_inliers"}
+    for config in result.configurations:
+        expected |= {f"/world/estimate/{config}/trajectory", f"/world/estimate/{config}/covariance",
+                     f"/map/estimate/{config}", f"/plots/error_m/{config}", f"/plots/isam2_update_ms/{config}",
+                     f"/plots/relinearized/{config}"}
+    expected |= {"/world/estimate/vo_sites/landmarks", "/world/estimate/vo_sites/ties", "/plots/gps_outliers/full"}
+    assert expected <= rec.entity_paths
+    assert "/world/estimate/vo/landmarks" not in rec.entity_paths  # VO alone has no landmarks
+
+
+def test_trajectory_points_at_a_stop(recorded):
+    result, recorder, rec = recorded
+    primary = recorder.primary
+    assert primary == "full"
+    # The primary configuration is logged at every stop with one point per stop so far...
+    for k in (5, 37, 101):
+        strips = rec.at(f"/world/estimate/{primary}/trajectory", k, "LineStrips3D:strips")
+        assert len(strips) == 1 and len(strips[0]) == k + 1
+    # ...the others at refresh stops (every `refresh_every` and at sites) only.
+    vo_stops = rec.stops("/world/estimate/vo/trajectory")
+    assert 37 not in vo_stops and 39 in vo_stops
+    assert len(rec.at("/world/estimate/vo/trajectory", 39, "LineStrips3D:strips")[0]) == 40
+    # At the end the final estimate replaces the live one.
+    final = array(rec.latest(f"/world/estimate/{primary}/trajectory", "LineStrips3D:strips")[0])
+    np.testing.assert_allclose(final, result.configurations[primary].world_T_body[:, :3, 3], atol=1e-4)
+
+
+def test_covariance_ellipsoids_are_the_95_percent_marginals(recorded):
+    result, _, rec = recorded
+    c = result.configurations["vo"]
+    # Final ellipsoids: at every site and the last stop, from the final marginals.
+    rows = [i for i, s in enumerate(result.traverse.stops) if s.is_site] + [len(result.traverse.stops) - 1]
+    half = array(rec.latest("/world/estimate/vo/covariance", "Ellipsoids3D:half_sizes"))
+    centres = array(rec.latest("/world/estimate/vo/covariance", "Ellipsoids3D:centers"))
+    assert len(half) == len(rows)
+    expected = np.sqrt(chi2.ppf(0.95, 3) * np.linalg.eigvalsh(c.position_covariance[rows]))
+    np.testing.assert_allclose(np.sort(half, axis=1), expected, rtol=1e-5)
+    np.testing.assert_allclose(centres, c.world_T_body[rows, :3, 3], atol=1e-4)
+    # Live: VO alone grows its uncertainty with distance; the ellipsoid sits on the current pose.
+    early = array(rec.at("/world/estimate/vo/covariance", 9, "Ellipsoids3D:half_sizes"))
+    late = array(rec.at("/world/estimate/vo/covariance", 129, "Ellipsoids3D:half_sizes"))
+    assert late.max() > 3 * early.max()
+    strip = array(rec.at("/world/estimate/vo/trajectory", 129, "LineStrips3D:strips")[0])
+    np.testing.assert_allclose(array(rec.at("/world/estimate/vo/covariance", 129, "Ellipsoids3D:centers"))[0],
+                               strip[-1], atol=1e-4)
+
+
+def test_geo_points_are_the_gps_fixes_and_the_map_line_is_the_estimate(recorded):
+    result, _, rec = recorded
+    fixes = [s.gps for s in result.traverse.stops if s.gps is not None]
+    geo = array(rec.latest("/map/gps", "GeoPoints:positions"))
+    np.testing.assert_allclose(geo, [[f.lat_deg, f.lon_deg] for f in fixes], atol=1e-12)
+    line = array(rec.latest("/map/estimate/full", "GeoLineStrings:line_strings")[0])
+    o = result.scenario.origin
+    final = result.configurations["full"].world_T_body[:, :3, 3]
+    h = LocalFrame(o.lat_deg, o.lon_deg, o.h_m).to_geodetic(final)[:, 2]  # the line carries no height
+    enu = LocalFrame(o.lat_deg, o.lon_deg, o.h_m).to_enu(line[:, 0], line[:, 1], h)
+    np.testing.assert_allclose(enu, final, atol=1e-3)
+
+
+def test_series_hold_one_value_per_stop(recorded):
+    result, _, rec = recorded
+    n = len(result.traverse.stops)
+    update = [row["Scalars:scalars"][0] for _, row in rec.temporal["/plots/isam2_update_ms/vo_sites"]]
+    np.testing.assert_allclose(update, result.configurations["vo_sites"].update_ms, rtol=1e-9)
+    errors = [row["Scalars:scalars"][0] for _, row in rec.temporal["/plots/error_m/vo"]]
+    assert len(errors) == n and errors[0] < 0.01 and max(errors) < 1.0
+
+
+KILLED_RUN = textwrap.dedent("""
+    import os, signal, sys
+    from pancam_graph.config import load_scenario, resolve_scenario
+    from pancam_graph.pipeline import RunOptions, run
+    from pancam_graph.viz.rerun_live import RerunRecorder
+    from pancam_graph.viz.rerun_sink import RerunTarget, open_recording
+
+    class KilledAfterSecondCheckpoint(RerunRecorder):
+        checkpoints = 0
+        def checkpoint(self, stop):
+            super().checkpoint(stop)
+            self.checkpoints += 1
+            if self.checkpoints == 2:
+                print(stop.index, flush=True)
+                self.kill_at = stop.index + 3
+        def step(self, stop, motion, steps):
+            super().step(stop, motion, steps)
+            if stop.index == getattr(self, "kill_at", -1):
+                os.kill(os.getpid(), signal.SIGKILL)  # no flush, no footer: like a power cut
+
+    from pathlib import Path
+    recording = open_recording(RerunTarget("save", path=Path(sys.argv[1])), "killed")
+    run(load_scenario(resolve_scenario("short_trail")), RunOptions(seed=0),
+        listener=KilledAfterSecondCheckpoint(recording.stream))
+""")
+
+
+def test_killed_run_leaves_a_recording_readable_up_to_the_last_checkpoint(tmp_path):
+    path = tmp_path / "killed.rrd"
+    proc = subprocess.run([sys.executable, "-c", KILLED_RUN, str(path)], capture_output=True, text=True,
+                          timeout=300, env={**os.environ, "PYTHONPATH": str(TESTS.parent)})
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    checkpoint = int(proc.stdout.split()[0])
+    assert checkpoint >= CHECKPOINT_EVERY_STOPS - 1
+    rec = Recording(path)
+    stops = rec.stops("/world/estimate/full/trajectory")
+    assert checkpoint <= max(stops) <= checkpoint + 3  # everything to the checkpoint, nothing after the kill
+    assert stops[: checkpoint + 1] == list(range(checkpoint + 1))
+    strip = rec.at("/world/estimate/full/trajectory", checkpoint, "LineStrips3D:strips")[0]
+    assert len(strip) == checkpoint + 1
+    # the series sent at the checkpoint are there too
+    assert len(rec.temporal["/plots/isam2_update_ms/full"]) >= checkpoint + 1
