@@ -22,5 +22,6 @@ shift || true
 case "$cmd" in
     run)  exec .venv/bin/pancam-graph run "$@" ;;
     test) exec .venv/bin/python -m pytest -q "$@" ;;
-    *)    echo "usage: ./dev.sh run|test [args]" >&2; exit 2 ;;
+    setup) exit 0 ;;
+    *)    echo "usage: ./dev.sh run|test|setup [args]" >&2; exit 2 ;;
 esac

@@ -53,7 +53,7 @@ class RerunRecorder:
         self.distance_m = 0.0
         self.previous_tracks = np.zeros(0, dtype=np.int64)
         rig = traverse.rig
-        self.rec.send_blueprint(scene.blueprint(self.configs))
+        self.rec.send_blueprint(scene.blueprint(self.configs, None if truth is None else truth.positions))
         self.rec.log("world/rover/left_cam/features", rr.Points2D.from_fields(radii=2.0), static=True)
         scene.log_static(self.rec, self.configs, rig, rig.body_T_left(0.0, traverse.traverse_tilt_rad).matrix(),
                          traverse.origin, None if truth is None else truth.positions,
@@ -149,7 +149,8 @@ class RerunRecorder:
         rgb = scene.colour(config)
         self.rec.log(scene.landmarks_path(config), rr.Points3D(points, radii=0.12, colors=rgb))
         ties = scene.tie_strips(links, ids, points, site_positions)
-        self.rec.log(scene.ties_path(config), rr.LineStrips3D(ties, radii=0.01, colors=(*rgb, 90)))
+        self.rec.log(scene.ties_path(config),
+                     rr.LineStrips3D(ties, radii=rr.Radius.ui_points(0.5), colors=(*rgb, scene.TIE_ALPHA)))
 
     def _log_site(self, stop: Stop, world_T_body: np.ndarray) -> None:
         rig = self.traverse.rig

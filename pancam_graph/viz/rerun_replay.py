@@ -23,7 +23,7 @@ def replay(run: SavedRun, rec: rr.RecordingStream) -> None:
     configs = list(run.configurations)
     primary = configs[-1]
     tilt = np.deg2rad(sc.camera.traverse_tilt_deg)
-    rec.send_blueprint(scene.blueprint(configs))
+    rec.send_blueprint(scene.blueprint(configs, run.configurations[primary].world_T_body[:, :3, 3]))
     truth = run.truth_world_T_body
     scene.log_static(rec, configs, rig, rig.body_T_left(0.0, tilt).matrix(), origin,
                      None if truth is None else truth[:, :3, 3], run.truth_landmarks)
@@ -56,7 +56,7 @@ def replay(run: SavedRun, rec: rr.RecordingStream) -> None:
             sites = {int(k): positions[k] for k in {stop for _, stop in c.tie_links}}
             rec.log(scene.ties_path(name), rr.LineStrips3D(
                 scene.tie_strips(c.tie_links, c.landmark_ids, c.landmark_positions, sites),
-                radii=0.01, colors=(*rgb, 90)), static=True)
+                radii=rr.Radius.ui_points(0.5), colors=(*rgb, scene.TIE_ALPHA)), static=True)
         rec.log(scene.map_path(name), scene.geo_line(origin, positions, name), static=True)
 
     moved = run.vo_inliers >= 0

@@ -38,6 +38,7 @@ COLOURS = {  # the matplotlib tab10 colours of the report plots
     "full": (31, 119, 180),
 }
 TRUTH_COLOUR = (235, 235, 235)
+TIE_ALPHA = 50  # tie links are many: faint, so the trajectories stay visible
 GPS_COLOUR = (150, 150, 150)
 OUTLIER_COLOUR = (230, 30, 30)
 ELLIPSOID_SCALE_95 = float(np.sqrt(chi2.ppf(0.95, 3)))  # 95 % of a 3-D Gaussian
@@ -79,12 +80,23 @@ def series_path(name: str, config: str | None = None) -> str:
     return f"plots/{name}" + (f"/{config}" if config else "")
 
 
-def blueprint(configs: list[str]) -> rrb.Blueprint:
-    """3-D view left; map, camera and time series right; the stop timeline selected."""
+def blueprint(configs: list[str], extent: np.ndarray | None = None) -> rrb.Blueprint:
+    """3-D view left; map, camera and time series right; the stop timeline, following the data.
+    `extent` (points spanning the traverse, when known) places the 3-D eye above its south side."""
     plots = [rrb.TimeSeriesView(origin=series_path(name), name=title) for name, (title, _) in SERIES.items()]
+    eye = None
+    if extent is not None and len(extent):
+        lo, hi = np.min(extent, axis=0), np.max(extent, axis=0)
+        centre, radius = (lo + hi) / 2.0, max(float(np.max(hi - lo)) / 2.0, 10.0)
+        eye = rrb.EyeControls3D(position=centre + np.array([0.0, -2.0 * radius, 1.8 * radius]),
+                                look_target=centre, eye_up=[0.0, 0.0, 1.0])
+    # Tie links and landmarks of the configurations other than the primary (last) one hide by
+    # default: they nearly coincide with the primary's and would bury the trajectories.
+    hidden = [f"- {path(c)}" for c in configs[:-1] for path in (ties_path, landmarks_path)]
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(origin="world", name="traverse (local ENU)"),
+            rrb.Spatial3DView(origin="world", name="traverse (local ENU)", eye_controls=eye,
+                              contents=["+ $origin/**", *hidden]),
             rrb.Vertical(
                 rrb.Horizontal(
                     rrb.MapView(origin="map", name="map (WGS84)"),
@@ -95,7 +107,7 @@ def blueprint(configs: list[str]) -> rrb.Blueprint:
             ),
             column_shares=[3, 2],
         ),
-        rrb.TimePanel(timeline="stop"),
+        rrb.TimePanel(timeline="stop", play_state="following", state="collapsed"),
         collapse_panels=True,
     )
 
@@ -137,14 +149,14 @@ def log_static(
     if truth_landmarks is not None and len(truth_landmarks):
         rec.log("world/terrain", rr.Points3D(truth_landmarks, radii=0.03, colors=(120, 100, 80)), static=True)
     if truth_positions is not None:
-        rec.log("world/truth", rr.LineStrips3D([truth_positions], radii=0.08, colors=TRUTH_COLOUR,
-                                               labels=["truth"]), static=True)
+        rec.log("world/truth", rr.LineStrips3D([truth_positions], radii=rr.Radius.ui_points(3.0),
+                                               colors=TRUTH_COLOUR), static=True)
         rec.log("map/truth", rr.GeoLineStrings(lat_lon=[lat_lon(origin, truth_positions)],
                                                radii=rr.Radius.ui_points(2.0), colors=TRUTH_COLOUR), static=True)
     # Styles are static so the per-stop logs carry geometry only (from_fields: ~3x cheaper).
     for config in configs:
         rgb = colour(config)
-        rec.log(trajectory_path(config), rr.LineStrips3D.from_fields(radii=0.05, colors=rgb, labels=[config]),
+        rec.log(trajectory_path(config), rr.LineStrips3D.from_fields(radii=rr.Radius.ui_points(2.0), colors=rgb),
                 static=True)
         rec.log(covariance_path(config), rr.Ellipsoids3D.from_fields(
             colors=rgb, fill_mode=rr.components.FillMode.MajorWireframe), static=True)
