@@ -21,10 +21,10 @@ from __future__ import annotations
 from collections import defaultdict
 from dataclasses import dataclass, field
 
+import gtsam
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
-from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from ..geodesy import LocalFrame
@@ -198,7 +198,11 @@ def ellipsoid_axes(covariances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     values, vectors = np.linalg.eigh(0.5 * (covariances + np.swapaxes(covariances, 1, 2)))
     half = ELLIPSOID_SCALE_95 * np.sqrt(np.clip(values, 0.0, None))
     vectors[np.linalg.det(vectors) < 0, :, 2] *= -1.0  # a proper rotation
-    return half, Rotation.from_matrix(vectors).as_quat()  # x, y, z, w
+    return half, np.array([_xyzw(gtsam.Rot3(v).toQuaternion()) for v in vectors])
+
+
+def _xyzw(q) -> list[float]:
+    return [q.x(), q.y(), q.z(), q.w()]
 
 
 def frustum_segments(world_T_cam: np.ndarray, camera: Camera, depth_m: float = FRUSTUM_DEPTH_M) -> np.ndarray:
@@ -226,10 +230,6 @@ def tie_strips(links: list[tuple[int, int]], landmark_ids: np.ndarray, landmarks
     ends = np.asarray(landmarks)[list(rows)]
     starts = np.array([site_positions[s] for s in stops])
     return np.stack([starts, ends], axis=1).astype(np.float32)
-
-
-def transform(world_T_body: np.ndarray) -> rr.Transform3D:
-    return rr.Transform3D(translation=world_T_body[:3, 3], mat3x3=world_T_body[:3, :3])
 
 
 @dataclass
