@@ -46,7 +46,8 @@ def open_recording(target: RerunTarget, name: str) -> OpenRecording:
             target.path.parent.mkdir(parents=True, exist_ok=True)
             stream.save(target.path)
         elif target.mode == "spawn":
-            stream.spawn(memory_limit=target.memory_limit, executable_path=_viewer_executable())
+            # the module-level spawn: RecordingStream.spawn cannot name the executable
+            rr.spawn(memory_limit=target.memory_limit, executable_path=_viewer_executable(), recording=stream)
         elif target.mode == "serve":
             served = stream.serve_grpc(server_memory_limit=target.memory_limit)
         else:
