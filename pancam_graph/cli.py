@@ -45,8 +45,9 @@ def _run_with_progress(scenario, options: RunOptions, quiet: bool = False, liste
         return run(scenario, options, progress=report, listener=listener)
 
 
-RERUN_HELP = ("rerun viewer: 'spawn', 'save' (recording.rrd in the results folder), 'save:FILE.rrd', "
-              "'serve' (gRPC + web viewer), 'connect:URL' (a running viewer, e.g. rerun+http://host:9876/proxy)")
+def _rerun_help(default_file: str) -> str:
+    return (f"rerun viewer: 'spawn', 'save' ({default_file} in the results folder), 'save:FILE.rrd', "
+            "'serve' (gRPC + web viewer), 'connect:URL' (a running viewer, e.g. rerun+http://host:9876/proxy)")
 
 
 def _rerun_target(text: str, memory_limit: str):
@@ -104,7 +105,7 @@ def run_command(
     no_hrc: bool = typer.Option(False, "--no-hrc", help="skip configurations that use the HRC"),
     batch: bool = typer.Option(False, "--batch", help="polish every estimate with batch Levenberg-Marquardt"),
     quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
-    rerun: str | None = typer.Option(None, "--rerun", help=RERUN_HELP),
+    rerun: str | None = typer.Option(None, "--rerun", help=_rerun_help("recording.rrd")),
     viewer_memory: str = typer.Option("25%", "--viewer-memory", help="memory limit of a spawned or served viewer"),
 ) -> None:
     """Simulate a traverse, solve every configuration with iSAM2, compare with truth and GPS.
@@ -156,7 +157,7 @@ def run_command(
 @app.command("view")
 def view_command(
     results: Path = typer.Argument(..., help="a results folder written by `pancam-graph run`"),
-    rerun: str = typer.Option("spawn", "--rerun", help=RERUN_HELP.replace("results folder", "results folder's name")),
+    rerun: str = typer.Option("spawn", "--rerun", help=_rerun_help("replay.rrd")),
     viewer_memory: str = typer.Option("25%", "--viewer-memory", help="memory limit of a spawned or served viewer"),
 ) -> None:
     """Replay a finished results folder into rerun with the live run's layout."""

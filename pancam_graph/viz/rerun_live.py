@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -58,11 +57,9 @@ class RerunRecorder:
     within 30 % of the run time (`pancam-graph bench --rerun`).
     """
 
-    def __init__(self, rec: rr.RecordingStream, refresh_every: int = CHECKPOINT_EVERY_STOPS,
-                 on_checkpoint: Callable[[int], None] | None = None):
+    def __init__(self, rec: rr.RecordingStream, refresh_every: int = CHECKPOINT_EVERY_STOPS):
         self.rec = rec
         self.refresh_every = refresh_every
-        self.on_checkpoint = on_checkpoint
         self.series = scene.SeriesBuffer()
         self.pending = _PrimaryRows()
 
@@ -87,8 +84,7 @@ class RerunRecorder:
         self.previous_tracks = np.zeros(0, dtype=np.int64)
         rig = traverse.rig
         self.rec.send_blueprint(scene.blueprint(self.configs, None if truth is None else truth.positions))
-        self.rec.log("world/rover/left_cam/features", rr.Points2D.from_fields(radii=2.0), static=True)
-        self.rec.log("world/rover/left_cam/features", FEATURES, static=True)
+        self.rec.log("world/rover/left_cam/features", rr.Points2D.from_fields(radii=2.0), FEATURES, static=True)
         scene.log_static(self.rec, self.configs, rig, rig.body_T_left(0.0, traverse.traverse_tilt_rad).matrix(),
                          traverse.origin, None if truth is None else truth.positions,
                          None if truth is None else truth.landmarks)
@@ -139,8 +135,6 @@ class RerunRecorder:
                                                                       self.positions[self.primary][-1]),
                                                radii=rr.Radius.ui_points(7.0), colors=scene.colour(self.primary)))
         self.rec.flush()
-        if self.on_checkpoint is not None:
-            self.on_checkpoint(stop.index)
 
     def finish(self, result) -> None:
         """The final estimates (after the closing relinearization or batch polish)."""
