@@ -15,7 +15,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from .config import ConfigError, load_scenario, resolve_scenario
-from .errors import PancamGraphError
+from .errors import InputError, PancamGraphError
 from .pipeline import RunOptions, RunResult, percentiles, run
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
@@ -31,7 +31,7 @@ def _load(scenario: str):
 
 def _fail(exc: PancamGraphError, bad_input: bool = False) -> typer.Exit:
     console.print(f"[bold red]error:[/] {exc}", markup=True, highlight=False, soft_wrap=True)
-    return typer.Exit(EXIT_USAGE if bad_input or isinstance(exc, ConfigError) else EXIT_FAILURE)
+    return typer.Exit(EXIT_USAGE if bad_input or isinstance(exc, ConfigError | InputError) else EXIT_FAILURE)
 
 
 def _run_with_progress(scenario, options: RunOptions, quiet: bool = False, listener=None) -> RunResult:

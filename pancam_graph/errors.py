@@ -12,6 +12,11 @@ class ConfigError(PancamGraphError):
     """A scenario or configuration file is missing, malformed or out of range."""
 
 
+class InputError(PancamGraphError):
+    """A recorded input (bag, GPS log, calibration, observation file) is missing, malformed or
+    truncated; the message names the file and the line, record or field."""
+
+
 class GeodesyError(PancamGraphError):
     """A coordinate conversion got invalid input (non-finite, out of range)."""
 

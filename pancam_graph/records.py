@@ -66,6 +66,19 @@ class GpsFix:
 
 
 @dataclass(frozen=True)
+class OdometryTrack:
+    """Wheel odometry as recorded: the body pose in the odometry frame at each message time.
+    Only differences between poses are used, so the odometry frame's origin does not matter."""
+
+    source: str  # file and topic, for messages
+    times_s: np.ndarray  # (N,) increasing
+    odom_T_body: np.ndarray  # (N, 4, 4)
+
+    def __len__(self) -> int:
+        return len(self.times_s)
+
+
+@dataclass(frozen=True)
 class DeadReckoning:
     """Wheel odometry + IMU increment from the previous stop: prev_T_curr (4x4) and its 6x6
     covariance ordered [rotation, translation] in the current body frame (GTSAM convention)."""

@@ -36,19 +36,26 @@ def path_length(positions: np.ndarray) -> float:
     return float(np.sum(np.linalg.norm(np.diff(positions, axis=0), axis=1)))
 
 
+def fit_yaw(est: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares rotation about z and translation (rot 3x3, t 3) with rot @ est + t ~ ref."""
+    mu_e, mu_r = est.mean(axis=0), ref.mean(axis=0)
+    h = (est - mu_e)[:, :2].T @ (ref - mu_r)[:, :2]
+    theta = np.arctan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
+    c, s = np.cos(theta), np.sin(theta)
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return rot, mu_r - rot @ mu_e
+
+
 def align(est: np.ndarray, ref: np.ndarray, kind: Alignment) -> tuple[np.ndarray, str]:
     """Rigidly align est (N, 3) to ref (N, 3); never with scale. Returns the aligned points and
     the alignment applied (a degenerate geometry falls back and says so)."""
     if kind == "none":
         return est, "none"
+    if kind == "yaw":
+        rot, t = fit_yaw(est, ref)
+        return est @ rot.T + t, "yaw"
     mu_e, mu_r = est.mean(axis=0), ref.mean(axis=0)
     e, r = est - mu_e, ref - mu_r
-    if kind == "yaw":
-        h = e[:, :2].T @ r[:, :2]
-        theta = np.arctan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
-        c, s = np.cos(theta), np.sin(theta)
-        rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        return e @ rot.T + mu_r, "yaw"
     cov = r.T @ e / len(est)
     if np.linalg.matrix_rank(cov, tol=1e-9 * max(np.abs(cov).max(), 1e-12)) < 2:
         # Umeyama is degenerate on a straight line: fall back to yaw + translation.
