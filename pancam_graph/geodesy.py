@@ -26,6 +26,10 @@ class LocalFrame:
     _transformer: Transformer = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
+        # Plain floats: a numpy scalar's repr ("np.float64(49.0)") would corrupt the PROJ string,
+        # and PROJ then silently builds a different transformation.
+        for name in ("lat0_deg", "lon0_deg", "h0_m"):
+            object.__setattr__(self, name, float(getattr(self, name)))
         if not (-90.0 <= self.lat0_deg <= 90.0) or not (-180.0 <= self.lon0_deg <= 360.0):
             raise GeodesyError(f"origin out of range: lat {self.lat0_deg}, lon {self.lon0_deg}")
         pipeline = (

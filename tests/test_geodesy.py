@@ -52,3 +52,11 @@ def test_bad_input_raises_typed_errors():
         frame.to_enu(91.0, 0.0, 0.0)
     with pytest.raises(GeodesyError):
         LocalFrame(95.0, 0.0, 0.0)
+
+
+def test_numpy_scalar_origin_is_the_same_frame():
+    lat, lon, h = np.array([49.015003823272, 8.4342971002335, 116.43032836914])
+    frame = LocalFrame(lat, lon, h)  # numpy scalars, as they come out of a loaded table
+    np.testing.assert_allclose(frame.to_enu(lat, lon, h), [[0.0, 0.0, 0.0]], atol=1e-6)
+    np.testing.assert_allclose(frame.to_enu(lat + 1e-3, lon, h), LocalFrame(float(lat), float(lon), float(h))
+                               .to_enu(lat + 1e-3, lon, h), atol=1e-9)

@@ -72,7 +72,6 @@ def _fix(path: Path, line: int, row: dict, sigma_h: float | None, sigma_v: float
         return value
 
     lat, lon = number("lat_deg"), number("lon_deg")
-    sigma_h, sigma_v = sigma_h, sigma_v  # configured defaults, overridden by columns below
     if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 360.0):
         raise InputError(f"{path}: line {line}: latitude {lat} / longitude {lon} out of range")
     if row.get("sigma_h_m") not in (None, ""):
