@@ -1,7 +1,7 @@
 """KITTI raw drive 2011_09_26_drive_0001 (images omitted) and a generated KITTI-layout folder."""
 
 import shutil
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import cv2
@@ -31,7 +31,7 @@ def test_oxts_to_enu_agrees_with_an_independent_computation():
     lat, lon, alt = (drive.oxts.field(n) for n in ("lat", "lon", "alt"))
     assert len(lat) == 108 and not drive.left_images
     lines = (DRIVE / "oxts" / "timestamps.txt").read_text().split("\n")
-    first = datetime.strptime(lines[0][:26], "%Y-%m-%d %H:%M:%S.%f").replace(tzinfo=timezone.utc)
+    first = datetime.strptime(lines[0][:26], "%Y-%m-%d %H:%M:%S.%f").replace(tzinfo=UTC)
     assert drive.oxts.times_s[0] == pytest.approx(first.timestamp(), abs=1e-6)
     assert np.all(np.diff(drive.oxts.times_s) > 0.09)  # 10 Hz
     enu = LocalFrame(lat[0], lon[0], alt[0]).to_enu(lat, lon, alt)
