@@ -9,9 +9,8 @@ from pancam_graph.errors import InputError
 from pancam_graph.fusion import fuse_odometry_gps
 from pancam_graph.io.rosbag import read_navsatfix, read_odometry
 
-BAG = Path(__file__).parents[1] / ".." / "shared" / "data" / "real" / "robot_localization" / "test1.bag"
+BAG = Path(__file__).parent / "data" / "real" / "robot_localization" / "test1.bag"
 ODOM = "/husky_velocity_controller/odom"
-pytestmark = pytest.mark.skipif(not BAG.exists(), reason=f"real data not found at {BAG}")
 
 
 @pytest.fixture(scope="module")

@@ -11,11 +11,10 @@ from pancam_graph.geodesy import LocalFrame
 from pancam_graph.io.export import read_geojson_line, write_geojson, write_kitti, write_kml
 from pancam_graph.io.gps import read_gps_csv, read_kfgins
 
-REAL = Path(__file__).parents[1] / ".." / "shared" / "data" / "real"
+REAL = Path(__file__).parent / "data" / "real"
 KFGINS = REAL / "kfgins" / "GNSS-RTK.txt"
 
 
-@pytest.mark.skipif(not KFGINS.exists(), reason="real data not found")
 def test_kfgins_round_trip_below_a_millimetre_and_geojson_rereads(tmp_path):
     fixes = read_kfgins(KFGINS)
     assert len(fixes) == 3413
