@@ -8,7 +8,13 @@ import pytest
 
 from pancam_graph.errors import InputError
 from pancam_graph.geodesy import LocalFrame
-from pancam_graph.io.export import read_geojson_line, write_geojson, write_kitti, write_kml
+from pancam_graph.io.export import (
+    read_geojson_line,
+    write_geojson,
+    write_kitti,
+    write_kml,
+    write_trajectory_exports,
+)
 from pancam_graph.io.gps import read_gps_csv, read_kfgins
 
 REAL = Path(__file__).parent / "data" / "real"
@@ -60,3 +66,14 @@ def test_csv_reader_names_file_line_and_column(tmp_path):
     nohead.write_text("0,39.7,-105.1,1700\n")
     with pytest.raises(InputError, match="nohead.csv: line 1: header lacks column"):
         read_gps_csv(nohead)
+
+
+def test_trajectory_exports_go_back_to_wgs84(tmp_path):
+    origin = LocalFrame(39.7392, -105.1450, 1705.0)
+    poses = np.tile(np.eye(4), (3, 1, 1))
+    poses[:, :3, 3] = [[0.0, 0.0, 0.0], [100.0, 0.0, 1.0], [100.0, 200.0, 2.0]]
+    write_trajectory_exports(tmp_path, "est", origin, np.array([0.0, 1.0, 2.0]), poses)
+    assert {p.name for p in tmp_path.iterdir()} == {"est.kitti", "est_wgs84.csv", "est.geojson", "est.kml"}
+    llh = read_geojson_line(tmp_path / "est.geojson")
+    np.testing.assert_allclose(origin.to_enu(llh[:, 0], llh[:, 1], llh[:, 2]), poses[:, :3, 3], atol=1e-3)
+    assert llh[1, 1] > -105.1450 and llh[2, 0] > 39.7392  # east is +longitude, north is +latitude

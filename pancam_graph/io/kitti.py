@@ -63,7 +63,8 @@ class KittiDrive:
 
     def gps_fixes(self, geoid_height_m: float = 0.0, min_sigma_m: float = 0.02) -> list[GpsFix]:
         """OXTS positions as fixes: ellipsoidal height = alt + `geoid_height_m` (KITTI's alt is
-        above mean sea level); sigma from pos_accuracy."""
+        above mean sea level); horizontal sigma from pos_accuracy, vertical twice that (OXTS
+        states no vertical accuracy; GNSS height is typically about twice as uncertain)."""
         accuracy = np.maximum(self.oxts.field("pos_accuracy"), min_sigma_m)
         return [GpsFix(float(t), float(lat), float(lon), float(alt) + geoid_height_m, float(s), float(2 * s))
                 for t, lat, lon, alt, s in zip(self.oxts.times_s, self.oxts.field("lat"), self.oxts.field("lon"),
