@@ -13,7 +13,7 @@ from .config import EstimatorConfig
 from .frontend.motion import Motion
 from .graph import factors, noise
 from .graph.keys import L, X
-from .graph.smoother import Smoother, poses_array
+from .graph.smoother import Smoother
 from .records import Stop, Traverse
 from .rig import triangulate_rectified
 
@@ -93,8 +93,6 @@ class Localizer:
         self.bridged_stops = 0
         self.rejected_ties = 0
         self.rejected_hrc = 0
-        self.gps_fixes_used = 0
-        self.gps_outliers = 0
 
     # -- the step ---------------------------------------------------------------------------
 
@@ -119,7 +117,6 @@ class Localizer:
         ms = self.smoother.update(context=f"at stop {k}")
         d2 = self._gps_mahalanobis2(stop, gps_enu) if gps_enu is not None else None
         outlier = d2 is not None and d2 > GPS_OUTLIER_GATE
-        self.gps_outliers += outlier
         return StepResult(k, ms, self.smoother.relinearized[-1], new_landmarks, rejected, d2, outlier)
 
     # -- sites: tie points between panoramas ------------------------------------------------
@@ -213,7 +210,6 @@ class Localizer:
         enu = self.traverse.origin.to_enu(fix.lat_deg, fix.lon_deg, fix.h_m)[0]
         model = noise.robust(self.gps_kernel, noise.gps_position(fix.sigma_horizontal_m, fix.sigma_vertical_m))
         self.smoother.add(factors.gps(stop.index, enu, self.traverse.gps_lever_arm_m, model))
-        self.gps_fixes_used += 1
         return enu
 
     def _gps_mahalanobis2(self, stop: Stop, enu: np.ndarray) -> float:
@@ -234,7 +230,10 @@ class Localizer:
         return rot @ cov @ rot.T
 
     def snapshot(self) -> Snapshot:
-        values = self.smoother.estimate()
+        """The current iSAM2 estimate."""
+        return self._snapshot_of(self.smoother.estimate())
+
+    def _snapshot_of(self, values: gtsam.Values) -> Snapshot:
         flat = gtsam.utilities.extractPose3(values)  # rows: R row-major (9), t (3); in key order
         poses = np.zeros((len(flat), 4, 4))
         poses[:, :3, :3] = flat[:, :9].reshape(-1, 3, 3)
@@ -250,10 +249,11 @@ class Localizer:
 
     # -- results ---------------------------------------------------------------------------
 
-    def trajectory(self, batch: bool = False) -> np.ndarray:
-        """Estimated world_T_body (N, 4, 4) of every stop so far."""
+    def final(self, batch: bool = False) -> Snapshot:
+        """The estimate after closing relinearization passes (and, with `batch`, Levenberg-Marquardt
+        over the whole graph): poses and landmarks from the same values."""
         self.smoother.settle()
         values = self.smoother.estimate()
         if batch:
             values = self.smoother.batch_polish(values)
-        return poses_array(values, [X(k) for k in self.stops])
+        return self._snapshot_of(values)

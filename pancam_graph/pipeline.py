@@ -57,11 +57,8 @@ class ConfigurationResult:
     landmark_positions: np.ndarray  # (M, 3) final landmark estimates, world
     tie_links: list[tuple[int, int]]  # (track, site stop)
     bridged_stops: int
-    landmarks: int
     rejected_tie_points: int
     rejected_hrc_measurements: int
-    gps_fixes_used: int
-    gps_outliers: int  # fixes failing the 99 % chi-square test at the estimate after their update
     solver: str
     metrics: TrajectoryMetrics
     metrics_vs_gps: TrajectoryMetrics | None
@@ -70,6 +67,19 @@ class ConfigurationResult:
     def update_ms(self) -> np.ndarray:
         """Wall time of each stop's iSAM2 update."""
         return np.array([s.update_ms for s in self.steps])
+
+    @property
+    def landmarks(self) -> int:
+        return len(self.landmark_ids)
+
+    @property
+    def gps_fixes_used(self) -> int:
+        return sum(s.gps_used for s in self.steps)
+
+    @property
+    def gps_outliers(self) -> int:
+        """Fixes failing the 99 % chi-square test at the estimate after their update."""
+        return sum(s.gps_outlier for s in self.steps)
 
 
 @dataclass(frozen=True)
@@ -175,23 +185,20 @@ def run(
     for name, localizer in localizers.items():
         if progress is not None:
             progress(f"finishing {name}", 0, 1)
-        poses = localizer.trajectory(batch=options.batch)
-        snapshot = localizer.snapshot()
+        final = localizer.final(batch=options.batch)
+        poses = final.world_T_body
         alignment = "none" if CONFIGURATIONS[name].use_gps else "se3"
         results[name] = ConfigurationResult(
             name=name,
             world_T_body=poses,
             position_covariance=np.stack([localizer.position_covariance(k) for k in localizer.stops]),
             steps=steps[name],
-            landmark_ids=snapshot.landmark_ids,
-            landmark_positions=snapshot.landmarks,
+            landmark_ids=final.landmark_ids,
+            landmark_positions=final.landmarks,
             tie_links=localizer.tie_links(),
             bridged_stops=localizer.bridged_stops,
-            landmarks=len(localizer.landmarks),
             rejected_tie_points=localizer.rejected_ties,
             rejected_hrc_measurements=localizer.rejected_hrc,
-            gps_fixes_used=localizer.gps_fixes_used,
-            gps_outliers=localizer.gps_outliers,
             solver="isam2+batch_lm" if options.batch else "isam2",
             metrics=compare(poses[:, :3, 3], truth.positions, alignment, poses, truth.world_T_body),
             metrics_vs_gps=evaluate_against_gps(traverse, poses),

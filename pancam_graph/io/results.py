@@ -10,11 +10,15 @@ import shutil
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import gtsam
 import numpy as np
 
 from ..errors import ResultsError
+
+if TYPE_CHECKING:
+    from ..pipeline import RunResult
 
 
 @contextlib.contextmanager
@@ -76,7 +80,7 @@ COVARIANCE_COLUMNS = ["stop", "cxx", "cxy", "cxz", "cyy", "cyz", "czz"]
 _UPPER = ([0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2])
 
 
-def write_run(result, folder: Path) -> None:
+def write_run(result: RunResult, folder: Path) -> None:
     """Everything a run computed, as plain files (see the README's "Outputs")."""
     from ..config import dump_scenario
     from ..pipeline import metrics_document

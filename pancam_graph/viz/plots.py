@@ -31,15 +31,9 @@ def plot_trajectories(result: RunResult, path: Path) -> None:
     sites = [s.index for s in result.traverse.stops if s.is_site]
     ax.plot(truth[sites, 0], truth[sites, 1], "k^", ms=5, label="sites (panoramas)", zorder=4)
     ax.plot(*truth[0, :2], "go", ms=8, label="start")
-    ax.set_xlabel("east (m)")
-    ax.set_ylabel("north (m)")
     ax.set_aspect("equal", adjustable="datalim")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8, loc="best")
-    ax.set_title(f"{result.scenario.name}, seed {result.seed}: estimated vs true trajectory")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    _label(ax, "east (m)", "north (m)", f"{result.scenario.name}, seed {result.seed}: estimated vs true trajectory")
+    _save(fig, path)
 
 
 def reference_distance(result: RunResult) -> np.ndarray:
@@ -73,15 +67,9 @@ def plot_error_vs_distance(result: RunResult, path: Path) -> None:
     bridged = [k for k, m in enumerate(result.motions) if m is not None and m.bridged]
     if bridged:
         ax.plot(dist[bridged], np.zeros(len(bridged)), "|", color="k", ms=12, label="VO bridged")
-    ax.set_xlabel("distance travelled (m)")
-    ax.set_ylabel("3-D position error (m)")
     ax.set_yscale("symlog", linthresh=0.1)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title("position error against distance travelled")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    _label(ax, "distance travelled (m)", "3-D position error (m)", "position error against distance travelled")
+    _save(fig, path)
 
 
 def plot_distance_relation(result: RunResult, path: Path) -> None:
@@ -94,19 +82,12 @@ def plot_distance_relation(result: RunResult, path: Path) -> None:
         label = f"{name} (scale {distance_scale(result, name):.4f})"
         left.plot(ref, est, color=_COLOURS.get(name), lw=1.2, label=label)
         right.plot(ref, est - ref, color=_COLOURS.get(name), lw=1.2, label=name)
-    left.set_xlabel("reference distance travelled (m)")
-    left.set_ylabel("estimated distance travelled (m)")
-    left.legend(fontsize=8)
-    left.set_title("accumulated distance: estimate vs reference")
     right.axhline(0.0, color="k", lw=1.0)
-    right.set_xlabel("reference distance travelled (m)")
-    right.set_ylabel("estimated - reference distance (m)")
-    right.set_title("distance difference (scale error shows as a slope)")
-    for ax in (left, right):
-        ax.grid(True, alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    _label(left, "reference distance travelled (m)", "estimated distance travelled (m)",
+           "accumulated distance: estimate vs reference")
+    _label(right, "reference distance travelled (m)", "estimated - reference distance (m)",
+           "distance difference (scale error shows as a slope)")
+    _save(fig, path)
 
 
 def plot_elevation_profile(result: RunResult, path: Path) -> None:
@@ -121,11 +102,19 @@ def plot_elevation_profile(result: RunResult, path: Path) -> None:
     ax.plot(ref, result.truth.positions[:, 2], "k-", lw=2.0, label="truth", zorder=2)
     for name, c in result.configurations.items():
         ax.plot(ref, c.world_T_body[:, 2, 3], color=_COLOURS.get(name), lw=1.2, label=name, zorder=3)
-    ax.set_xlabel("reference distance travelled (m)")
-    ax.set_ylabel("up (m, local ENU)")
+    _label(ax, "reference distance travelled (m)", "up (m, local ENU)", "elevation profile")
+    _save(fig, path)
+
+
+def _label(ax, xlabel: str, ylabel: str, title: str) -> None:
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
-    ax.set_title("elevation profile")
+
+
+def _save(fig, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
