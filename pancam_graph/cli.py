@@ -97,7 +97,8 @@ def _summary_table(result: RunResult) -> Table:
 
 @app.command("run")
 def run_command(
-    scenario: str = typer.Argument("denver_trail", help="bundled scenario name or path to a TOML file"),
+    scenario: str = typer.Argument("denver_trail", help="bundled scenario name, a scenario TOML file, an "
+                                   "observation folder, a ROS bag or a KITTI raw drive folder"),
     out: Path | None = typer.Option(None, "--out", help="results folder (default: results/<scenario>-seed<N>-<time>)"),
     seed: int | None = typer.Option(None, "--seed", help="override the scenario's seed"),
     no_gps: bool = typer.Option(False, "--no-gps", help="skip the configuration that uses GPS"),
@@ -107,15 +108,29 @@ def run_command(
     quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
     rerun: str | None = typer.Option(None, "--rerun", help=_rerun_help("recording.rrd")),
     viewer_memory: str = typer.Option("25%", "--viewer-memory", help="memory limit of a spawned or served viewer"),
+    gps_topic: str | None = typer.Option(None, "--gps-topic", help="bag: NavSatFix topic (default: the only one)"),
+    odom_topic: str | None = typer.Option(None, "--odom-topic", help="bag: Odometry topic (default: the only one)"),
+    holdout_every: int = typer.Option(5, "--holdout-every", min=0,
+                                      help="recorded drives: keep every N-th fix out of the graph for scoring "
+                                           "(0: use all)"),
+    geoid_height: float = typer.Option(0.0, "--geoid-height", help="KITTI: geoid height (m) added to OXTS alt"),
 ) -> None:
-    """Simulate a traverse, solve every configuration with iSAM2, compare with truth and GPS.
+    """Solve a traverse with iSAM2 and evaluate it; the source decides what runs.
 
-    Writes metrics.json, trajectories (TUM), covariances, landmarks, per-stop steps, plots and
-    report.md into the results folder; a failed run leaves <out>.partial with what was done.
+    A scenario is simulated and every configuration compared with truth and GPS; an observation
+    folder runs the same back-end on external observations; a ROS bag or a KITTI raw drive fuses
+    wheel (or inertial) odometry with GPS, scored on held-out fixes. Writes metrics.json,
+    trajectories (TUM, KITTI, WGS84 CSV, GeoJSON, KML) and more into the results folder; a failed
+    run leaves <out>.partial with what was done.
     """
     from .io.results import results_folder, write_run
+    from .recorded import is_bag, is_kitti_drive
     from .viz.report import write_report
 
+    source = Path(scenario)
+    if is_bag(source) or is_kitti_drive(source):
+        _run_recorded(source, out, gps_topic, odom_topic, holdout_every, geoid_height)
+        return
     recording = None
     try:
         sc = _load(scenario)
@@ -154,6 +169,47 @@ def run_command(
         _serve_until_interrupted(recording.served_url)
 
 
+def _run_recorded(source: Path, out: Path | None, gps_topic: str | None, odom_topic: str | None,
+                  holdout_every: int, geoid_height: float) -> None:
+    from .fusion import FusionOptions
+    from .io.results import results_folder, write_fusion_run
+    from .recorded import drive_from_bag, drive_from_kitti, fuse_drive, fusion_metrics_document, is_bag
+
+    options = FusionOptions(holdout_every=holdout_every)
+    try:
+        with console.status(f"reading {source}"):
+            if is_bag(source):
+                drive = drive_from_bag(source, gps_topic, odom_topic)
+            else:
+                drive = drive_from_kitti(source, geoid_height)
+        for reason in drive.rejected_fixes[:10]:
+            console.print(f"[yellow]fix left out:[/] {reason}", highlight=False)
+        if len(drive.rejected_fixes) > 10:
+            console.print(f"[yellow]... {len(drive.rejected_fixes) - 10} more fixes left out[/]")
+        out = out or Path("results") / f"{drive.name}-{datetime.now():%Y%m%d-%H%M%S}"
+        with results_folder(out) as folder:
+            with console.status(f"fusing {len(drive.odometry)} odometry poses and {len(drive.fixes)} fixes"):
+                result = fuse_drive(drive, options)
+            document = fusion_metrics_document(drive, result, options)
+            write_fusion_run(drive, result, document, folder)
+    except PancamGraphError as exc:
+        raise _fail(exc) from None
+    table = Table(title=f"{drive.name}: odometry + GPS ({len(result.times_s)} fixes, "
+                        f"every {holdout_every or 'no'}th held out)")
+    for col in ("track", "RMS 2-D to held-out fixes m", "avg err vs all fixes m", "length ratio"):
+        table.add_column(col, justify="right")
+    scores = document["holdout"]
+    for name, key in (("odometry_gps", "fused_rms_m"), ("odometry", "odometry_only_rms_m")):
+        vs = document["configs"][name]["vs_gps"]
+        table.add_row(name, "-" if scores is None else f"{scores[key]:.3f}",
+                      f"{vs['average_error_m']:.3f}", f"{vs['length_ratio']:.4f}")
+    Console(width=150).print(table)
+    if scores is not None:
+        console.print(f"held-out fixes' own stated DRMS: {scores['stated_drms_m']:.3f} m "
+                      f"({scores['held_out_fixes']} fixes)")
+    console.print(f"results in {out}")
+
+
 @app.command("view")
 def view_command(
     results: Path = typer.Argument(..., help="a results folder written by `pancam-graph run`"),
@@ -184,6 +240,70 @@ def view_command(
         console.print(f"rerun recording: {target.path}")
     elif target.mode == "serve":
         _serve_until_interrupted(recording.served_url)
+
+
+@app.command("eval")
+def eval_command(
+    estimate: Path = typer.Argument(..., help="estimated trajectory: TUM, KITTI poses or a GPS log"),
+    reference: Path = typer.Argument(..., help="reference: TUM, KITTI poses or a GPS log (NMEA, GPX, CSV, KF-GINS)"),
+    align: str = typer.Option("none", "--align", help="none | se3 | yaw: rigid alignment of the estimate first"),
+    rpe_delta: float = typer.Option(10.0, "--rpe-delta", min=0.0, help="relative pose error over this many "
+                                                                       "metres of reference path"),
+    max_dt: float = typer.Option(0.01, "--max-dt", min=0.0, help="association: largest time difference, s"),
+    origin: str | None = typer.Option(None, "--origin", help="LAT,LON,H of the ENU frame for GPS logs (default: "
+                                                            "local_frame.json beside the estimate, else the "
+                                                            "first fix)"),
+    gps_sigma: float = typer.Option(1.0, "--gps-sigma", help="sigma for GPS logs that state none (unused by "
+                                                             "the metrics)"),
+    out: Path | None = typer.Option(None, "--out", help="write metrics.json (and a plot) into this folder"),
+) -> None:
+    """Compare two trajectories, or a trajectory with a GPS log, with the run's metrics."""
+    from .evaluation.evaluate import evaluate_trajectories
+    from .geodesy import LocalFrame
+    from .io.results import read_local_frame, write_json
+    from .io.trajectories import read_trajectory
+
+    try:
+        if align not in ("none", "se3", "yaw"):
+            raise ConfigError(f"--align {align!r}: expected none, se3 or yaw")
+        frame = None
+        if origin is not None:
+            try:
+                frame = LocalFrame(*(float(v) for v in origin.split(",")))
+            except (TypeError, ValueError):
+                raise ConfigError(f"--origin {origin!r}: expected LAT,LON,H in degrees and metres") from None
+        frame = frame or read_local_frame(estimate.parent)
+        est = read_trajectory(estimate, frame, gps_sigma)
+        ref = read_trajectory(reference, frame, gps_sigma)
+        if (est.geodetic is None) != (ref.geodetic is None) and frame is None:
+            raise ConfigError(f"{reference if ref.geodetic is not None else estimate}: a GPS log needs the ENU "
+                              "origin of the other trajectory: give --origin LAT,LON,H")
+        result = evaluate_trajectories(est, ref, align, max_dt, rpe_delta)
+    except PancamGraphError as exc:
+        raise _fail(exc, bad_input=True) from None
+    m = result.metrics
+    document = {**result.as_dict(), "configs": {estimate.stem: m.as_dict()}}
+    table = Table(title=f"{estimate.name} vs {reference.name} ({len(result.reference)} matched, "
+                        f"{result.association}, alignment {result.alignment})")
+    cells = {
+        "ATE RMSE m": m.ate_rmse_m, "avg err m": m.average_error_m, "closure m": m.closure_error_m,
+        "rel. closure %": m.relative_closure_pct, "length ratio": m.length_ratio,
+        f"RPE {rpe_delta:g} m trans. RMSE m": m.rpe_translation_rmse_m,
+        f"RPE {rpe_delta:g} m rot. RMSE deg": m.rpe_rotation_rmse_deg, "drift %": m.drift_translation_pct,
+    }
+    for col in cells:
+        table.add_column(col, justify="right")
+    table.add_row(*("-" if v is None else f"{v:.4f}" for v in cells.values()))
+    Console(width=170).print(table)
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        write_json(out / "metrics.json", document)
+        from .viz.plots import evaluation_plot
+
+        evaluation_plot(result, out / "eval.png")
+        console.print(f"metrics in {out / 'metrics.json'}, plot {out / 'eval.png'}")
+    else:
+        print(json.dumps(document, indent=2))
 
 
 @app.command("bench")

@@ -29,5 +29,9 @@ class GraphError(PancamGraphError):
     """The factor graph is ill-posed or the smoother failed."""
 
 
+class EvaluationError(PancamGraphError):
+    """Two trajectories cannot be compared (nothing matches in time, counts differ)."""
+
+
 class ResultsError(PancamGraphError):
     """A results folder cannot be written or read."""

@@ -60,7 +60,7 @@ class FusionResult:
     origin: LocalFrame
     times_s: np.ndarray  # (N,) one per fix
     world_T_body: np.ndarray  # (N, 4, 4) fused
-    odometry_only: np.ndarray  # (N, 3) odometry positions, aligned (yaw + translation) to the used fixes
+    odometry_world_T_body: np.ndarray  # (N, 4, 4) odometry alone, aligned (yaw + translation) to the used fixes
     gps_enu: np.ndarray  # (N, 3)
     sigma_horizontal_m: np.ndarray  # (N,) per axis, as stated by each fix
     used: np.ndarray  # (N,) bool: in the graph; the others are held out
@@ -81,7 +81,7 @@ class FusionResult:
             "held_out_fixes": int(held.sum()),
             "used_fixes": int(self.used.sum()),
             "fused_rms_m": rms(self.world_T_body[:, :3, 3]),
-            "odometry_only_rms_m": rms(self.odometry_only),
+            "odometry_only_rms_m": rms(self.odometry_world_T_body[:, :3, 3]),
             "stated_drms_m": float(np.sqrt(np.mean(2.0 * self.sigma_horizontal_m[held] ** 2))),
         }
 
@@ -133,9 +133,10 @@ def fuse_odometry_gps(odometry: OdometryTrack, fixes: list[GpsFix], options: Fus
     smoother.settle()
     poses = poses_array(smoother.estimate(), [X(i) for i in range(len(fixes))])
 
-    rot, t = fit_yaw(odom_xyz[used], enu[used])
-    return FusionResult(origin, times, poses, odom_xyz @ rot.T + t, enu, sigma_h, used,
-                        np.asarray(smoother.update_ms))
+    world_T_odom = np.eye(4)
+    world_T_odom[:3, :3], world_T_odom[:3, 3] = fit_yaw(odom_xyz[used], enu[used])
+    odometry_only = world_T_odom @ np.stack([p.matrix() for p in odom])
+    return FusionResult(origin, times, poses, odometry_only, enu, sigma_h, used, np.asarray(smoother.update_ms))
 
 
 def _initial_alignment(odom_xyz: np.ndarray, enu: np.ndarray, used: np.ndarray) -> np.ndarray:

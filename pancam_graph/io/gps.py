@@ -1,4 +1,4 @@
-"""GPS logs as fixes: tables with declared columns (CSV with a header, KF-GINS text).
+"""GPS logs as fixes: NMEA 0183, GPX, tables with declared columns (CSV with a header, KF-GINS text).
 
 Every rejected line or bad value is named by file and line. Heights are ellipsoidal (WGS84)
 unless the file says otherwise; sigmas are 1 sigma in metres, horizontal per axis.
@@ -87,3 +87,158 @@ def _fix(path: Path, line: int, row: dict, sigma_h: float | None, sigma_v: float
     if sigma_h <= 0 or sigma_v <= 0:
         raise InputError(f"{path}: line {line}: sigmas must be positive")
     return GpsFix(number("time_s"), lat, lon, number("h_m"), sigma_h, sigma_v)
+
+
+# -- NMEA 0183 ---------------------------------------------------------------------------------
+
+def read_nmea(path: Path, sigma_horizontal_m: float | None = None, sigma_vertical_m: float | None = None
+              ) -> tuple[list[GpsFix], list[str]]:
+    """GGA fixes of an NMEA 0183 log, and the reason for every sentence left out.
+
+    - Time: GGA carries the time of day only; the date comes from the latest RMC sentence
+      (the first one in the file for fixes logged before it). `time_s` is UTC Unix time.
+    - Height: ellipsoidal = GGA altitude (above the geoid) + geoid separation.
+    - Sigma: the GST sentence of the same epoch when the receiver writes one (stated),
+      otherwise the configured sigmas.
+    - Rejected with a reason naming the line: bad or missing checksum, unparsable sentence,
+      no fix (GGA quality 0: such sentences read as latitude = longitude = 0).
+    """
+    import pynmea2
+
+    path = Path(path)
+    rejected: list[tuple[int, str]] = []
+    gga: list[tuple[int, pynmea2.GGA]] = []
+    rmc: list[tuple[int, pynmea2.RMC]] = []
+    gst: dict[object, pynmea2.GST] = {}
+    with _open(path) as f:
+        for line, text in enumerate(f, start=1):
+            text = text.strip()
+            if not text.startswith(("$", "!")):
+                continue
+            try:
+                msg = pynmea2.parse(text, check=True)
+            except pynmea2.ChecksumError as exc:
+                rejected.append((line, f"{path}: line {line}: {_reason(exc)}"))
+                continue
+            except (pynmea2.ParseError, ValueError) as exc:
+                rejected.append((line, f"{path}: line {line}: unparsable sentence: {_reason(exc)}"))
+                continue
+            if isinstance(msg, pynmea2.GGA):
+                gga.append((line, msg))
+            elif isinstance(msg, pynmea2.RMC) and msg.datestamp is not None and msg.timestamp is not None:
+                rmc.append((line, msg))
+            elif isinstance(msg, pynmea2.GST) and msg.timestamp is not None:
+                gst[msg.timestamp] = msg
+    if gga and not rmc:
+        raise InputError(f"{path}: {len(gga)} GGA sentences but no RMC sentence with a date; "
+                         "GGA carries only the time of day")
+
+    fixes = []
+    for line, msg in gga:
+        where = f"{path}: line {line}"
+        if not msg.gps_qual:
+            rejected.append((line, f"{where}: GGA without a fix (quality {msg.gps_qual or 0})"))
+            continue
+        if msg.timestamp is None or msg.altitude is None or not msg.lat or not msg.lon:
+            rejected.append((line, f"{where}: GGA lacks time, position or altitude"))
+            continue
+        try:
+            separation = float(msg.geo_sep) if msg.geo_sep else 0.0
+        except ValueError:
+            rejected.append((line, f"{where}: geoid separation {msg.geo_sep!r} is not a number"))
+            continue
+        stated = gst.get(msg.timestamp)
+        sigma_h, sigma_v = sigma_horizontal_m, sigma_vertical_m
+        if stated is not None and stated.std_dev_latitude and stated.std_dev_longitude:
+            sigma_h = float(np.sqrt(0.5 * (float(stated.std_dev_latitude) ** 2
+                                           + float(stated.std_dev_longitude) ** 2)))
+            if stated.std_dev_altitude:
+                sigma_v = float(stated.std_dev_altitude)
+        if sigma_h is None or sigma_v is None:
+            raise InputError(f"{where}: no GST sentence for this fix and no sigma configured")
+        fixes.append(GpsFix(_utc_seconds(line, msg.timestamp, rmc), float(msg.latitude), float(msg.longitude),
+                            float(msg.altitude) + separation, sigma_h, sigma_v))
+    return fixes, [reason for _, reason in sorted(rejected)]
+
+
+def _reason(exc: Exception) -> str:
+    # pynmea2 puts (message, fields) in args[0]
+    first = exc.args[0] if exc.args else exc
+    return str(first[0] if isinstance(first, tuple) else first)
+
+
+def _utc_seconds(line: int, time_of_day, rmc: list) -> float:
+    """UTC Unix time of a GGA time of day, dated by the latest RMC at or before `line`."""
+    import datetime as dt
+
+    earlier = [m for ln, m in rmc if ln <= line]
+    date_msg = earlier[-1] if earlier else rmc[0]
+    stamp = dt.datetime.combine(date_msg.datestamp, time_of_day)
+    # The GGA may already belong to the next day while the last RMC is from before midnight.
+    rmc_stamp = dt.datetime.combine(date_msg.datestamp, date_msg.timestamp)
+    if (rmc_stamp - stamp).total_seconds() > 12 * 3600:
+        stamp += dt.timedelta(days=1)
+    elif (stamp - rmc_stamp).total_seconds() > 12 * 3600:
+        stamp -= dt.timedelta(days=1)
+    return stamp.timestamp()
+
+
+# -- GPX ---------------------------------------------------------------------------------------
+
+def read_gpx(path: Path, sigma_horizontal_m: float, sigma_vertical_m: float, geoid_separation_m: float = 0.0
+             ) -> list[GpsFix]:
+    """Track points of a GPX file. GPX states no accuracy, so the configured sigmas apply.
+
+    GPX `ele` is, by most receivers, height above the geoid: ellipsoidal height =
+    ele + `geoid_separation_m` (0 by default, i.e. `ele` is taken as ellipsoidal). A point
+    without time or elevation is an error naming track, segment and point.
+    """
+    import datetime as dt
+
+    import gpxpy
+    import gpxpy.gpx
+
+    path = Path(path)
+    with _open(path) as f:
+        try:
+            gpx = gpxpy.parse(f)
+        except gpxpy.gpx.GPXException as exc:
+            raise InputError(f"{path}: not a readable GPX file: {exc}") from None
+    fixes = []
+    for ti, track in enumerate(gpx.tracks):
+        for si, segment in enumerate(track.segments):
+            for pi, p in enumerate(segment.points):
+                where = f"{path}: track {ti}, segment {si}, point {pi} ({p.latitude}, {p.longitude})"
+                if p.elevation is None:
+                    raise InputError(f"{where}: no <ele> elevation; a fix needs a height")
+                if p.time is None:
+                    raise InputError(f"{where}: no <time>")
+                stamp = p.time if p.time.tzinfo is not None else p.time.replace(tzinfo=dt.UTC)
+                fixes.append(GpsFix(stamp.timestamp(), float(p.latitude), float(p.longitude),
+                                    float(p.elevation) + geoid_separation_m, sigma_horizontal_m, sigma_vertical_m))
+    if not fixes:
+        raise InputError(f"{path}: no track points")
+    return fixes
+
+
+# -- any of the above --------------------------------------------------------------------------
+
+def read_gps_file(path: Path, sigma_horizontal_m: float | None = None, sigma_vertical_m: float | None = None
+                  ) -> tuple[list[GpsFix], list[str]]:
+    """Fixes of a GPS log in any format above, told apart by content (and `.gpx` by name), with
+    the reasons for left-out records. Configured sigmas apply where the file states none."""
+    path = Path(path)
+    if path.suffix.lower() == ".gpx":
+        if sigma_horizontal_m is None or sigma_vertical_m is None:
+            raise InputError(f"{path}: GPX states no accuracy; configure the GPS sigmas")
+        return read_gpx(path, sigma_horizontal_m, sigma_vertical_m), []
+    with _open(path) as f:
+        first = next((text.strip() for text in f if text.strip() and not text.startswith("#")), "")
+    if first.startswith(("$", "!")):
+        return read_nmea(path, sigma_horizontal_m, sigma_vertical_m)
+    if "lat_deg" in first.split(","):
+        return read_gps_csv(path, sigma_horizontal_m, sigma_vertical_m), []
+    if len(first.split()) == len(KFGINS_COLUMNS):
+        return read_kfgins(path), []
+    raise InputError(f"{path}: not a GPS log this reader knows (NMEA, GPX, CSV with a lat_deg header, "
+                     f"KF-GINS); first line: {first[:80]!r}")

@@ -11,10 +11,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import gtsam
 import numpy as np
 
 from ..errors import InputError
-from ..records import GpsFix
+from ..geodesy import LocalFrame
+from ..records import GpsFix, OdometryTrack
 from ..rig import Camera
 
 OXTS_FIELDS = (
@@ -60,6 +62,31 @@ class KittiDrive:
                 raise InputError(f"{path}: not a readable image")
             images.append(image)
         return images[0], images[1]
+
+    def world_T_body(self, origin: LocalFrame, geoid_height_m: float = 0.0) -> np.ndarray:
+        """OXTS poses (N, 4, 4) in `origin`'s ENU frame. The OXTS body is x forward, y left, z up
+        (ours) and its yaw is counter-clockwise from east, so R = Rz(yaw) Ry(pitch) Rx(roll)
+        (the devkit's convert_oxts_to_pose)."""
+        o = self.oxts
+        enu = origin.to_enu(o.field("lat"), o.field("lon"), o.field("alt") + geoid_height_m)
+        poses = np.zeros((len(enu), 4, 4))
+        for i, (roll, pitch, yaw) in enumerate(zip(o.field("roll"), o.field("pitch"), o.field("yaw"), strict=True)):
+            poses[i, :3, :3] = gtsam.Rot3.Ypr(yaw, pitch, roll).matrix()
+        poses[:, :3, 3], poses[:, 3, 3] = enu, 1.0
+        return poses
+
+    def velocity_odometry(self) -> OdometryTrack:
+        """Dead reckoning from the OXTS body velocities (vf, vl, vu) and rates (wf, wl, wu),
+        integrated on SE(3) packet to packet: what the unit's inertial side alone says."""
+        o = self.oxts
+        twist = np.column_stack([o.field(n) for n in ("wf", "wl", "wu", "vf", "vl", "vu")])
+        pose = gtsam.Pose3()
+        poses = [pose.matrix()]
+        for i in range(1, len(o.times_s)):
+            dt = o.times_s[i] - o.times_s[i - 1]
+            pose = pose.compose(gtsam.Pose3.Expmap(0.5 * (twist[i - 1] + twist[i]) * dt))
+            poses.append(pose.matrix())
+        return OdometryTrack(f"{self.folder}/oxts (velocities)", o.times_s.copy(), np.stack(poses))
 
     def gps_fixes(self, geoid_height_m: float = 0.0, min_sigma_m: float = 0.02) -> list[GpsFix]:
         """OXTS positions as fixes: ellipsoidal height = alt + `geoid_height_m` (KITTI's alt is

@@ -16,9 +16,12 @@ import gtsam
 import numpy as np
 
 from ..errors import ResultsError
+from ..geodesy import LocalFrame
 
 if TYPE_CHECKING:
+    from ..fusion import FusionResult
     from ..pipeline import RunResult
+    from ..recorded import RecordedDrive
 
 
 @contextlib.contextmanager
@@ -43,6 +46,26 @@ def results_folder(out: Path) -> Iterator[Path]:
 
 def write_json(path: Path, data: dict) -> None:
     path.write_text(json.dumps(data, indent=2, allow_nan=True) + "\n", encoding="utf-8")
+
+
+LOCAL_FRAME_FILE = "local_frame.json"  # the ENU origin of every trajectory in a results folder
+
+
+def local_frame_dict(origin: LocalFrame) -> dict:
+    return {"lat_deg": origin.lat0_deg, "lon_deg": origin.lon0_deg, "h_m": origin.h0_m,
+            "frame": "local ENU (east, north, up) tangent at this WGS84 point, ellipsoidal height"}
+
+
+def read_local_frame(folder: Path) -> LocalFrame | None:
+    """The origin saved beside a results folder's trajectories, if there is one."""
+    path = Path(folder) / LOCAL_FRAME_FILE
+    if not path.is_file():
+        return None
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+        return LocalFrame(float(d["lat_deg"]), float(d["lon_deg"]), float(d["h_m"]))
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ResultsError(f"{path}: expected lat_deg, lon_deg, h_m: {exc}") from None
 
 
 def write_tum(path: Path, times_s: np.ndarray, world_T_body: np.ndarray) -> None:
@@ -118,6 +141,31 @@ def write_run(result: RunResult, folder: Path) -> None:
                   "" if s.gps_mahalanobis2 is None else f"{s.gps_mahalanobis2:.4f}", int(s.gps_outlier))
                  for s in c.steps]
     write_csv(folder / "steps.csv", STEP_COLUMNS, rows)
+    write_json(folder / LOCAL_FRAME_FILE, local_frame_dict(result.traverse.origin))
+    from .export import write_trajectory_exports  # export builds on this module's CSV writer
+
+    for name, c in result.configurations.items():
+        write_trajectory_exports(folder, f"trajectory_{name}", result.traverse.origin, times, c.world_T_body)
+
+
+def write_fusion_run(drive: RecordedDrive, result: FusionResult, document: dict, folder: Path) -> None:
+    """A recorded drive's results: metrics, both tracks as TUM plus GIS/KITTI exports, the fixes."""
+    from .export import write_trajectory_exports
+
+    write_json(folder / "metrics.json", document)
+    write_json(folder / LOCAL_FRAME_FILE, local_frame_dict(result.origin))
+    tracks = {"odometry_gps": result.world_T_body, "odometry": result.odometry_world_T_body}
+    for name, poses in tracks.items():
+        write_tum(folder / f"trajectory_{name}.tum", result.times_s, poses)
+        write_trajectory_exports(folder, f"trajectory_{name}", result.origin, result.times_s, poses)
+    if drive.reference_world_T_body is not None:
+        write_tum(folder / "reference.tum", drive.odometry.times_s, drive.reference_world_T_body(result.origin))
+    llh = result.origin.to_geodetic(result.gps_enu)
+    write_csv(folder / "gps_fixes.csv", ["time_s", "lat_deg", "lon_deg", "h_m", "sigma_h_m", "used_in_graph"],
+              [(f"{t:.6f}", f"{p[0]:.10f}", f"{p[1]:.10f}", f"{p[2]:.4f}", f"{s:.4f}", int(u))
+               for t, p, s, u in zip(result.times_s, llh, result.sigma_horizontal_m, result.used, strict=True)])
+    if drive.rejected_fixes:
+        (folder / "rejected_fixes.txt").write_text("\n".join(drive.rejected_fixes) + "\n", encoding="utf-8")
 
 
 @dataclass(frozen=True)

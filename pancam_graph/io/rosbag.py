@@ -13,8 +13,9 @@ from ..records import GpsFix, OdometryTrack
 NAVSAT_NO_FIX = -1  # sensor_msgs/NavSatStatus.STATUS_NO_FIX
 
 
-def _messages(path: Path, topic: str, msgtype_suffix: str):
-    """Yield (index, stamp seconds, message) of one topic; every failure names file and topic."""
+def _messages(path: Path, topic: str | None, msgtype_suffix: str):
+    """Yield (index, stamp seconds, message) of one topic (None: the bag's only topic of that
+    type); every failure names file and topic."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
@@ -23,6 +24,12 @@ def _messages(path: Path, topic: str, msgtype_suffix: str):
         raise InputError(f"{path}: no such bag")
     try:
         with AnyReader([path], default_typestore=get_typestore(Stores.ROS1_NOETIC)) as reader:
+            if topic is None:
+                typed = sorted({c.topic for c in reader.connections if c.msgtype.endswith(msgtype_suffix)})
+                if len(typed) != 1:
+                    raise InputError(f"{path}: {len(typed)} {msgtype_suffix} topics ({', '.join(typed) or 'none'}); "
+                                     "choose one on the command line")
+                topic = typed[0]
             connections = [c for c in reader.connections if c.topic == topic]
             if not connections:
                 topics = ", ".join(f"{c.topic} ({c.msgtype})" for c in reader.connections)
@@ -38,7 +45,7 @@ def _messages(path: Path, topic: str, msgtype_suffix: str):
         raise InputError(f"{path}: cannot read topic {topic}: {type(exc).__name__}: {exc}") from None
 
 
-def read_navsatfix(path: Path, topic: str, min_sigma_m: float = 0.1) -> tuple[list[GpsFix], list[str]]:
+def read_navsatfix(path: Path, topic: str | None, min_sigma_m: float = 0.1) -> tuple[list[GpsFix], list[str]]:
     """`sensor_msgs/NavSatFix` messages as fixes, and the reasons for each rejected one.
 
     Height: the message defines `altitude` as ellipsoidal, and that is what this reader assumes
@@ -64,7 +71,7 @@ def read_navsatfix(path: Path, topic: str, min_sigma_m: float = 0.1) -> tuple[li
     return fixes, rejected
 
 
-def read_odometry(path: Path, topic: str) -> OdometryTrack:
+def read_odometry(path: Path, topic: str | None) -> OdometryTrack:
     """`nav_msgs/Odometry` poses (the integrated wheel odometry of the robot's driver)."""
     times, poses = [], []
     for _, t, m in _messages(path, topic, "Odometry"):
@@ -77,4 +84,4 @@ def read_odometry(path: Path, topic: str) -> OdometryTrack:
     if np.any(np.diff(times) < 0):
         order = np.argsort(times, kind="stable")
         times, poses = times[order], [poses[i] for i in order]
-    return OdometryTrack(f"{path}:{topic}", times, np.stack(poses))
+    return OdometryTrack(f"{path}:{topic or 'Odometry'}", times, np.stack(poses))

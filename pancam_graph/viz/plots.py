@@ -12,6 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from ..evaluation.evaluate import Evaluation  # noqa: E402
 from ..pipeline import RunResult, gps_enu  # noqa: E402
 
 _COLOURS = {"vo": "tab:red", "vo_sites": "tab:orange", "vo_sites_hrc": "tab:green", "full": "tab:blue"}
@@ -118,3 +119,22 @@ def _save(fig, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+
+
+def evaluation_plot(evaluation: Evaluation, path: Path) -> None:
+    """`pancam-graph eval`: both tracks in plan and the position error along the reference."""
+    est, ref = evaluation.estimate.positions, evaluation.reference.positions
+    fig, (plan, err) = plt.subplots(1, 2, figsize=(13, 5.5), dpi=110)
+    plan.plot(ref[:, 0], ref[:, 1], "k-", lw=2.0, label=f"reference: {Path(evaluation.reference.source).name}")
+    plan.plot(est[:, 0], est[:, 1], "-", color="tab:blue", lw=1.2,
+              label=f"estimate: {Path(evaluation.estimate.source).name} (alignment {evaluation.alignment})")
+    plan.plot(*ref[0, :2], "go", ms=8, label="start")
+    plan.set_aspect("equal", adjustable="datalim")
+    _label(plan, "east (m)", "north (m)", "trajectories")
+    distance = _accumulated(ref)
+    err.plot(distance, np.linalg.norm(est - ref, axis=1), "-", color="tab:blue", lw=1.0, label="3-D")
+    err.plot(distance, np.linalg.norm(est[:, :2] - ref[:, :2], axis=1), "-", color="tab:orange", lw=1.0,
+             label="horizontal")
+    _label(err, "distance along the reference (m)", "position error (m)",
+           f"ATE RMSE {evaluation.metrics.ate_rmse_m:.3f} m")
+    _save(fig, path)
