@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import resource
 import time
+from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
 
@@ -16,7 +17,7 @@ from rich.table import Table
 
 from .config import ConfigError, load_scenario, resolve_scenario
 from .errors import InputError, PancamGraphError
-from .pipeline import RunOptions, RunResult, percentiles, run
+from .pipeline import ProgressCallback, RunOptions, RunResult, percentiles, run
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="Rover localization over long traverses with a GTSAM factor graph.")
@@ -34,15 +35,20 @@ def _fail(exc: PancamGraphError, bad_input: bool = False) -> typer.Exit:
     return typer.Exit(EXIT_USAGE if bad_input or isinstance(exc, ConfigError | InputError) else EXIT_FAILURE)
 
 
-def _run_with_progress(scenario, options: RunOptions, quiet: bool = False, listener=None) -> RunResult:
+def _with_progress(name: str, quiet: bool, work: Callable[[ProgressCallback], RunResult]) -> RunResult:
+    """Run `work(progress)` under a progress bar labelled `name`."""
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=console, transient=True, disable=quiet) as bar:
-        task = bar.add_task(f"{scenario.name}: stops", total=None)
+        task = bar.add_task(f"{name}: stops", total=None)
 
         def report(stage: str, done: int, total: int) -> None:
-            bar.update(task, description=f"{scenario.name}: {stage}", completed=done, total=total)
+            bar.update(task, description=f"{name}: {stage}", completed=done, total=total)
 
-        return run(scenario, options, progress=report, listener=listener)
+        return work(report)
+
+
+def _run_with_progress(scenario, options: RunOptions, quiet: bool = False, listener=None) -> RunResult:
+    return _with_progress(scenario.name, quiet, lambda report: run(scenario, options, report, listener))
 
 
 def _rerun_help(default_file: str) -> str:
@@ -79,13 +85,17 @@ def _serve_until_interrupted(url: str | None) -> None:
 
 
 def _summary_table(result: RunResult) -> Table:
-    table = Table(title=f"{result.scenario.name} (seed {result.seed}, {len(result.traverse.stops)} stops)")
+    table = Table(title=f"{result.name} (seed {result.seed}, {len(result.traverse.stops)} stops)")
     for col in ("config", "avg err m", "closure m", "rel. closure %", "ATE m", "length ratio",
                 "drift %", "bridged", "landmarks", "vs GPS avg m"):
         table.add_column(col, justify="right")
     for name, c in result.configurations.items():
         m = c.metrics
         vs = c.metrics_vs_gps
+        if m is None:  # no reference: only the comparison with GPS
+            table.add_row(name, *["-"] * 6, str(c.bridged_stops), str(c.landmarks),
+                          "-" if vs is None else f"{vs.average_error_m:.2f}")
+            continue
         table.add_row(
             name, f"{m.average_error_m:.2f}", f"{m.closure_error_m:.2f}", f"{m.relative_closure_pct:.3f}",
             f"{m.ate_rmse_m:.2f} ({m.ate_alignment.split()[0]})", f"{m.length_ratio:.4f}",
@@ -123,6 +133,7 @@ def run_command(
     trajectories (TUM, KITTI, WGS84 CSV, GeoJSON, KML) and more into the results folder; a failed
     run leaves <out>.partial with what was done.
     """
+    from .io.observations import is_observation_folder
     from .io.results import results_folder, write_run
     from .recorded import is_bag, is_kitti_drive
     from .viz.report import write_report
@@ -130,6 +141,10 @@ def run_command(
     source = Path(scenario)
     if is_bag(source) or is_kitti_drive(source):
         _run_recorded(source, out, gps_topic, odom_topic, holdout_every, geoid_height)
+        return
+    if is_observation_folder(source):
+        _run_observations(source, out, RunOptions(use_gps=not no_gps, use_sites=not no_sites, use_hrc=not no_hrc,
+                                                  batch=batch), quiet)
         return
     recording = None
     try:
@@ -167,6 +182,31 @@ def run_command(
         console.print(f"rerun recording: {shown} (open with `rerun {shown}` or `pancam-graph view {out}`)")
     if recording is not None and recording.target.mode == "serve":
         _serve_until_interrupted(recording.served_url)
+
+
+def _run_observations(source: Path, out: Path | None, options: RunOptions, quiet: bool) -> None:
+    from .io.observations import read_observations
+    from .io.results import results_folder, write_run
+    from .pipeline import run_traverse
+    from .viz.report import write_report
+
+    try:
+        with console.status(f"reading {source}"):
+            observations = read_observations(source)
+        traverse = observations.traverse
+        out = out or Path("results") / f"{traverse.name}-observations-{datetime.now():%Y%m%d-%H%M%S}"
+        with results_folder(out) as folder:
+            result = _with_progress(traverse.name, quiet, lambda report: run_traverse(
+                traverse, observations.truth, observations.estimator, observations.seed, options, progress=report))
+            write_run(result, folder)
+            if result.truth is not None:
+                write_report(result, folder)
+    except PancamGraphError as exc:
+        raise _fail(exc) from None
+    Console(width=150).print(_summary_table(result))
+    if result.truth is None:
+        console.print("no truth.kitti in the observation folder: metrics against GPS only, no report")
+    console.print(f"wall {result.wall_s:.1f} s; results in {out}")
 
 
 def _run_recorded(source: Path, out: Path | None, gps_topic: str | None, odom_topic: str | None,
@@ -380,6 +420,31 @@ def _time_recorded_run(scenario, seed: int) -> float:
         run(scenario, RunOptions(seed=seed), listener=RerunRecorder(recording.stream))
         recording.close()
         return time.perf_counter() - start
+
+
+@app.command("simulate")
+def simulate_command(
+    scenario: str = typer.Argument("denver_trail", help="bundled scenario name or path to a TOML file"),
+    out: Path = typer.Option(..., "--out", help="observation folder to write"),
+    seed: int | None = typer.Option(None, "--seed", help="override the scenario's seed"),
+    no_truth: bool = typer.Option(False, "--no-truth", help="leave the reference poses (truth.kitti) out"),
+) -> None:
+    """Write a scenario's simulated observations as an observation folder (docs/observation_format.md),
+    the input an external front-end would give `pancam-graph run`."""
+    from .io.observations import write_observations
+    from .sim import simulate
+
+    try:
+        sc = _load(scenario)
+        if out.exists() and any(out.iterdir()):
+            raise ConfigError(f"{out}: folder exists and is not empty; choose another --out")
+        seed_used = sc.seed if seed is None else seed
+        with console.status(f"simulating {sc.name} (seed {seed_used})"):
+            traverse, truth = simulate(sc, seed_used)
+            write_observations(out, traverse, sc.estimator, seed_used, None if no_truth else truth, sc.rig)
+    except PancamGraphError as exc:
+        raise _fail(exc) from None
+    console.print(f"{len(traverse.stops)} stops written to {out}")
 
 
 @app.command("scenarios")

@@ -30,6 +30,7 @@ class LocalizerOptions:
     use_sites: bool = True
     use_hrc: bool = True
     use_gps: bool = True
+    use_vo: bool = True  # False: dead reckoning alone gives the between factors
 
 
 @dataclass

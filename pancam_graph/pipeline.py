@@ -10,15 +10,17 @@ from typing import Protocol
 
 import numpy as np
 
-from .config import Scenario
+from .config import EstimatorConfig, Scenario
 from .evaluation.metrics import TrajectoryMetrics, compare, decimated_length
-from .frontend.motion import Motion, motion_between
+from .frontend.motion import Motion, dead_reckoning_motion, motion_between
 from .frontend.stereo_vo import StereoVO
 from .localizer import Localizer, LocalizerOptions, StepResult
 from .records import GroundTruth, Stop, Traverse
 from .sim import simulate
 
 CONFIGURATIONS: dict[str, LocalizerOptions] = {
+    # Wheel odometry + IMU alone (the baseline VO is meant to beat); runs when the traverse has it.
+    "dead_reckoning": LocalizerOptions(use_sites=False, use_hrc=False, use_gps=False, use_vo=False),
     "vo": LocalizerOptions(use_sites=False, use_hrc=False, use_gps=False),
     "vo_sites": LocalizerOptions(use_sites=True, use_hrc=False, use_gps=False),
     "vo_sites_hrc": LocalizerOptions(use_sites=True, use_hrc=True, use_gps=False),
@@ -60,7 +62,7 @@ class ConfigurationResult:
     rejected_tie_points: int
     rejected_hrc_measurements: int
     solver: str
-    metrics: TrajectoryMetrics
+    metrics: TrajectoryMetrics | None  # against the reference; None without one
     metrics_vs_gps: TrajectoryMetrics | None
 
     @property
@@ -84,10 +86,10 @@ class ConfigurationResult:
 
 @dataclass(frozen=True)
 class RunResult:
-    scenario: Scenario
+    scenario: Scenario | None  # None for a traverse read from an observation folder
     seed: int
     traverse: Traverse
-    truth: GroundTruth
+    truth: GroundTruth | None  # None when a recorded traverse comes without a reference
     motions: list[Motion | None]
     configurations: dict[str, ConfigurationResult]
     wall_s: float
@@ -96,6 +98,14 @@ class RunResult:
     @property
     def update_ms(self) -> np.ndarray:
         return np.concatenate([c.update_ms for c in self.configurations.values()])
+
+    @property
+    def name(self) -> str:
+        return self.traverse.name
+
+    @property
+    def description(self) -> str:
+        return self.scenario.description if self.scenario is not None else "traverse from an observation folder"
 
 
 ProgressCallback = Callable[[str, int, int], None]
@@ -153,18 +163,38 @@ def run(
     progress: ProgressCallback | None = None,
     listener: RunListener | None = None,
 ) -> RunResult:
+    """Simulate the scenario and run every configuration on it."""
     start = time.perf_counter()
-    listener = listener or NullListener()
     seed = scenario.seed if options.seed is None else options.seed
     traverse, truth = simulate(scenario, seed)
+    return run_traverse(traverse, truth, scenario.estimator, seed, options, progress, listener, scenario, start)
+
+
+def run_traverse(
+    traverse: Traverse,
+    truth: GroundTruth | None,
+    estimator: EstimatorConfig,
+    seed: int,
+    options: RunOptions = RunOptions(),
+    progress: ProgressCallback | None = None,
+    listener: RunListener | None = None,
+    scenario: Scenario | None = None,
+    started: float | None = None,
+) -> RunResult:
+    """Estimate the motion of every stop once, feed every configuration's localizer stop by
+    stop, then evaluate each against the reference (when there is one) and GPS."""
+    start = time.perf_counter() if started is None else started
+    listener = listener or NullListener()
     n = len(traverse.stops)
-    est = scenario.estimator
-    vo = StereoVO.for_traverse(traverse, est)
+    vo = StereoVO.for_traverse(traverse, estimator)
     names = options.configurations()
-    localizers = {name: Localizer(traverse, CONFIGURATIONS[name], est, seed=seed) for name in names}
+    if not any(s.dead_reckoning is not None for s in traverse.stops):
+        names = [name for name in names if CONFIGURATIONS[name].use_vo]
+    localizers = {name: Localizer(traverse, CONFIGURATIONS[name], estimator, seed=seed) for name in names}
     listener.start(traverse, truth, localizers)
 
     motions: list[Motion | None] = [None]
+    dr_motions: list[Motion | None] = [None]
     steps: dict[str, list[StepResult]] = {name: [] for name in names}
     vo_s = 0.0
     for k, stop in enumerate(traverse.stops):
@@ -172,7 +202,9 @@ def run(
             t0 = time.perf_counter()
             motions.append(motion_between(vo, traverse.stops[k - 1], stop, motions[-1]))
             vo_s += time.perf_counter() - t0
-        now = {name: localizer.step(stop, motions[k]) for name, localizer in localizers.items()}
+            dr_motions.append(dead_reckoning_motion(stop, dr_motions[-1]))
+        now = {name: localizer.step(stop, motions[k] if CONFIGURATIONS[name].use_vo else dr_motions[k])
+               for name, localizer in localizers.items()}
         for name, step in now.items():
             steps[name].append(step)
         listener.step(stop, motions[k], now)
@@ -188,6 +220,9 @@ def run(
         final = localizer.final(batch=options.batch)
         poses = final.world_T_body
         alignment = "none" if CONFIGURATIONS[name].use_gps else "se3"
+        metrics = None
+        if truth is not None:
+            metrics = compare(poses[:, :3, 3], truth.positions, alignment, poses, truth.world_T_body)
         results[name] = ConfigurationResult(
             name=name,
             world_T_body=poses,
@@ -200,7 +235,7 @@ def run(
             rejected_tie_points=localizer.rejected_ties,
             rejected_hrc_measurements=localizer.rejected_hrc,
             solver="isam2+batch_lm" if options.batch else "isam2",
-            metrics=compare(poses[:, :3, 3], truth.positions, alignment, poses, truth.world_T_body),
+            metrics=metrics,
             metrics_vs_gps=evaluate_against_gps(traverse, poses),
         )
     result = RunResult(scenario, seed, traverse, truth, motions, results, time.perf_counter() - start, vo_s)
@@ -217,7 +252,7 @@ def metrics_document(result: RunResult) -> dict:
     vo_motions = [m for m in result.motions[1:] if m is not None]
     configs = {}
     for name, c in result.configurations.items():
-        entry = c.metrics.as_dict()
+        entry = c.metrics.as_dict() if c.metrics is not None else {}
         entry.update(
             bridged_stops=c.bridged_stops,
             landmarks=c.landmarks,
@@ -231,13 +266,15 @@ def metrics_document(result: RunResult) -> dict:
         )
         configs[name] = entry
     return {
-        "scenario": result.scenario.name,
+        "scenario": result.name,
         "seed": result.seed,
         "rig": result.traverse.rig.name,
         "stops": len(result.traverse.stops),
         "sites": sum(s.is_site for s in result.traverse.stops),
         "gps_fixes": sum(s.gps is not None for s in result.traverse.stops),
-        "reference": "simulation ground truth (configs.*), GPS fixes (configs.*.vs_gps)",
+        "reference": ("simulation ground truth" if result.scenario is not None else
+                      "truth.kitti of the observation folder" if result.truth is not None else "none")
+                     + " (configs.*), GPS fixes (configs.*.vs_gps)",
         "vo": {
             "stops_bridged": sum(m.bridged for m in vo_motions),
             "bridge_sources": sorted({m.source for m in vo_motions if m.bridged}),

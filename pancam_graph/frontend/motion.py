@@ -34,12 +34,18 @@ class Motion:
 
 
 def motion_between(vo: StereoVO, prev: Stop, curr: Stop, last: Motion | None) -> Motion:
+    """Stereo VO, bridged by dead reckoning (or constant velocity) where VO fails."""
     result = vo.estimate(prev.stereo, curr.stereo)
     if result.ok:
         return Motion(result.prev_T_curr, result.covariance, "vo", result.inliers)
+    return dead_reckoning_motion(curr, last, result.inliers, result.reason)
+
+
+def dead_reckoning_motion(curr: Stop, last: Motion | None, vo_inliers: int = 0, vo_failure: str = "") -> Motion:
+    """The stop's wheel odometry + IMU increment with its covariance; constant velocity with a
+    wide covariance when the stop has none."""
     if curr.dead_reckoning is not None:
         dr = curr.dead_reckoning
-        return Motion(gtsam.Pose3(dr.prev_T_curr), dr.covariance, "dead_reckoning", result.inliers,
-                      result.reason)
+        return Motion(gtsam.Pose3(dr.prev_T_curr), dr.covariance, "dead_reckoning", vo_inliers, vo_failure)
     guess = last.prev_T_curr if last is not None else gtsam.Pose3()
-    return Motion(guess, np.diag(_WIDE_SIGMAS**2), "constant_velocity", result.inliers, result.reason)
+    return Motion(guess, np.diag(_WIDE_SIGMAS**2), "constant_velocity", vo_inliers, vo_failure)

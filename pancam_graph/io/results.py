@@ -110,10 +110,12 @@ def write_run(result: RunResult, folder: Path) -> None:
 
     stops = result.traverse.stops
     times = np.array([s.time_s for s in stops])
-    (folder / "scenario.toml").write_text(dump_scenario(result.scenario), encoding="utf-8")
+    if result.scenario is not None:
+        (folder / "scenario.toml").write_text(dump_scenario(result.scenario), encoding="utf-8")
     write_json(folder / "metrics.json", metrics_document(result))
-    write_tum(folder / "truth.tum", times, result.truth.world_T_body)
-    np.save(folder / "truth_landmarks.npy", result.truth.landmarks.astype(np.float32))
+    if result.truth is not None:
+        write_tum(folder / "truth.tum", times, result.truth.world_T_body)
+        np.save(folder / "truth_landmarks.npy", result.truth.landmarks.astype(np.float32))
     write_csv(folder / "gps_fixes.csv",
               ["stop", "time_s", "lat_deg", "lon_deg", "h_ellipsoidal_m", "sigma_h_m", "sigma_v_m"],
               [(s.index, s.time_s, f"{s.gps.lat_deg:.9f}", f"{s.gps.lon_deg:.9f}", f"{s.gps.h_m:.4f}",

@@ -137,5 +137,6 @@ def dead_reckoning(
     cov_t_prev = along_R @ np.diag([along, cross, vertical]) ** 2 @ along_R.T
     cov = np.zeros((6, 6))
     cov[:3, :3] = np.diag([tilt_sigma, tilt_sigma, heading_sigma]) ** 2
-    cov[3:, 3:] = prev_R_curr.T @ cov_t_prev @ prev_R_curr
+    block = prev_R_curr.T @ cov_t_prev @ prev_R_curr
+    cov[3:, 3:] = 0.5 * (block + block.T)  # exactly symmetric, as a covariance file stores it
     return DeadReckoning(measured.matrix(), cov)

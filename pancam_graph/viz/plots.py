@@ -15,7 +15,8 @@ import numpy as np  # noqa: E402
 from ..evaluation.evaluate import Evaluation  # noqa: E402
 from ..pipeline import RunResult, gps_enu  # noqa: E402
 
-_COLOURS = {"vo": "tab:red", "vo_sites": "tab:orange", "vo_sites_hrc": "tab:green", "full": "tab:blue"}
+_COLOURS = {"dead_reckoning": "tab:purple", "vo": "tab:red", "vo_sites": "tab:orange", "vo_sites_hrc": "tab:green",
+            "full": "tab:blue"}
 
 
 def plot_trajectories(result: RunResult, path: Path) -> None:
@@ -33,7 +34,7 @@ def plot_trajectories(result: RunResult, path: Path) -> None:
     ax.plot(truth[sites, 0], truth[sites, 1], "k^", ms=5, label="sites (panoramas)", zorder=4)
     ax.plot(*truth[0, :2], "go", ms=8, label="start")
     ax.set_aspect("equal", adjustable="datalim")
-    _label(ax, "east (m)", "north (m)", f"{result.scenario.name}, seed {result.seed}: estimated vs true trajectory")
+    _label(ax, "east (m)", "north (m)", f"{result.name}, seed {result.seed}: estimated vs true trajectory")
     _save(fig, path)
 
 

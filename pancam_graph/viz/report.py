@@ -35,14 +35,16 @@ def report_markdown(result: RunResult) -> str:
     stops = tr.stops
     length = plots.reference_distance(result)[-1]
     lines = [
-        f"# {result.scenario.name}, seed {result.seed}",
+        f"# {result.name}, seed {result.seed}",
         "",
-        f"{result.scenario.description}",
+        f"{result.description}",
         "",
         f"- rig: {tr.rig.name}; {len(stops)} stops over {length:.1f} m (reference); "
         f"{sum(s.is_site for s in stops)} sites with panoramas; {sum(s.gps is not None for s in stops)} GPS fixes",
-        f"- reference: simulation ground truth; wall time {result.wall_s:.1f} s (VO {result.vo_s:.1f} s)",
-        f"- reproduce: `pancam-graph run scenario.toml --seed {result.seed}` in this folder",
+        f"- reference: {'simulation ground truth' if result.scenario else 'truth.kitti of the observation folder'}; "
+        f"wall time {result.wall_s:.1f} s (VO {result.vo_s:.1f} s)",
+        f"- reproduce: `pancam-graph run scenario.toml --seed {result.seed}` in this folder" if result.scenario
+        else "- reproduce: `pancam-graph run OBSERVATION_FOLDER`",
         "",
         "## Metrics",
         "",

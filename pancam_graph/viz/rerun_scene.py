@@ -32,6 +32,7 @@ from ..rig import Camera, Rig
 
 APP_ID = "pancam_graph"
 COLOURS = {  # the matplotlib tab10 colours of the report plots
+    "dead_reckoning": (148, 103, 189),
     "vo": (214, 39, 40),
     "vo_sites": (255, 127, 14),
     "vo_sites_hrc": (44, 160, 44),

@@ -1,0 +1,356 @@
+"""The observation-level input format: what an external stereo front-end hands our back-end.
+
+A folder (documented in docs/observation_format.md):
+
+    traverse.toml   name, origin, rig (preset or calibration file), noise, start pose, estimator
+    stereo.csv      stop,time_s,track,u_left,u_right,v        navigation stereo pair, rectified px
+    panorama.csv    stop,site,pan_rad,tilt_rad,track,u_left,u_right,v   (optional) site panoramas
+    hrc.csv         stop,pan_rad,tilt_rad,track,u,v                     (optional) HRC frames
+    gps.csv         stop,time_s,lat_deg,lon_deg,h_m,sigma_h_m,sigma_v_m (optional)
+    odometry.csv    stop,r11..r33,tx,ty,tz,c00..c55 (upper triangle)    (optional) dead reckoning
+    truth.kitti     (optional) reference pose of every stop, KITTI layout, for evaluation
+
+Stops are numbered 0..N-1 and every stop has at least one row in stereo.csv (a stop that saw
+nothing has one row with empty track and pixel fields, so its time is still known). Numbers are
+written with repr(), so a folder written from a traverse reads back bit for bit.
+"""
+
+from __future__ import annotations
+
+import csv
+import tomllib
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import tomli_w
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from ..config import EstimatorConfig, OriginConfig, _describe
+from ..errors import InputError
+from ..geodesy import LocalFrame
+from ..records import DeadReckoning, GpsFix, GroundTruth, HrcFrame, PanoramaFrame, StereoObservations, Stop, Traverse
+from ..rig import Rig, rig_preset
+
+MANIFEST = "traverse.toml"
+STEREO_COLUMNS = ["stop", "time_s", "track", "u_left", "u_right", "v"]
+PANORAMA_COLUMNS = ["stop", "site", "pan_rad", "tilt_rad", "track", "u_left", "u_right", "v"]
+HRC_COLUMNS = ["stop", "pan_rad", "tilt_rad", "track", "u", "v"]
+GPS_COLUMNS = ["stop", "time_s", "lat_deg", "lon_deg", "h_m", "sigma_h_m", "sigma_v_m"]
+_UPPER = np.triu_indices(6)
+ODOMETRY_COLUMNS = (["stop"] + [f"r{i}{j}" for i in range(1, 4) for j in range(1, 4)] + ["tx", "ty", "tz"]
+                    + [f"c{i}{j}" for i, j in zip(*_UPPER, strict=True)])
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class RigSource(_Strict):
+    """A rig preset, or a stereo calibration file on a mast of the given height."""
+
+    preset: str | None = None
+    calibration: str | None = Field(None, description="OpenCV YAML, Kalibr camchain or left camera_info")
+    calibration_right: str | None = Field(None, description="right camera_info (with a camera_info left)")
+    mast_height_m: float = Field(1.5, gt=0.0)
+
+
+class Manifest(_Strict):
+    name: str
+    seed: int = Field(0, description="seeds the tie-point selection at sites")
+    origin: OriginConfig
+    rig: RigSource
+    image_noise_px: float = Field(gt=0.0)
+    traverse_tilt_rad: float = Field(description="mast tilt of the navigation stereo pair (pan 0)")
+    gps_lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    start_world_T_body: list[list[float]] = Field(description="4x4, surveyed start pose in local ENU")
+    start_sigmas: tuple[float, float, float, float, float, float] = Field(
+        description="rotation rad x3, position m x3 (1 sigma)")
+    estimator: EstimatorConfig = EstimatorConfig()
+
+
+@dataclass(frozen=True)
+class ObservationSet:
+    traverse: Traverse
+    truth: GroundTruth | None
+    estimator: EstimatorConfig
+    seed: int
+    source: Path
+
+
+# -- writing -------------------------------------------------------------------------------------
+
+def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorConfig, seed: int,
+                       truth: GroundTruth | None = None, rig_preset_name: str | None = None) -> None:
+    """A traverse as an observation folder (the format an external front-end writes)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    manifest = Manifest(
+        name=traverse.name, seed=seed,
+        origin=OriginConfig(lat_deg=traverse.origin.lat0_deg, lon_deg=traverse.origin.lon0_deg,
+                            h_m=traverse.origin.h0_m),
+        rig=RigSource(preset=rig_preset_name or traverse.rig.name, mast_height_m=traverse.rig.mast_height_m),
+        image_noise_px=traverse.image_noise_px, traverse_tilt_rad=traverse.traverse_tilt_rad,
+        gps_lever_arm_m=tuple(float(v) for v in traverse.gps_lever_arm_m),
+        start_world_T_body=traverse.start_world_T_body.tolist(),
+        start_sigmas=tuple(float(v) for v in traverse.start_sigmas), estimator=estimator)
+    (folder / MANIFEST).write_text(tomli_w.dumps(manifest.model_dump(mode="json", exclude_none=True)),
+                                   encoding="utf-8")
+    def r(x) -> str:  # shortest text that reads back to the same float
+        return repr(float(x))
+
+    stereo, panorama, hrc, gps, odometry = [], [], [], [], []
+    for s in traverse.stops:
+        obs = s.stereo
+        stereo += [(s.index, r(s.time_s), int(t), r(a), r(b), r(c)) for t, (a, b, c) in zip(obs.track_ids, obs.uvv,
+                                                                                          strict=True)]
+        if not len(obs):
+            stereo.append((s.index, r(s.time_s), "", "", "", ""))
+        for f in s.panorama:
+            panorama += [(s.index, s.site_id, r(f.pan_rad), r(f.tilt_rad), int(t), r(a), r(b), r(c))
+                         for t, (a, b, c) in zip(f.observations.track_ids, f.observations.uvv, strict=True)]
+        for f in s.hrc:
+            hrc += [(s.index, r(f.pan_rad), r(f.tilt_rad), int(t), r(u), r(v))
+                    for t, (u, v) in zip(f.track_ids, f.uv, strict=True)]
+        if s.gps is not None:
+            g = s.gps
+            gps.append((s.index, r(g.time_s), r(g.lat_deg), r(g.lon_deg), r(g.h_m), r(g.sigma_horizontal_m),
+                        r(g.sigma_vertical_m)))
+        if s.dead_reckoning is not None:
+            m, cov = s.dead_reckoning.prev_T_curr, s.dead_reckoning.covariance
+            odometry.append((s.index, *(r(v) for v in m[:3, :3].ravel()), *(r(v) for v in m[:3, 3]),
+                             *(r(v) for v in cov[_UPPER])))
+    _write_csv(folder / "stereo.csv", STEREO_COLUMNS, stereo)
+    for name, columns, rows in (("panorama.csv", PANORAMA_COLUMNS, panorama), ("hrc.csv", HRC_COLUMNS, hrc),
+                                ("gps.csv", GPS_COLUMNS, gps), ("odometry.csv", ODOMETRY_COLUMNS, odometry)):
+        if rows:
+            _write_csv(folder / name, columns, rows)
+    if truth is not None:
+        np.savetxt(folder / "truth.kitti", truth.world_T_body[:, :3, :].reshape(-1, 12), fmt="%.17g")
+
+
+def _write_csv(path: Path, header: list[str], rows: list) -> None:
+    with path.open("w", encoding="utf-8", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(header)
+        writer.writerows(rows)
+
+
+# -- reading -------------------------------------------------------------------------------------
+
+def is_observation_folder(path: Path) -> bool:
+    return (Path(path) / MANIFEST).is_file()
+
+
+def read_observations(folder: Path) -> ObservationSet:
+    """An observation folder as a traverse (and its reference, when truth.kitti is there)."""
+    folder = Path(folder)
+    manifest = _manifest(folder / MANIFEST)
+    rig = _rig(folder, manifest.rig)
+    times, stereo = _read_stereo(folder / "stereo.csv")
+    n = len(times)
+    panoramas, sites = _read_panorama(folder / "panorama.csv", n)
+    hrc = _read_hrc(folder / "hrc.csv", n)
+    gps = _read_gps(folder / "gps.csv", n)
+    odometry = _read_odometry(folder / "odometry.csv", n)
+    stops = tuple(Stop(k, times[k], stereo[k], sites.get(k), panoramas.get(k, ()), hrc.get(k, ()), gps.get(k),
+                       odometry.get(k)) for k in range(n))
+    o = manifest.origin
+    start = np.array(manifest.start_world_T_body, dtype=float)
+    if start.shape != (4, 4):
+        raise InputError(f"{folder / MANIFEST}: field 'start_world_T_body': expected 4x4, got {start.shape}")
+    traverse = Traverse(manifest.name, rig, LocalFrame(o.lat_deg, o.lon_deg, o.h_m), stops,
+                        manifest.traverse_tilt_rad, manifest.image_noise_px,
+                        np.array(manifest.gps_lever_arm_m, dtype=float), start, np.array(manifest.start_sigmas))
+    truth = None
+    if (folder / "truth.kitti").is_file():
+        truth = GroundTruth(_read_truth(folder / "truth.kitti", n), np.zeros((0, 3)))
+    return ObservationSet(traverse, truth, manifest.estimator, manifest.seed, folder)
+
+
+def _manifest(path: Path) -> Manifest:
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{path}: not valid TOML: {exc}") from None
+    try:
+        return Manifest.model_validate(data)
+    except ValidationError as exc:
+        lines = "\n  ".join(_describe(e) for e in exc.errors())
+        raise InputError(f"{path}: invalid observation manifest:\n  {lines}") from None
+
+
+def _rig(folder: Path, source: RigSource) -> Rig:
+    if (source.preset is None) == (source.calibration is None):
+        raise InputError(f"{folder / MANIFEST}: [rig] needs exactly one of 'preset' and 'calibration'")
+    if source.preset is not None:
+        try:
+            return rig_preset(source.preset)
+        except ValueError as exc:
+            raise InputError(f"{folder / MANIFEST}: [rig] preset: {exc}") from None
+    from .calibration import read_stereo_calibration
+
+    right = folder / source.calibration_right if source.calibration_right else None
+    stereo = read_stereo_calibration(folder / source.calibration, right)
+    return Rig(source.calibration, stereo.camera, stereo.baseline_m, source.mast_height_m)
+
+
+class _Table:
+    """Rows of a CSV file with required columns; every bad value names file, line and column."""
+
+    def __init__(self, path: Path, columns: list[str]):
+        self.path = path
+        try:
+            f = path.open(encoding="utf-8", newline="")
+        except OSError as exc:
+            raise InputError(f"{path}: cannot read: {exc.strerror}") from None
+        with f:
+            reader = csv.reader(f)
+            header = next(reader, [])
+            missing = [c for c in columns if c not in header]
+            if missing:
+                raise InputError(f"{path}: line 1: missing column(s) {', '.join(missing)} "
+                                 f"(expected {','.join(columns)})")
+            self.index = [header.index(c) for c in columns]
+            self.columns = columns
+            self.rows = [(line, row) for line, row in enumerate(reader, start=2) if row]
+
+    def values(self, line: int, row: list[str]) -> list[str]:
+        if len(row) < max(self.index) + 1:
+            raise InputError(f"{self.path}: line {line}: {len(row)} fields, expected {len(self.columns)}")
+        return [row[i] for i in self.index]
+
+    def number(self, line: int, column: str, text: str, integer: bool = False) -> float:
+        try:
+            value = int(text) if integer else float(text)
+        except ValueError:
+            kind = "an integer" if integer else "a number"
+            raise InputError(f"{self.path}: line {line}: column '{column}': expected {kind}, got {text!r}") from None
+        if not integer and not np.isfinite(value):
+            raise InputError(f"{self.path}: line {line}: column '{column}' is not finite")
+        return value
+
+    def stop(self, line: int, text: str, n: int) -> int:
+        k = int(self.number(line, "stop", text, integer=True))
+        if not 0 <= k < n:
+            raise InputError(f"{self.path}: line {line}: stop {k} is not one of stereo.csv's stops 0..{n - 1}")
+        return k
+
+
+def _read_stereo(path: Path) -> tuple[list[float], list[StereoObservations]]:
+    table = _Table(path, STEREO_COLUMNS)
+    times: dict[int, float] = {}
+    rows: dict[int, list] = defaultdict(list)
+    for line, row in table.rows:
+        stop, time_s, track, ul, ur, v = table.values(line, row)
+        k = int(table.number(line, "stop", stop, integer=True))
+        t = table.number(line, "time_s", time_s)
+        if times.setdefault(k, t) != t:
+            raise InputError(f"{path}: line {line}: stop {k} has time {t}, earlier rows say {times[k]}")
+        if track == "" and ul == "" and ur == "" and v == "":
+            continue
+        rows[k].append((table.number(line, "track", track, integer=True), table.number(line, "u_left", ul),
+                        table.number(line, "u_right", ur), table.number(line, "v", v), line))
+    n = len(times)
+    if sorted(times) != list(range(n)):
+        missing = sorted(set(range(max(times) + 1)) - set(times)) if times else [0]
+        raise InputError(f"{path}: stops must be numbered 0..N-1 with a row each; no row for stop {missing[0]}")
+    observations = []
+    for k in range(n):
+        tracks = np.array([r[0] for r in rows[k]], dtype=np.int64)
+        if len(np.unique(tracks)) != len(tracks):
+            line = rows[k][len(np.unique(tracks))][4]
+            raise InputError(f"{path}: stop {k} lists a track twice (line {line} or before)")
+        uvv = np.array([r[1:4] for r in rows[k]], dtype=float).reshape(-1, 3)
+        observations.append(StereoObservations(tracks, uvv))
+    return [times[k] for k in range(n)], observations
+
+
+def _read_panorama(path: Path, n: int) -> tuple[dict[int, tuple[PanoramaFrame, ...]], dict[int, int]]:
+    if not path.is_file():
+        return {}, {}
+    table = _Table(path, PANORAMA_COLUMNS)
+    frames: dict[int, dict[tuple[float, float], list]] = defaultdict(dict)
+    sites: dict[int, int] = {}
+    for line, row in table.rows:
+        stop, site, pan, tilt, track, ul, ur, v = table.values(line, row)
+        k = table.stop(line, stop, n)
+        sites[k] = int(table.number(line, "site", site, integer=True))
+        key = (table.number(line, "pan_rad", pan), table.number(line, "tilt_rad", tilt))
+        frames[k].setdefault(key, []).append((table.number(line, "track", track, integer=True),
+                                              table.number(line, "u_left", ul), table.number(line, "u_right", ur),
+                                              table.number(line, "v", v)))
+    panoramas = {k: tuple(PanoramaFrame(pan, tilt, StereoObservations(np.array([r[0] for r in rows], dtype=np.int64),
+                                                                       np.array([r[1:] for r in rows], dtype=float)))
+                          for (pan, tilt), rows in by_frame.items())
+                 for k, by_frame in frames.items()}
+    return panoramas, sites
+
+
+def _read_hrc(path: Path, n: int) -> dict[int, tuple[HrcFrame, ...]]:
+    if not path.is_file():
+        return {}
+    table = _Table(path, HRC_COLUMNS)
+    frames: dict[int, dict[tuple[float, float], list]] = defaultdict(dict)
+    for line, row in table.rows:
+        stop, pan, tilt, track, u, v = table.values(line, row)
+        k = table.stop(line, stop, n)
+        key = (table.number(line, "pan_rad", pan), table.number(line, "tilt_rad", tilt))
+        frames[k].setdefault(key, []).append((table.number(line, "track", track, integer=True),
+                                              table.number(line, "u", u), table.number(line, "v", v)))
+    return {k: tuple(HrcFrame(pan, tilt, np.array([r[0] for r in rows], dtype=np.int64),
+                              np.array([r[1:] for r in rows], dtype=float).reshape(-1, 2))
+                     for (pan, tilt), rows in by_frame.items())
+            for k, by_frame in frames.items()}
+
+
+def _read_gps(path: Path, n: int) -> dict[int, GpsFix]:
+    if not path.is_file():
+        return {}
+    table = _Table(path, GPS_COLUMNS)
+    fixes = {}
+    for line, row in table.rows:
+        values = table.values(line, row)
+        k = table.stop(line, values[0], n)
+        t, lat, lon, h, sh, sv = (table.number(line, c, v) for c, v in zip(GPS_COLUMNS[1:], values[1:], strict=True))
+        if not (-90 <= lat <= 90 and -180 <= lon <= 360) or sh <= 0 or sv <= 0:
+            raise InputError(f"{path}: line {line}: latitude/longitude out of range or sigma not positive")
+        fixes[k] = GpsFix(t, lat, lon, h, sh, sv)
+    return fixes
+
+
+def _read_odometry(path: Path, n: int) -> dict[int, DeadReckoning]:
+    if not path.is_file():
+        return {}
+    table = _Table(path, ODOMETRY_COLUMNS)
+    increments = {}
+    for line, row in table.rows:
+        values = table.values(line, row)
+        k = table.stop(line, values[0], n)
+        numbers = [table.number(line, c, v) for c, v in zip(ODOMETRY_COLUMNS[1:], values[1:], strict=True)]
+        pose = np.eye(4)
+        pose[:3, :3], pose[:3, 3] = np.reshape(numbers[:9], (3, 3)), numbers[9:12]
+        cov = np.zeros((6, 6))
+        cov[_UPPER] = numbers[12:]
+        cov = cov + np.triu(cov, 1).T
+        if not np.allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-6):
+            raise InputError(f"{path}: line {line}: r11..r33 is not a rotation matrix")
+        if np.any(np.linalg.eigvalsh(cov) <= 0):
+            raise InputError(f"{path}: line {line}: covariance c00..c55 is not positive definite")
+        increments[k] = DeadReckoning(pose, cov)
+    return increments
+
+
+def _read_truth(path: Path, n: int) -> np.ndarray:
+    try:
+        rows = np.loadtxt(path, ndmin=2)
+    except ValueError as exc:
+        raise InputError(f"{path}: not a KITTI pose file (12 numbers per line): {exc}") from None
+    if rows.shape != (n, 12):
+        raise InputError(f"{path}: {rows.shape[0]} poses of {rows.shape[1]} numbers; expected {n} (one per stop) of 12")
+    poses = np.zeros((n, 4, 4))
+    poses[:, :3, :], poses[:, 3, 3] = rows.reshape(n, 3, 4), 1.0
+    return poses

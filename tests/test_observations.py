@@ -1,0 +1,100 @@
+"""The observation-level input format: a scenario's own observations, written as an observation
+folder and run through `pancam-graph run FOLDER`, give the scenario run's metrics exactly; bad
+files are named with their line and column."""
+
+import json
+import shutil
+
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from pancam_graph.cli import app
+from pancam_graph.io.observations import read_observations
+
+runner = CliRunner()
+SEED = "3"
+
+
+def _invoke(*args: str) -> None:
+    result = runner.invoke(app, list(args))
+    assert result.exit_code == 0, result.output
+
+
+@pytest.fixture(scope="module")
+def folders(tmp_path_factory):
+    base = tmp_path_factory.mktemp("observations")
+    _invoke("run", "short_trail", "--seed", SEED, "--out", str(base / "scenario_run"), "--quiet")
+    _invoke("simulate", "short_trail", "--seed", SEED, "--out", str(base / "observations"))
+    _invoke("run", str(base / "observations"), "--out", str(base / "observation_run"), "--quiet")
+    return base
+
+
+def _metrics(folder):
+    document = json.loads((folder / "metrics.json").read_text())
+    for config in document["configs"].values():
+        config.pop("isam2_update_ms")
+    return document
+
+
+def test_observation_folder_reproduces_the_scenario_run_exactly(folders):
+    scenario, observed = _metrics(folders / "scenario_run"), _metrics(folders / "observation_run")
+    assert observed["vo"] == scenario["vo"]
+    assert observed["configs"]["vo"] == scenario["configs"]["vo"]  # every field, bit for bit
+    assert observed["configs"]["vo"]["relative_closure_pct"] > 0.01  # a real estimate, not a copy of truth
+    # Sites, HRC, GPS and dead reckoning travel through the format too.
+    assert observed["configs"] == scenario["configs"]
+    assert (observed["stops"], observed["sites"], observed["gps_fixes"]) == (
+        scenario["stops"], scenario["sites"], scenario["gps_fixes"])
+
+
+def _copy(folders, tmp_path):
+    folder = tmp_path / "obs"
+    shutil.copytree(folders / "observations", folder)
+    return folder
+
+
+def test_observation_file_with_a_missing_column_is_named(folders, tmp_path):
+    folder = _copy(folders, tmp_path)
+    lines = (folder / "stereo.csv").read_text().splitlines()
+    (folder / "stereo.csv").write_text("\n".join(",".join(line.split(",")[:4] + line.split(",")[5:])
+                                                 for line in lines) + "\n")
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["run", str(folder), "--out", str(out), "--quiet"])
+    assert result.exit_code == 2
+    assert "stereo.csv: line 1: missing column(s) u_right (expected stop,time_s,track,u_left,u_right,v)" in " ".join(
+        result.output.split())
+    assert not out.exists()
+
+
+def test_bad_values_name_file_line_and_column(folders, tmp_path):
+    folder = _copy(folders, tmp_path)
+    lines = (folder / "odometry.csv").read_text().splitlines()
+    fields = lines[3].split(",")
+    fields[5] = "north"
+    lines[3] = ",".join(fields)
+    (folder / "odometry.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(Exception, match=r"odometry.csv: line 4: column 'r22': expected a number, got 'north'"):
+        read_observations(folder)
+    folder = _copy(folders, tmp_path / "b")
+    lines = (folder / "gps.csv").read_text().splitlines()
+    lines.insert(2, "9999," + lines[1].split(",", 1)[1])
+    (folder / "gps.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(Exception, match=r"gps.csv: line 3: stop 9999 is not one of stereo.csv's stops 0..\d+"):
+        read_observations(folder)
+
+
+def test_rig_from_a_calibration_file(folders, tmp_path):
+    """An external front-end brings its own calibration instead of a preset (Kalibr here)."""
+    folder = _copy(folders, tmp_path)
+    preset = read_observations(folder).traverse.rig
+    cam = {"camera_model": "pinhole", "intrinsics": [preset.wac.fx, preset.wac.fy, preset.wac.cx, preset.wac.cy],
+           "distortion_model": "radtan", "distortion_coeffs": [0.0] * 4,
+           "resolution": [preset.wac.width, preset.wac.height]}
+    t = [[1.0, 0, 0, -preset.baseline_m], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]]
+    (folder / "camchain.yaml").write_text(yaml.safe_dump({"cam0": cam, "cam1": {**cam, "T_cn_cnm1": t}}))
+    manifest = (folder / "traverse.toml").read_text().replace('preset = "exomars"', 'calibration = "camchain.yaml"')
+    (folder / "traverse.toml").write_text(manifest)
+    rig = read_observations(folder).traverse.rig
+    assert rig.baseline_m == pytest.approx(preset.baseline_m, rel=1e-12)
+    assert (rig.wac.fx, rig.wac.cx) == pytest.approx((preset.wac.fx, preset.wac.cx), rel=1e-9)
