@@ -9,14 +9,15 @@ from __future__ import annotations
 import tomllib
 from importlib import resources
 from pathlib import Path
-from typing import Literal
+from typing import Literal, TypeVar
 
 import tomli_w
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from .errors import ConfigError
+from .errors import ConfigError, PancamGraphError
 
 Range = tuple[float, float]
+M = TypeVar("M", bound=BaseModel)
 
 
 class _Strict(BaseModel):
@@ -136,22 +137,28 @@ def _describe(err: dict) -> str:
     return f"field '{field}': {err['msg']}{got_text}"
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate a scenario TOML file; every problem names the file and the field."""
+def load_toml_model(path: str | Path, model: type[M], what: str, error: type[PancamGraphError] = ConfigError) -> M:
+    """Read and validate a TOML file against a pydantic model; every problem names the file and
+    the field, raised as `error`."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
-        raise ConfigError(f"{path}: cannot read scenario file: {exc.strerror}") from None
+        raise error(f"{path}: cannot read {what}: {exc.strerror}") from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+        raise error(f"{path}: not valid TOML: {exc}") from None
     try:
-        return Scenario.model_validate(data)
+        return model.model_validate(data)
     except ValidationError as exc:
         lines = "\n  ".join(_describe(e) for e in exc.errors())
-        raise ConfigError(f"{path}: invalid scenario:\n  {lines}") from None
+        raise error(f"{path}: invalid {what}:\n  {lines}") from None
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario TOML file; every problem names the file and the field."""
+    return load_toml_model(path, Scenario, "scenario file")
 
 
 def bundled_scenarios() -> dict[str, Path]:

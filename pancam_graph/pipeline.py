@@ -11,7 +11,7 @@ from typing import Protocol
 import numpy as np
 
 from .config import EstimatorConfig, Scenario
-from .evaluation.metrics import TrajectoryMetrics, compare, decimated_length
+from .evaluation.metrics import GPS_REFERENCE_STEP_M, TrajectoryMetrics, compare, decimated_length
 from .frontend.motion import Motion, dead_reckoning_motion, motion_between
 from .frontend.stereo_vo import StereoVO
 from .localizer import Localizer, LocalizerOptions, StepResult
@@ -26,7 +26,6 @@ CONFIGURATIONS: dict[str, LocalizerOptions] = {
     "vo_sites_hrc": LocalizerOptions(use_sites=True, use_hrc=True, use_gps=False),
     "full": LocalizerOptions(use_sites=True, use_hrc=True, use_gps=True),
 }
-GPS_REFERENCE_STEP_M = 20.0  # GPS track length is measured through fixes this far apart
 CHECKPOINT_EVERY_STOPS = 25  # listeners checkpoint at every site and at least this often
 
 

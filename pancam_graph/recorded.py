@@ -11,13 +11,11 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .evaluation.metrics import compare, decimated_length
+from .evaluation.metrics import GPS_REFERENCE_STEP_M, compare, decimated_length
 from .fusion import FusionOptions, FusionResult, fuse_odometry_gps
 from .geodesy import LocalFrame
 from .io.results import local_frame_dict
 from .records import GpsFix, OdometryTrack
-
-GPS_REFERENCE_STEP_M = 20.0  # a GPS track's length is measured through fixes this far apart
 
 
 @dataclass(frozen=True)

@@ -98,3 +98,12 @@ def test_rig_from_a_calibration_file(folders, tmp_path):
     rig = read_observations(folder).traverse.rig
     assert rig.baseline_m == pytest.approx(preset.baseline_m, rel=1e-12)
     assert (rig.wac.fx, rig.wac.cx) == pytest.approx((preset.wac.fx, preset.wac.cx), rel=1e-9)
+
+
+def test_manifest_field_errors_are_named(folders, tmp_path):
+    folder = _copy(folders, tmp_path)
+    text = (folder / "traverse.toml").read_text()
+    (folder / "traverse.toml").write_text(text.replace("image_noise_px = 0.3\n", "image_noise_px = -1.0\n"))
+    with pytest.raises(Exception, match=r"traverse.toml: invalid observation manifest:\s+field 'image_noise_px': "
+                                        r"Input should be greater than 0"):
+        read_observations(folder)

@@ -9,9 +9,16 @@ import numpy as np
 
 from ..errors import EvaluationError
 from ..io.trajectories import Trajectory
-from .metrics import RPE_DELTA_M, Alignment, TrajectoryMetrics, compare, decimated_length, fit_alignment
+from .metrics import (
+    GPS_REFERENCE_STEP_M,
+    RPE_DELTA_M,
+    Alignment,
+    TrajectoryMetrics,
+    compare,
+    decimated_length,
+    fit_alignment,
+)
 
-GPS_REFERENCE_STEP_M = 20.0  # a GPS track's length is measured through fixes this far apart
 MAX_DT_S = 0.01  # default association tolerance (evo's default)
 
 

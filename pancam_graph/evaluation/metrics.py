@@ -10,6 +10,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 Alignment = Literal["none", "se3", "yaw"]
+GPS_REFERENCE_STEP_M = 20.0  # a GPS track's length is measured through fixes this far apart
 RPE_DELTA_M = 10.0  # default distance of the relative pose error
 DRIFT_SEGMENTS_M = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
 

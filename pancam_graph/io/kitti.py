@@ -18,6 +18,7 @@ from ..errors import InputError
 from ..geodesy import LocalFrame
 from ..records import GpsFix, OdometryTrack
 from ..rig import Camera
+from .calibration import RectifiedStereo
 
 OXTS_FIELDS = (
     "lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az", "af", "al", "au",
@@ -36,18 +37,10 @@ class OxtsPackets:
 
 
 @dataclass(frozen=True)
-class KittiStereo:
-    """Rectified stereo calibration (cameras 02/03) of a KITTI date."""
-
-    camera: Camera
-    baseline_m: float
-
-
-@dataclass(frozen=True)
 class KittiDrive:
     folder: Path
     oxts: OxtsPackets
-    stereo: KittiStereo | None
+    stereo: RectifiedStereo | None
     left_images: list[Path]  # empty when the drive comes without images
     right_images: list[Path]
 
@@ -148,7 +141,7 @@ def _read_timestamps(path: Path) -> np.ndarray:
     return np.asarray(times)
 
 
-def read_cam_to_cam(path: Path) -> KittiStereo:
+def read_cam_to_cam(path: Path) -> RectifiedStereo:
     """Rectified cameras 02 (left) and 03 (right): P_rect_0x and S_rect_02."""
     entries = {}
     for line, text in enumerate(Path(path).read_text(encoding="utf-8").splitlines(), start=1):
@@ -172,4 +165,4 @@ def read_cam_to_cam(path: Path) -> KittiStereo:
     camera = Camera(fx=left[0, 0], fy=left[1, 1], cx=left[0, 2], cy=left[1, 2], width=int(width), height=int(height))
     # P[0, 3] = -fx * (camera x offset from the reference camera)
     baseline = (left[0, 3] - right[0, 3]) / left[0, 0]
-    return KittiStereo(camera, float(baseline))
+    return RectifiedStereo(camera, float(baseline))

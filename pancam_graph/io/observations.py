@@ -18,16 +18,15 @@ written with repr(), so a folder written from a traverse reads back bit for bit.
 from __future__ import annotations
 
 import csv
-import tomllib
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import tomli_w
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
-from ..config import EstimatorConfig, OriginConfig, _describe
+from ..config import EstimatorConfig, OriginConfig, load_toml_model
 from ..errors import InputError
 from ..geodesy import LocalFrame
 from ..records import DeadReckoning, GpsFix, GroundTruth, HrcFrame, PanoramaFrame, StereoObservations, Stop, Traverse
@@ -170,17 +169,7 @@ def read_observations(folder: Path) -> ObservationSet:
 
 
 def _manifest(path: Path) -> Manifest:
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: not valid TOML: {exc}") from None
-    try:
-        return Manifest.model_validate(data)
-    except ValidationError as exc:
-        lines = "\n  ".join(_describe(e) for e in exc.errors())
-        raise InputError(f"{path}: invalid observation manifest:\n  {lines}") from None
+    return load_toml_model(path, Manifest, "observation manifest", InputError)
 
 
 def _rig(folder: Path, source: RigSource) -> Rig:
