@@ -234,8 +234,8 @@ def _run_recorded(source: Path, out: Path | None, gps_topic: str | None, odom_to
             write_fusion_run(drive, result, document, folder)
     except PancamGraphError as exc:
         raise _fail(exc) from None
-    table = Table(title=f"{drive.name}: odometry + GPS ({len(result.times_s)} fixes, "
-                        f"every {holdout_every or 'no'}th held out)")
+    held = f"every {holdout_every}th held out" if holdout_every else "none held out"
+    table = Table(title=f"{drive.name}: odometry + GPS ({len(result.times_s)} fixes, {held})")
     for col in ("track", "RMS 2-D to held-out fixes m", "avg err vs all fixes m", "length ratio"):
         table.add_column(col, justify="right")
     scores = document["holdout"]

@@ -107,3 +107,13 @@ def test_manifest_field_errors_are_named(folders, tmp_path):
     with pytest.raises(Exception, match=r"traverse.toml: invalid observation manifest:\s+field 'image_noise_px': "
                                         r"Input should be greater than 0"):
         read_observations(folder)
+
+
+def test_a_track_listed_twice_at_a_stop_names_its_line(folders, tmp_path):
+    folder = _copy(folders, tmp_path)
+    lines = (folder / "stereo.csv").read_text().splitlines()
+    lines.insert(4, lines[2])  # line 3's observation again, as line 5
+    (folder / "stereo.csv").write_text("\n".join(lines) + "\n")
+    track = lines[2].split(",")[2]
+    with pytest.raises(Exception, match=rf"stereo.csv: line 5: stop 0 lists track {track} a second time"):
+        read_observations(folder)

@@ -6,6 +6,7 @@ unless the file says otherwise; sigmas are 1 sigma in metres, horizontal per axi
 
 from __future__ import annotations
 
+import bisect
 import csv
 from pathlib import Path
 
@@ -171,8 +172,9 @@ def _utc_seconds(line: int, time_of_day, rmc: list) -> float:
     """UTC Unix time of a GGA time of day, dated by the latest RMC at or before `line`."""
     import datetime as dt
 
-    earlier = [m for ln, m in rmc if ln <= line]
-    date_msg = earlier[-1] if earlier else rmc[0]
+    # rmc is in file order: the latest one at or before `line` (else the first one)
+    i = bisect.bisect_right(rmc, line, key=lambda entry: entry[0])
+    date_msg = rmc[max(i - 1, 0)][1]
     stamp = dt.datetime.combine(date_msg.datestamp, time_of_day)
     # The GGA may already belong to the next day while the last RMC is from before midnight.
     rmc_stamp = dt.datetime.combine(date_msg.datestamp, date_msg.timestamp)

@@ -250,49 +250,51 @@ def _read_stereo(path: Path) -> tuple[list[float], list[StereoObservations]]:
     observations = []
     for k in range(n):
         tracks = np.array([r[0] for r in rows[k]], dtype=np.int64)
-        if len(np.unique(tracks)) != len(tracks):
-            line = rows[k][len(np.unique(tracks))][4]
-            raise InputError(f"{path}: stop {k} lists a track twice (line {line} or before)")
+        seen: set[int] = set()
+        for track, *_, line in rows[k]:
+            if track in seen:
+                raise InputError(f"{path}: line {line}: stop {k} lists track {track} a second time")
+            seen.add(track)
         uvv = np.array([r[1:4] for r in rows[k]], dtype=float).reshape(-1, 3)
         observations.append(StereoObservations(tracks, uvv))
     return [times[k] for k in range(n)], observations
+
+
+def _read_frames(table: _Table, n: int, measured: list[str]) -> dict[int, dict[tuple[float, float], tuple]]:
+    """Rows grouped by stop and frame (pan_rad, tilt_rad), in file order: per frame the track ids
+    and the `measured` columns as an (N, len(measured)) array."""
+    grouped: dict[int, dict[tuple[float, float], list]] = defaultdict(dict)
+    columns = ["stop", "pan_rad", "tilt_rad", "track", *measured]
+    for line, row in table.rows:
+        values = dict(zip(table.columns, table.values(line, row), strict=True))
+        k = table.stop(line, values["stop"], n)
+        key = (table.number(line, "pan_rad", values["pan_rad"]), table.number(line, "tilt_rad", values["tilt_rad"]))
+        grouped[k].setdefault(key, []).append(
+            [table.number(line, "track", values["track"], integer=True)]
+            + [table.number(line, c, values[c]) for c in columns[4:]])
+    return {k: {key: (np.array([r[0] for r in rows], dtype=np.int64),
+                      np.array([r[1:] for r in rows], dtype=float).reshape(-1, len(measured)))
+                for key, rows in frames.items()}
+            for k, frames in grouped.items()}
 
 
 def _read_panorama(path: Path, n: int) -> tuple[dict[int, tuple[PanoramaFrame, ...]], dict[int, int]]:
     if not path.is_file():
         return {}, {}
     table = _Table(path, PANORAMA_COLUMNS)
-    frames: dict[int, dict[tuple[float, float], list]] = defaultdict(dict)
-    sites: dict[int, int] = {}
-    for line, row in table.rows:
-        stop, site, pan, tilt, track, ul, ur, v = table.values(line, row)
-        k = table.stop(line, stop, n)
-        sites[k] = int(table.number(line, "site", site, integer=True))
-        key = (table.number(line, "pan_rad", pan), table.number(line, "tilt_rad", tilt))
-        frames[k].setdefault(key, []).append((table.number(line, "track", track, integer=True),
-                                              table.number(line, "u_left", ul), table.number(line, "u_right", ur),
-                                              table.number(line, "v", v)))
-    panoramas = {k: tuple(PanoramaFrame(pan, tilt, StereoObservations(np.array([r[0] for r in rows], dtype=np.int64),
-                                                                       np.array([r[1:] for r in rows], dtype=float)))
-                          for (pan, tilt), rows in by_frame.items())
-                 for k, by_frame in frames.items()}
-    return panoramas, sites
+    frames = _read_frames(table, n, ["u_left", "u_right", "v"])  # validates every row first
+    sites = {int(row[table.index[0]]): int(table.number(line, "site", row[table.index[1]], integer=True))
+             for line, row in table.rows}
+    return {k: tuple(PanoramaFrame(pan, tilt, StereoObservations(tracks, uvv))
+                     for (pan, tilt), (tracks, uvv) in by_frame.items())
+            for k, by_frame in frames.items()}, sites
 
 
 def _read_hrc(path: Path, n: int) -> dict[int, tuple[HrcFrame, ...]]:
     if not path.is_file():
         return {}
-    table = _Table(path, HRC_COLUMNS)
-    frames: dict[int, dict[tuple[float, float], list]] = defaultdict(dict)
-    for line, row in table.rows:
-        stop, pan, tilt, track, u, v = table.values(line, row)
-        k = table.stop(line, stop, n)
-        key = (table.number(line, "pan_rad", pan), table.number(line, "tilt_rad", tilt))
-        frames[k].setdefault(key, []).append((table.number(line, "track", track, integer=True),
-                                              table.number(line, "u", u), table.number(line, "v", v)))
-    return {k: tuple(HrcFrame(pan, tilt, np.array([r[0] for r in rows], dtype=np.int64),
-                              np.array([r[1:] for r in rows], dtype=float).reshape(-1, 2))
-                     for (pan, tilt), rows in by_frame.items())
+    frames = _read_frames(_Table(path, HRC_COLUMNS), n, ["u", "v"])
+    return {k: tuple(HrcFrame(pan, tilt, tracks, uv) for (pan, tilt), (tracks, uv) in by_frame.items())
             for k, by_frame in frames.items()}
 
 

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import gtsam
 import numpy as np
 
-from ..errors import ResultsError
+from ..errors import InputError, ResultsError
 from ..geodesy import LocalFrame
 
 if TYPE_CHECKING:
@@ -80,12 +80,10 @@ def write_tum(path: Path, times_s: np.ndarray, world_T_body: np.ndarray) -> None
 
 def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """(times (N,), world_T_body (N, 4, 4)) from a TUM file."""
-    rows = np.loadtxt(path, comments="#", ndmin=2)
-    poses = np.zeros((len(rows), 4, 4))
-    for i, r in enumerate(rows):
-        rot = gtsam.Rot3.Quaternion(r[7], r[4], r[5], r[6]).matrix()
-        poses[i, :3, :3], poses[i, :3, 3], poses[i, 3, 3] = rot, r[1:4], 1.0
-    return rows[:, 0], poses
+    from .trajectories import read_tum as read_tum_trajectory
+
+    trajectory = read_tum_trajectory(path)
+    return trajectory.times_s, trajectory.world_T_body
 
 
 def write_csv(path: Path, header: list[str], rows) -> None:
@@ -311,5 +309,5 @@ def _read_csv(path: Path, columns: list[str]) -> list[_Row]:
 def _read_tum_checked(path: Path) -> tuple[np.ndarray, np.ndarray]:
     try:
         return read_tum(_need(path))
-    except ValueError as exc:
-        raise ResultsError(f"{path}: not a TUM trajectory (time tx ty tz qx qy qz qw): {exc}") from None
+    except InputError as exc:
+        raise ResultsError(str(exc)) from None

@@ -57,6 +57,15 @@ def read_trajectory(path: Path, origin: LocalFrame | None = None, gps_sigma_m: f
     return Trajectory(str(path), enu, np.array([f.time_s for f in fixes]), None, llh)
 
 
+def read_tum(path: Path) -> Trajectory:
+    """A TUM file (`time tx ty tz qx qy qz qw`), checked: unit quaternions, increasing times."""
+    path = Path(path)
+    rows = _numeric_rows(path) if path.is_file() else None
+    if rows is None or rows.shape[1] != 8:
+        raise InputError(f"{path}: not a TUM trajectory (8 numbers per line: time tx ty tz qx qy qz qw)")
+    return _tum(path, rows)
+
+
 def _numeric_rows(path: Path) -> np.ndarray | None:
     """The file as a float table (comments '#'), or None when it is not one."""
     lines = []
