@@ -77,3 +77,89 @@ def test_reader_loads_images_of_a_generated_kitti_folder(tmp_path):
     (drive / "image_02" / "data" / "0000000107.png").unlink()
     with pytest.raises(InputError, match=r"0000000003.txt: line 1: expected 30 OXTS fields, got 2"):
         read_kitti_raw(drive)
+
+
+# -- KITTI odometry ------------------------------------------------------------------------------
+
+PAIR = Path(__file__).parent / "data" / "real" / "kitti00_stereo_pair"
+# sequence 00's calib.txt, the two lines the reader uses: P0 (left) and P1 (right, P1[0, 3] = -fx * baseline)
+CALIB_00 = {
+    "P0": [718.856, 0, 607.1928, 0, 0, 718.856, 185.2157, 0, 0, 0, 1, 0],
+    "P1": [718.856, 0, 607.1928, -386.1448, 0, 718.856, 185.2157, 0, 0, 0, 1, 0],
+}
+
+
+def _odometry_layout(root: Path, frames: int = 2, calib: dict | None = None) -> Path:
+    """`sequences/00` with the real pair repeated, and a made-up straight forward drive in `poses/00.txt`."""
+    sequence = root / "sequences" / "00"
+    for camera, name in (("image_0", "left.png"), ("image_1", "right.png")):
+        (sequence / camera).mkdir(parents=True)
+        for i in range(frames):
+            shutil.copy(PAIR / name, sequence / camera / f"{i:06d}.png")
+    calib = CALIB_00 if calib is None else calib
+    (sequence / "calib.txt").write_text("".join(f"{k}: {' '.join(map(str, v))}\n" for k, v in calib.items()))
+    (sequence / "times.txt").write_text("".join(f"{0.1036 * i:e}\n" for i in range(frames)))
+    (root / "poses").mkdir()
+    (root / "poses" / "00.txt").write_text("".join(f"1 0 0 0 0 1 0 0 0 0 1 {0.8 * i}\n" for i in range(frames)))
+    return sequence
+
+
+def test_kitti_odometry_reader_and_the_real_pair_it_loads(tmp_path):
+    from pancam_graph.io.kitti import read_kitti_odometry
+
+    sequence = read_kitti_odometry(_odometry_layout(tmp_path))
+    assert len(sequence) == 2 and sequence.times_s[1] == pytest.approx(0.1036)
+    assert sequence.stereo.baseline_m == pytest.approx(0.5371657, abs=1e-7)  # the published baseline
+    assert (sequence.stereo.camera.width, sequence.stereo.camera.height) == (1241, 376)
+    assert sequence.world_T_camera[1, 2, 3] == pytest.approx(0.8)
+    left, right = sequence.stereo_pair(1)
+    # The pair is rectified: SIFT matches lie on the same row, and the right camera sees them shifted left.
+    sift = cv2.SIFT_create(4000)
+    (kl, dl), (kr, dr) = sift.detectAndCompute(left, None), sift.detectAndCompute(right, None)
+    good = [a for a, b in cv2.BFMatcher().knnMatch(dl, dr, k=2) if a.distance < 0.7 * b.distance]
+    ul = np.array([kl[g.queryIdx].pt for g in good])
+    ur = np.array([kr[g.trainIdx].pt for g in good])
+    assert len(good) > 300 and np.median(np.abs(ul[:, 1] - ur[:, 1])) < 0.5 and np.mean(ul[:, 0] > ur[:, 0]) > 0.98
+    # Triangulated with the calibration read, the road below the horizon is a level plane about 1.65 m
+    # under the camera (KITTI's published mounting height): checks fx, cy and baseline together.
+    cam, b = sequence.stereo.camera, sequence.stereo.baseline_m
+    ok = (np.abs(ul[:, 1] - ur[:, 1]) < 1) & (ul[:, 0] - ur[:, 0] > 1) & (ul[:, 1] > 260)
+    z = cam.fx * b / (ul[ok, 0] - ur[ok, 0])
+    points = np.column_stack([(ul[ok, 0] - cam.cx) * z / cam.fx, (ul[ok, 1] - cam.cy) * z / cam.fy, z])
+    normal, height = _ransac_plane(points, tolerance_m=0.05)
+    assert abs(normal[1]) > np.cos(np.deg2rad(3))  # y (down) is the plane's normal: the camera is level
+    assert height == pytest.approx(1.65, abs=0.15)
+
+
+def _ransac_plane(points: np.ndarray, tolerance_m: float) -> tuple[np.ndarray, float]:
+    rng = np.random.default_rng(0)
+    best = np.zeros(len(points), bool)
+    for _ in range(500):
+        a, b, c = points[rng.choice(len(points), 3, replace=False)]
+        normal = np.cross(b - a, c - a)
+        if np.linalg.norm(normal) > 1e-9:
+            normal /= np.linalg.norm(normal)
+            inliers = np.abs((points - a) @ normal) < tolerance_m
+            best = inliers if inliers.sum() > best.sum() else best
+    centre = points[best].mean(axis=0)
+    normal = np.linalg.svd(points[best] - centre)[2][-1]
+    return normal, abs(float(normal @ centre))
+
+
+def test_kitti_odometry_bad_inputs_are_named(tmp_path):
+    from pancam_graph.io.kitti import read_kitti_odometry
+
+    calib = dict(CALIB_00)
+    del calib["P1"]
+    with pytest.raises(InputError, match=r"calib\.txt: missing field 'P1'"):
+        read_kitti_odometry(_odometry_layout(tmp_path / "a", calib=calib))
+    sequence = _odometry_layout(tmp_path / "b")
+    (sequence / "image_1" / "000001.png").unlink()
+    with pytest.raises(InputError, match=r"image_1: 1 images but 2 lines in times.txt"):
+        read_kitti_odometry(sequence)
+    sequence = _odometry_layout(tmp_path / "c")
+    (tmp_path / "c" / "poses" / "00.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n")
+    with pytest.raises(InputError, match=r"00\.txt: 1 poses but 2 lines"):
+        read_kitti_odometry(sequence)
+    with pytest.raises(InputError, match="not a KITTI odometry sequence"):
+        read_kitti_odometry(tmp_path)

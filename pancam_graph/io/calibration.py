@@ -140,11 +140,18 @@ def read_camera_info_pair(left: Path, right: Path) -> RectifiedStereo:
     projection matrices (the right one carries Tx = -fx * baseline)."""
     p_left, size = _camera_info(left)
     p_right, _ = _camera_info(right)
+    return rectified_from_projections(p_left, p_right, size, str(right))
+
+
+def rectified_from_projections(p_left: np.ndarray, p_right: np.ndarray, size: tuple[int, int],
+                               right_source: str) -> RectifiedStereo:
+    """The rectified model from the two 3x4 projection matrices of a rectified pair (ROS
+    camera_info P, KITTI P0/P1): the right one carries Tx = -fx * baseline."""
     if p_right[0, 3] >= 0:
-        raise InputError(f"{right}: projection_matrix Tx = {p_right[0, 3]}: expected -fx * baseline < 0 "
+        raise InputError(f"{right_source}: projection matrix Tx = {p_right[0, 3]}: expected -fx * baseline < 0 "
                          "for the right camera (are left and right swapped?)")
     camera = Camera(fx=float(p_left[0, 0]), fy=float(p_left[1, 1]), cx=float(p_left[0, 2]), cy=float(p_left[1, 2]),
-                    width=size[0], height=size[1])
+                    width=int(size[0]), height=int(size[1]))
     return RectifiedStereo(camera, float((p_left[0, 3] - p_right[0, 3]) / p_right[0, 0]))
 
 

@@ -1,9 +1,17 @@
-"""KITTI raw drives in their original folder layout: OXTS packets and timestamps, the
-rectified stereo calibration of the date, and the rectified colour images when present.
+"""KITTI in its original folder layouts.
+
+Raw drives: OXTS packets and timestamps, the rectified stereo calibration of the date, and the
+rectified colour images when present.
 
     <date>/calib_cam_to_cam.txt
     <date>/<date>_drive_<NNNN>_sync/oxts/timestamps.txt, oxts/data/NNNNNNNNNN.txt
     <date>/<date>_drive_<NNNN>_sync/image_02/data/NNNNNNNNNN.png (left), image_03 (right)
+
+Odometry sequences: rectified grayscale pairs, their times and projection matrices, and the
+ground-truth poses of the left camera when published (sequences 00-10).
+
+    <root>/sequences/<NN>/calib.txt (P0..P3, Tr), times.txt, image_0/NNNNNN.png, image_1/NNNNNN.png
+    <root>/poses/<NN>.txt
 """
 
 from __future__ import annotations
@@ -17,8 +25,8 @@ import numpy as np
 from ..errors import InputError
 from ..geodesy import LocalFrame
 from ..records import GpsFix, OdometryTrack
-from ..rig import Camera
-from .calibration import RectifiedStereo
+from .calibration import RectifiedStereo, rectified_from_projections
+from .trajectories import read_kitti_poses
 
 OXTS_FIELDS = (
     "lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az", "af", "al", "au",
@@ -46,15 +54,7 @@ class KittiDrive:
 
     def stereo_pair(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """The i-th rectified pair as grayscale arrays."""
-        import cv2
-
-        images = []
-        for path in (self.left_images[i], self.right_images[i]):
-            image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-            if image is None:
-                raise InputError(f"{path}: not a readable image")
-            images.append(image)
-        return images[0], images[1]
+        return _grayscale(self.left_images[i]), _grayscale(self.right_images[i])
 
     def world_T_body(self, origin: LocalFrame, geoid_height_m: float = 0.0) -> np.ndarray:
         """OXTS poses (N, 4, 4) in `origin`'s ENU frame. The OXTS body is x forward, y left, z up
@@ -143,26 +143,109 @@ def _read_timestamps(path: Path) -> np.ndarray:
 
 def read_cam_to_cam(path: Path) -> RectifiedStereo:
     """Rectified cameras 02 (left) and 03 (right): P_rect_0x and S_rect_02."""
-    entries = {}
-    for line, text in enumerate(Path(path).read_text(encoding="utf-8").splitlines(), start=1):
-        key, _, value = text.partition(":")
-        entries[key.strip()] = (line, value)
+    calib = _CalibFile(path)
+    width, height = calib.numbers("S_rect_02", 2)
+    return rectified_from_projections(calib.numbers("P_rect_02", 12).reshape(3, 4),
+                                      calib.numbers("P_rect_03", 12).reshape(3, 4), (int(width), int(height)),
+                                      f"{path}: P_rect_03")
 
-    def numbers(key: str, count: int) -> np.ndarray:
-        if key not in entries:
-            raise InputError(f"{path}: missing field '{key}'")
-        line, value = entries[key]
+
+@dataclass(frozen=True)
+class KittiOdometrySequence:
+    folder: Path
+    stereo: RectifiedStereo  # cameras 0 (left) and 1 (right), grayscale
+    times_s: np.ndarray  # (N,) seconds from the sequence start
+    left_images: list[Path]
+    right_images: list[Path]
+    world_T_camera: np.ndarray | None  # (N, 4, 4) left camera (x right, y down, z forward) in the first one's frame
+
+    def __len__(self) -> int:
+        return len(self.times_s)
+
+    def stereo_pair(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """The i-th rectified pair as grayscale arrays."""
+        return _grayscale(self.left_images[i]), _grayscale(self.right_images[i])
+
+
+def read_kitti_odometry(sequence: Path, poses: Path | None = None) -> KittiOdometrySequence:
+    """A `sequences/<NN>` folder. Poses come from `poses` or, when not given, from
+    `<root>/poses/<NN>.txt` if it exists; the image size from the first left image."""
+    import cv2
+
+    sequence = Path(sequence)
+    if not (sequence / "calib.txt").is_file():
+        raise InputError(f"{sequence}: not a KITTI odometry sequence (no calib.txt)")
+    calib = _CalibFile(sequence / "calib.txt")
+    times = _read_seconds(sequence / "times.txt")
+    left = sorted((sequence / "image_0").glob("*.png"))
+    right = sorted((sequence / "image_1").glob("*.png"))
+    for name, images in (("image_0", left), ("image_1", right)):
+        if len(images) != len(times):
+            raise InputError(f"{sequence / name}: {len(images)} images but {len(times)} lines in times.txt")
+    if not left:
+        raise InputError(f"{sequence}: no images in image_0")
+    first = cv2.imread(str(left[0]), cv2.IMREAD_GRAYSCALE)
+    if first is None:
+        raise InputError(f"{left[0]}: not a readable image")
+    stereo = rectified_from_projections(calib.numbers("P0", 12).reshape(3, 4), calib.numbers("P1", 12).reshape(3, 4),
+                                        (first.shape[1], first.shape[0]), f"{sequence / 'calib.txt'}: P1")
+    if poses is None and (sequence.parent.parent / "poses" / f"{sequence.name}.txt").is_file():
+        poses = sequence.parent.parent / "poses" / f"{sequence.name}.txt"
+    world_T_camera = None
+    if poses is not None:
+        world_T_camera = read_kitti_poses(poses).world_T_body
+        if len(world_T_camera) != len(times):
+            raise InputError(f"{poses}: {len(world_T_camera)} poses but {len(times)} lines in "
+                             f"{sequence / 'times.txt'}")
+    return KittiOdometrySequence(sequence, stereo, times, left, right, world_T_camera)
+
+
+class _CalibFile:
+    """A KITTI calibration text file of `key: numbers` lines."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise InputError(f"{self.path}: missing")
+        self.entries = {}
+        for line, text in enumerate(self.path.read_text(encoding="utf-8").splitlines(), start=1):
+            key, _, value = text.partition(":")
+            self.entries[key.strip()] = (line, value)
+
+    def numbers(self, key: str, count: int) -> np.ndarray:
+        if key not in self.entries:
+            raise InputError(f"{self.path}: missing field '{key}'")
+        line, value = self.entries[key]
         try:
             array = np.array([float(v) for v in value.split()])
         except ValueError:
-            raise InputError(f"{path}: line {line}: field '{key}': expected numbers") from None
+            raise InputError(f"{self.path}: line {line}: field '{key}': expected numbers") from None
         if len(array) != count:
-            raise InputError(f"{path}: line {line}: field '{key}': expected {count} numbers, got {len(array)}")
+            raise InputError(f"{self.path}: line {line}: field '{key}': expected {count} numbers, got {len(array)}")
         return array
 
-    left, right = numbers("P_rect_02", 12).reshape(3, 4), numbers("P_rect_03", 12).reshape(3, 4)
-    width, height = numbers("S_rect_02", 2)
-    camera = Camera(fx=left[0, 0], fy=left[1, 1], cx=left[0, 2], cy=left[1, 2], width=int(width), height=int(height))
-    # P[0, 3] = -fx * (camera x offset from the reference camera)
-    baseline = (left[0, 3] - right[0, 3]) / left[0, 0]
-    return RectifiedStereo(camera, float(baseline))
+
+def _read_seconds(path: Path) -> np.ndarray:
+    if not path.is_file():
+        raise InputError(f"{path}: missing")
+    times = []
+    for line, text in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        if text.strip():
+            try:
+                times.append(float(text))
+            except ValueError:
+                raise InputError(f"{path}: line {line}: expected seconds, got {text.strip()!r}") from None
+    times = np.asarray(times)
+    if np.any(np.diff(times) <= 0):
+        line = int(np.argmax(np.diff(times) <= 0)) + 2
+        raise InputError(f"{path}: line {line}: time does not increase")
+    return times
+
+
+def _grayscale(path: Path) -> np.ndarray:
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise InputError(f"{path}: not a readable image")
+    return image

@@ -1,7 +1,10 @@
-"""ROS1 and ROS2 bags through the `rosbags` package: GPS fixes and wheel odometry."""
+"""ROS1 and ROS2 bags through the `rosbags` package: GPS fixes, wheel odometry, IMU samples,
+camera images and stereo camera_info."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import gtsam
@@ -9,6 +12,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..records import GpsFix, OdometryTrack
+from .calibration import RectifiedStereo, rectified_from_projections
 
 NAVSAT_NO_FIX = -1  # sensor_msgs/NavSatStatus.STATUS_NO_FIX
 
@@ -85,3 +89,134 @@ def read_odometry(path: Path, topic: str | None) -> OdometryTrack:
         order = np.argsort(times, kind="stable")
         times, poses = times[order], [poses[i] for i in order]
     return OdometryTrack(f"{path}:{topic or 'Odometry'}", times, np.stack(poses))
+
+
+@dataclass(frozen=True)
+class ImuSamples:
+    """`sensor_msgs/Imu` as recorded, in the IMU's own frame."""
+
+    source: str
+    times_s: np.ndarray  # (N,) increasing
+    angular_velocity: np.ndarray  # (N, 3) rad/s
+    linear_acceleration: np.ndarray  # (N, 3) m/s^2, gravity included (at rest about +9.81 along up)
+    orientation_xyzw: np.ndarray  # (N, 4); NaN rows where the driver gives no orientation
+
+    def __len__(self) -> int:
+        return len(self.times_s)
+
+
+def read_imu(path: Path, topic: str | None) -> ImuSamples:
+    """`sensor_msgs/Imu` messages. A covariance whose first element is -1 marks a quantity the
+    driver does not provide (the message definition); such orientations are NaN, and a bag
+    without rates or accelerations is an error, since those are what an IMU is read for."""
+    times, rates, accels, quats = [], [], [], []
+    for i, t, m in _messages(path, topic, "Imu"):
+        if m.angular_velocity_covariance[0] == -1 or m.linear_acceleration_covariance[0] == -1:
+            raise InputError(f"{path}: {topic} message {i}: no angular velocity or linear acceleration "
+                             "(covariance[0] = -1)")
+        q = m.orientation
+        quats.append([np.nan] * 4 if m.orientation_covariance[0] == -1 else [q.x, q.y, q.z, q.w])
+        w, a = m.angular_velocity, m.linear_acceleration
+        rates.append([w.x, w.y, w.z])
+        accels.append([a.x, a.y, a.z])
+        times.append(t)
+    if not times:
+        raise InputError(f"{path}: topic {topic} has no IMU messages")
+    times = np.asarray(times)
+    order = np.argsort(times, kind="stable")
+    return ImuSamples(f"{path}:{topic or 'Imu'}", times[order], np.asarray(rates)[order], np.asarray(accels)[order],
+                      np.asarray(quats)[order])
+
+
+@dataclass(frozen=True)
+class StampedImage:
+    time_s: float
+    image: np.ndarray  # (H, W) grayscale or (H, W, 3) BGR, the bag's bit depth
+
+
+# sensor_msgs/Image encodings: (numpy dtype, channels, OpenCV conversion to BGR or None)
+_IMAGE_ENCODINGS = {
+    "mono8": (np.uint8, 1, None), "8UC1": (np.uint8, 1, None),
+    "mono16": (np.uint16, 1, None), "16UC1": (np.uint16, 1, None),
+    "bgr8": (np.uint8, 3, None), "8UC3": (np.uint8, 3, None),
+    "rgb8": (np.uint8, 3, "COLOR_RGB2BGR"),
+    "bgra8": (np.uint8, 4, "COLOR_BGRA2BGR"), "rgba8": (np.uint8, 4, "COLOR_RGBA2BGR"),
+}
+
+
+def read_images(path: Path, topic: str | None) -> Iterator[StampedImage]:
+    """Images of one topic (None: the bag's only image topic), `sensor_msgs/Image` or
+    `sensor_msgs/CompressedImage`, decoded one at a time so a long bag never sits in memory."""
+    topic, kind = _image_topic(path, topic)
+    for i, t, m in _messages(path, topic, kind):
+        where = f"{path}: {topic} message {i}"
+        yield StampedImage(t, _compressed(m, where) if kind == "CompressedImage" else _raw_image(m, where))
+
+
+def _image_topic(path: Path, topic: str | None) -> tuple[str, str]:
+    """The topic and its kind, 'Image' or 'CompressedImage'."""
+    from rosbags.highlevel import AnyReader
+
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: no such bag")
+    try:
+        with AnyReader([path]) as reader:
+            types = {c.topic: c.msgtype.rsplit("/", 1)[-1] for c in reader.connections}
+    except Exception as exc:  # rosbags raises several types for truncated or corrupt files
+        raise InputError(f"{path}: cannot read: {type(exc).__name__}: {exc}") from None
+    images = sorted(t for t, kind in types.items() if kind in ("Image", "CompressedImage"))
+    if topic is None:
+        if len(images) != 1:
+            raise InputError(f"{path}: {len(images)} image topics ({', '.join(images) or 'none'}); "
+                             "choose one on the command line")
+        topic = images[0]
+    if topic not in images:
+        have = ", ".join(f"{t} ({kind})" for t, kind in sorted(types.items()))
+        raise InputError(f"{path}: topic {topic} is not an Image or CompressedImage topic; the bag has {have}")
+    return topic, types[topic]
+
+
+def _raw_image(m, where: str) -> np.ndarray:
+    import cv2
+
+    if m.encoding not in _IMAGE_ENCODINGS:
+        raise InputError(f"{where}: image encoding '{m.encoding}' is not supported "
+                         f"(supported: {', '.join(_IMAGE_ENCODINGS)})")
+    dtype, channels, conversion = _IMAGE_ENCODINGS[m.encoding]
+    itemsize = np.dtype(dtype).itemsize
+    row = m.width * channels * itemsize
+    if m.step < row or len(m.data) < m.step * m.height:
+        raise InputError(f"{where}: {m.width}x{m.height} {m.encoding} needs {m.step} x {m.height} bytes "
+                         f"(step >= {row}); the message has {len(m.data)}")
+    rows = np.asarray(m.data, dtype=np.uint8)[: m.step * m.height].reshape(m.height, m.step)[:, :row]
+    image = rows.copy().view(np.dtype(dtype).newbyteorder(">" if m.is_bigendian else "<"))
+    image = image.astype(dtype).reshape((m.height, m.width) if channels == 1 else (m.height, m.width, channels))
+    return cv2.cvtColor(image, getattr(cv2, conversion)) if conversion else image
+
+
+def _compressed(m, where: str) -> np.ndarray:
+    import cv2
+
+    image = cv2.imdecode(np.asarray(m.data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise InputError(f"{where}: format '{m.format}': the data do not decode as an image")
+    return image
+
+
+def read_stereo_camera_info(path: Path, left_topic: str, right_topic: str) -> RectifiedStereo:
+    """The rectified stereo model from the first `sensor_msgs/CameraInfo` of the left and right
+    topics (their projection matrices P, the right one carrying Tx = -fx * baseline)."""
+    infos = []
+    for topic in (left_topic, right_topic):
+        first = next(iter(_messages(path, topic, "CameraInfo")), None)
+        if first is None:
+            raise InputError(f"{path}: topic {topic} has no CameraInfo messages")
+        m = first[2]
+        projection = np.asarray(m.P if hasattr(m, "P") else m.p, dtype=float)  # ROS1 P, ROS2 p
+        if projection.size != 12 or not np.all(np.isfinite(projection)) or projection[0] <= 0:
+            raise InputError(f"{path}: {topic} message 0: P must be 12 finite numbers with fx > 0, "
+                             f"got {projection.tolist()}")
+        infos.append((projection.reshape(3, 4), (int(m.width), int(m.height))))
+    (p_left, size), (p_right, _) = infos
+    return rectified_from_projections(p_left, p_right, size, f"{path}: {right_topic}")

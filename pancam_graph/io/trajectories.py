@@ -43,11 +43,7 @@ def read_trajectory(path: Path, origin: LocalFrame | None = None, gps_sigma_m: f
     if rows is not None and rows.shape[1] == 8:
         return _tum(path, rows)
     if rows is not None and rows.shape[1] == 12:
-        poses = np.zeros((len(rows), 4, 4))
-        poses[:, :3, :] = rows.reshape(-1, 3, 4)
-        poses[:, 3, 3] = 1.0
-        _check_rotations(path, poses)
-        return Trajectory(str(path), poses[:, :3, 3].copy(), None, poses)
+        return _kitti(path, rows)
     fixes, _ = read_gps_file(path, gps_sigma_m, gps_sigma_m)
     if not fixes:
         raise InputError(f"{path}: no usable GPS fixes")
@@ -64,6 +60,23 @@ def read_tum(path: Path) -> Trajectory:
     if rows is None or rows.shape[1] != 8:
         raise InputError(f"{path}: not a TUM trajectory (8 numbers per line: time tx ty tz qx qy qz qw)")
     return _tum(path, rows)
+
+
+def read_kitti_poses(path: Path) -> Trajectory:
+    """A KITTI pose file (12 numbers per line: the top 3x4 of each pose matrix), checked."""
+    path = Path(path)
+    rows = _numeric_rows(path) if path.is_file() else None
+    if rows is None or rows.shape[1] != 12:
+        raise InputError(f"{path}: not a KITTI pose file (12 numbers per line: r11 r12 r13 tx r21 ... r33 tz)")
+    return _kitti(path, rows)
+
+
+def _kitti(path: Path, rows: np.ndarray) -> Trajectory:
+    poses = np.zeros((len(rows), 4, 4))
+    poses[:, :3, :] = rows.reshape(-1, 3, 4)
+    poses[:, 3, 3] = 1.0
+    _check_rotations(path, poses)
+    return Trajectory(str(path), poses[:, :3, 3].copy(), None, poses)
 
 
 def _numeric_rows(path: Path) -> np.ndarray | None:
