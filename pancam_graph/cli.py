@@ -422,6 +422,56 @@ def _time_recorded_run(scenario, seed: int) -> float:
         return time.perf_counter() - start
 
 
+@app.command("analyze")
+def analyze_command(
+    rig: list[str] = typer.Option(None, "--rig", help="rig preset (repeatable; default: every preset)"),
+    out: Path = typer.Option(Path("results/analysis"), "--out", help="folder for analysis.json, "
+                                                                     "table_3_2.md and the figures"),
+    sigma_px: float = typer.Option(0.5, "--sigma-px", min=0.01, help="matching error of x_l and x_r (px)"),
+    baseline: float | None = typer.Option(None, "--baseline", min=0.01, help="custom rig: stereo baseline (m)"),
+    focal_px: float | None = typer.Option(None, "--focal-px", min=1.0, help="custom rig: focal length (px)"),
+    fov_deg: float | None = typer.Option(None, "--fov", min=1.0, max=179.0, help="custom rig: horizontal FOV (deg)"),
+) -> None:
+    """The seed's Chapter 3 error analysis for each rig: mapping ellipses, two-stop VO, the HRC's
+    gain and the two-site BA (optimal FOV, longest site spacing for 1 %), as figures, a Table 3.2
+    and analysis.json; every assumption is written with them."""
+    from .analysis.design import AnalysisRig, Assumptions
+    from .analysis.report import analyze
+    from .rig import RIG_PRESETS
+    from .viz.analysis_plots import write_analysis
+
+    custom = [baseline, focal_px, fov_deg]
+    if any(v is not None for v in custom) and not all(v is not None for v in custom):
+        console.print("[red]error:[/] a custom rig needs --baseline, --focal-px and --fov together")
+        raise typer.Exit(2)
+    try:
+        if all(v is not None for v in custom):
+            rigs = [AnalysisRig("custom", baseline, focal_px, fov_deg)]
+        else:
+            rigs = [AnalysisRig.preset(name) for name in (rig or list(RIG_PRESETS))]
+    except ValueError as exc:
+        console.print(f"[red]error:[/] {exc}")
+        raise typer.Exit(2) from None
+    assumptions = Assumptions(sigma_px=sigma_px)
+    start = time.perf_counter()
+    with Progress(console=console, transient=True) as bar:
+        task = bar.add_task("analysing rigs", total=len(rigs))
+        rows = analyze(rigs, assumptions, progress=lambda done, total: bar.update(task, completed=done))
+    written = write_analysis(rows, assumptions, out)
+    table = Table(title=f"two-site BA, {assumptions.tie_points} tie points, sigma {sigma_px} px")
+    for column in ("rig", "optimal FOV deg", "FOV, 16 tie points", "max spacing for 1 % (m)", "seed (m)"):
+        table.add_column(column, justify="right")
+    from .analysis.report import SEED_TABLE_3_2
+
+    for row in rows:
+        seed = SEED_TABLE_3_2.get(row.name, {}).get("max_site_spacing_m", "-")
+        table.add_row(row.name, f"{row.optimal_fov_deg:.0f}", f"{row.optimal_fov_16_deg:.0f}",
+                      f"{row.max_site_spacing_m:.1f}", str(seed))
+    console.print(table)
+    console.print(f"{len(written)} files in {out} ({time.perf_counter() - start:.1f} s); "
+                  f"assumptions and notes in {out / 'table_3_2.md'}")
+
+
 @app.command("simulate")
 def simulate_command(
     scenario: str = typer.Argument("denver_trail", help="bundled scenario name or path to a TOML file"),

@@ -11,7 +11,6 @@ def test_short_scenario_meets_thresholds(short_run):
     c = short_run.configurations
     assert c["vo"].metrics.relative_closure_pct <= 2.0
     assert c["vo_sites"].metrics.relative_closure_pct <= 0.5
-    assert c["vo_sites"].metrics.average_error_m < c["vo"].metrics.average_error_m
     assert c["full"].metrics.ate_rmse_m < 2.0  # GPS sigma
     assert c["full"].metrics.ate_alignment == "none"
     assert c["vo"].bridged_stops > 0

@@ -27,6 +27,7 @@ class AnalysisRig:
     fov_deg: float  # horizontal
     hrc_baseline_m: float | None = None  # HRC to the left camera
     hrc_focal_px: float | None = None
+    hrc_fov_deg: float | None = None
 
     @property
     def has_hrc(self) -> bool:
@@ -34,9 +35,11 @@ class AnalysisRig:
 
     @classmethod
     def from_rig(cls, rig: Rig, name: str | None = None) -> AnalysisRig:
-        fov = float(np.rad2deg(2 * np.arctan(rig.wac.width / 2 / rig.wac.fx)))
-        return cls(name or rig.name, rig.baseline_m, rig.wac.fx, fov,
-                   rig.hrc_offset_m if rig.hrc is not None else None, rig.hrc.fx if rig.hrc is not None else None)
+        fov = lambda camera: float(np.rad2deg(2 * np.arctan(camera.width / 2 / camera.fx)))  # noqa: E731
+        if rig.hrc is None:
+            return cls(name or rig.name, rig.baseline_m, rig.wac.fx, fov(rig.wac))
+        return cls(name or rig.name, rig.baseline_m, rig.wac.fx, fov(rig.wac), rig.hrc_offset_m, rig.hrc.fx,
+                   fov(rig.hrc))
 
     @classmethod
     def preset(cls, name: str) -> AnalysisRig:

@@ -19,9 +19,10 @@ from ..config import EstimatorConfig
 from ..graph import noise
 from ..graph.keys import L, X
 from ..records import StereoObservations, Traverse
-from ..rig import Rig, triangulate_rectified
+from ..rig import Rig, triangulate_rectified, triangulation_covariance
 
 _CHI2_6DOF_99 = 16.812  # a point's two stereo residuals (2 x 3 px components): outlier gate
+_CHI2_3DOF_999 = 16.266  # a point's two triangulations (3-D difference): re-admission gate
 
 
 @dataclass(frozen=True)
@@ -45,6 +46,7 @@ class StereoVO:
         self.calibration = rig.stereo_calibration()
         self.K = rig.wac.matrix()
         self.noise = noise.stereo_pixels(pixel_sigma)
+        self.pixel_sigma = pixel_sigma
         self.min_inliers = min_inliers
         self.ransac_px = max(ransac_px, 4.0 * pixel_sigma)
         self.max_step_m = max_step_m
@@ -85,12 +87,36 @@ class StereoVO:
         pose, cov, keep = self._bundle_adjust(a[inl], b[inl], p_prev[inl], guess)
         if keep.sum() < self.min_inliers:
             return VoResult(False, None, None, matches, int(keep.sum()), "too few inliers after BA")
+        # RANSAC judged the matches by reprojecting the previous triangulation, whose range error
+        # grows with range squared: it rejects most distant features however good they are. Judge
+        # every match again at the refined pose, by how well its two triangulations agree given
+        # their covariances, and re-solve with all that pass (the seed's error model, eq. 3.3).
+        agree = self._consistent(a, b, p_prev, pose)
+        inl = np.flatnonzero(agree) if agree.sum() >= keep.sum() else inl[keep]
+        pose, cov, keep = self._bundle_adjust(a[inl], b[inl], p_prev[inl], pose)
+        if keep.sum() < self.min_inliers:
+            return VoResult(False, None, None, matches, int(keep.sum()), "too few inliers after BA")
         if keep.sum() < len(keep):
             pose, cov, _ = self._bundle_adjust(a[inl][keep], b[inl][keep], p_prev[inl][keep], pose)
         step = float(np.linalg.norm(pose.translation()))
         if step > self.max_step_m:
             return VoResult(False, None, None, matches, int(keep.sum()), f"implausible step {step:.1f} m")
         return VoResult(True, pose, cov, matches, int(keep.sum()))
+
+    def _consistent(self, a, b, p_prev_cam, pose: gtsam.Pose3) -> np.ndarray:
+        """Matches whose current triangulation, moved into the previous camera frame by `pose`,
+        agrees with the previous one: squared Mahalanobis distance under the 3-dof gate."""
+        cam, base = self.rig.wac, self.rig.baseline_m
+        prev_T_curr_cam = self.left_T_body.compose(pose).compose(self.body_T_left)
+        rot = prev_T_curr_cam.rotation().matrix()
+        p_curr = triangulate_rectified(b[:, 0], b[:, 1], b[:, 2], cam, base) @ rot.T + prev_T_curr_cam.translation()
+        cov = (triangulation_covariance(a[:, 0], a[:, 1], a[:, 2], cam, base, self.pixel_sigma)
+               + rot @ triangulation_covariance(b[:, 0], b[:, 1], b[:, 2], cam, base, self.pixel_sigma) @ rot.T)
+        diff = p_curr - p_prev_cam
+        ok = np.all(np.isfinite(diff), axis=1)
+        d2 = np.full(len(diff), np.inf)
+        d2[ok] = np.einsum("ni,ni->n", diff[ok], np.linalg.solve(cov[ok], diff[ok][:, :, None])[:, :, 0])
+        return d2 < _CHI2_3DOF_999
 
     def _bundle_adjust(self, a, b, p_prev_cam, guess: gtsam.Pose3):
         graph = gtsam.NonlinearFactorGraph()
