@@ -353,8 +353,12 @@ def bench_command(
     seeds: int = typer.Option(1, "--seeds", min=1, help="run this many consecutive seeds and summarise"),
     rerun: bool = typer.Option(False, "--rerun", help="also time each run with `--rerun save` (alternating) "
                                                       "and report the overhead"),
+    monte_carlo: int = typer.Option(0, "--monte-carlo", min=0, help="run this many seeds and report each "
+                                    "configuration's efficiency (RMSE / CRLB) and ANEES with its chi-square band"),
 ) -> None:
     """Time full runs (all configurations) and print one JSON object."""
+    if monte_carlo:
+        seeds = max(seeds, monte_carlo)
     try:
         sc = _load(scenario)
         first = sc.seed if seed is None else seed
@@ -405,6 +409,12 @@ def bench_command(
             }
             for n in results[0].configurations
         }
+    if monte_carlo:
+        from .evaluation.consistency import monte_carlo_summary
+
+        report["monte_carlo"] = {n: monte_carlo_summary([r.configurations[n].consistency for r in results])
+                                 for n in results[0].configurations
+                                 if all(r.configurations[n].consistency is not None for r in results)}
     print(json.dumps(report, indent=2))
 
 

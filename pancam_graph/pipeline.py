@@ -11,6 +11,7 @@ from typing import Protocol
 import numpy as np
 
 from .config import EstimatorConfig, Scenario
+from .evaluation.consistency import Consistency, consistency, crlb_position_covariances
 from .evaluation.metrics import GPS_REFERENCE_STEP_M, TrajectoryMetrics, compare, decimated_length
 from .frontend.motion import Motion, dead_reckoning_motion, motion_between
 from .frontend.stereo_vo import StereoVO
@@ -36,6 +37,7 @@ class RunOptions:
     use_sites: bool = True
     use_hrc: bool = True
     batch: bool = False
+    crlb: bool = True  # CRLB, efficiency and ANEES for each configuration when truth is known
 
     def configurations(self) -> list[str]:
         names = []
@@ -62,6 +64,7 @@ class ConfigurationResult:
     rejected_hrc_measurements: int
     solver: str
     metrics: TrajectoryMetrics | None  # against the reference; None without one
+    consistency: Consistency | None  # CRLB and NEES against simulation truth; None without landmark truth
     metrics_vs_gps: TrajectoryMetrics | None
 
     @property
@@ -219,13 +222,20 @@ def run_traverse(
         final = localizer.final(batch=options.batch)
         poses = final.world_T_body
         alignment = "none" if CONFIGURATIONS[name].use_gps else "se3"
-        metrics = None
+        metrics = consistency_result = None
+        covariance = np.stack([localizer.position_covariance(k) for k in localizer.stops])
         if truth is not None:
             metrics = compare(poses[:, :3, 3], truth.positions, alignment, poses, truth.world_T_body)
+            if options.crlb and len(truth.landmarks) > max(localizer.landmarks, default=-1):
+                if progress is not None:
+                    progress(f"CRLB of {name}", 0, 1)
+                crlb = crlb_position_covariances(localizer.smoother.graph, localizer.stops, truth.world_T_body,
+                                                 {j: truth.landmarks[j] for j in localizer.landmarks})
+                consistency_result = consistency(poses[:, :3, 3], truth.positions, covariance, crlb)
         results[name] = ConfigurationResult(
             name=name,
             world_T_body=poses,
-            position_covariance=np.stack([localizer.position_covariance(k) for k in localizer.stops]),
+            position_covariance=covariance,
             steps=steps[name],
             landmark_ids=final.landmark_ids,
             landmark_positions=final.landmarks,
@@ -235,6 +245,7 @@ def run_traverse(
             rejected_hrc_measurements=localizer.rejected_hrc,
             solver="isam2+batch_lm" if options.batch else "isam2",
             metrics=metrics,
+            consistency=consistency_result,
             metrics_vs_gps=evaluate_against_gps(traverse, poses),
         )
     result = RunResult(scenario, seed, traverse, truth, motions, results, time.perf_counter() - start, vo_s)
@@ -252,6 +263,8 @@ def metrics_document(result: RunResult) -> dict:
     configs = {}
     for name, c in result.configurations.items():
         entry = c.metrics.as_dict() if c.metrics is not None else {}
+        if c.consistency is not None:
+            entry.update(c.consistency.as_dict())
         entry.update(
             bridged_stops=c.bridged_stops,
             landmarks=c.landmarks,

@@ -1,0 +1,96 @@
+"""How close an estimate comes to the Cramer-Rao lower bound of its own factor graph, and
+whether its covariance tells the truth about its errors (NEES).
+
+CRLB: the graph's information evaluated at the ground truth (every pose and landmark at its
+true value), inverted by iSAM2 with QR (batch Cholesky calls long VO chains indeterminate; see
+`graph.smoother`). Errors are not aligned: the start prior fixes the gauge of both the estimate
+and the bound.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import gtsam
+import numpy as np
+from scipy.stats import chi2
+
+from ..errors import EvaluationError
+from ..graph.keys import L, X
+
+POSITION_DOF = 3
+
+
+def crlb_position_covariances(graph: gtsam.NonlinearFactorGraph, stops: list[int], world_T_body: np.ndarray,
+                              landmarks: dict[int, np.ndarray]) -> np.ndarray:
+    """(N, 3, 3) world-frame position covariances of X(stop) from `graph` linearized at the truth:
+    `world_T_body` (N, 4, 4) for `stops`, `landmarks` track -> true position."""
+    values = gtsam.Values()
+    for k, pose in zip(stops, world_T_body, strict=True):
+        values.insert(X(k), gtsam.Pose3(pose))
+    for track, point in landmarks.items():
+        values.insert(L(track), np.asarray(point, dtype=float))
+    params = gtsam.ISAM2Params()
+    params.setFactorization("QR")
+    params.relinearizeSkip = 1_000_000  # keep the linearization point at the truth
+    isam = gtsam.ISAM2(params)
+    try:
+        isam.update(graph, values)
+        covs = []
+        for k, pose in zip(stops, world_T_body, strict=True):
+            rot = pose[:3, :3]
+            covs.append(rot @ isam.marginalCovariance(X(k))[3:, 3:] @ rot.T)
+    except RuntimeError as exc:
+        raise EvaluationError(f"CRLB: the graph at ground truth cannot be inverted: {exc}") from None
+    return np.stack(covs)
+
+
+@dataclass(frozen=True)
+class Consistency:
+    rmse_m: float  # 3-D position, unaligned
+    crlb_rms_m: float  # sqrt(mean trace of the CRLB position covariances)
+    efficiency: float  # rmse / crlb_rms: 1 is the bound
+    anees: float  # mean over poses of e^T P^-1 e / 3, P the estimator's own covariance
+    anees_band: tuple[float, float]  # 95 % band for independent poses (see `anees_band`)
+
+    def as_dict(self) -> dict:
+        return asdict(self) | {"anees_band": list(self.anees_band)}
+
+
+def anees_band(samples: int, dof: int = POSITION_DOF, confidence: float = 0.95) -> tuple[float, float]:
+    """Two-sided band of the mean of `samples` independent chi-square(dof)/dof values."""
+    tail = (1 - confidence) / 2
+    n = samples * dof
+    return float(chi2.ppf(tail, n) / n), float(chi2.ppf(1 - tail, n) / n)
+
+
+def nees(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+    """e^T P^-1 e per pose, (N,)."""
+    return np.einsum("ni,ni->n", errors, np.linalg.solve(covariances, errors[:, :, None])[:, :, 0])
+
+
+def consistency(estimate: np.ndarray, truth: np.ndarray, estimator_cov: np.ndarray, crlb_cov: np.ndarray
+                ) -> Consistency:
+    """For one run. Its ANEES band treats the poses as independent, which along a chain they are
+    not (errors are correlated), so it is narrower than a fair test: `bench --monte-carlo`
+    compares the mean over independent runs instead."""
+    errors = estimate - truth
+    crlb_rms = float(np.sqrt(np.mean(np.trace(crlb_cov, axis1=1, axis2=2))))
+    rmse = float(np.sqrt(np.mean(np.sum(errors**2, axis=1))))
+    return Consistency(rmse, crlb_rms, rmse / crlb_rms, float(np.mean(nees(errors, estimator_cov)) / POSITION_DOF),
+                       anees_band(len(errors)))
+
+
+def monte_carlo_summary(runs: list[Consistency]) -> dict:
+    """Efficiency and ANEES over independent runs (seeds) of one configuration. Each pose's mean
+    NEES over N runs is chi-square(3N)/(3N) when the covariance is right; the mean over poses of
+    correlated such values has at most that spread, so that band is the (conservative) test."""
+    n = len(runs)
+    efficiency = float(np.sqrt(np.mean([r.rmse_m**2 for r in runs]) / np.mean([r.crlb_rms_m**2 for r in runs])))
+    anees = float(np.mean([r.anees for r in runs]))
+    band = anees_band(n)
+    verdict = "consistent" if band[0] <= anees <= band[1] else ("over-confident" if anees > band[1]
+                                                                 else "under-confident")
+    return {"runs": n, "efficiency": efficiency, "rmse_m": float(np.sqrt(np.mean([r.rmse_m**2 for r in runs]))),
+            "crlb_rms_m": float(np.sqrt(np.mean([r.crlb_rms_m**2 for r in runs]))), "anees": anees,
+            "anees_band": list(band), "covariance": verdict}
