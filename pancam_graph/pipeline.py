@@ -226,7 +226,8 @@ def run_traverse(
         covariance = np.stack([localizer.position_covariance(k) for k in localizer.stops])
         if truth is not None:
             metrics = compare(poses[:, :3, 3], truth.positions, alignment, poses, truth.world_T_body)
-            if options.crlb and len(truth.landmarks) > max(localizer.landmarks, default=-1):
+            # an observation folder's truth has poses only; the bound needs every landmark's truth
+            if options.crlb and all(j < len(truth.landmarks) for j in localizer.landmarks):
                 if progress is not None:
                     progress(f"CRLB of {name}", 0, 1)
                 crlb = crlb_position_covariances(localizer.smoother.graph, localizer.stops, truth.world_T_body,

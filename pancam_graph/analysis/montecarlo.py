@@ -6,6 +6,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from ..errors import EvaluationError
 from ..frontend.stereo_vo import StereoVO
 from ..records import StereoObservations
 from ..rig import Rig
@@ -53,7 +54,7 @@ def vo_monte_carlo(rig: Rig, a: Assumptions, stops: int, trials: int, seed: int 
         for k in range(stops):
             result = vo.estimate(observe(left_prev), observe(left_curr))
             if not result.ok:
-                raise RuntimeError(f"VO failed in trial {trial}, step {k}: {result.reason}")
+                raise EvaluationError(f"Monte Carlo VO failed in trial {trial}, step {k}: {result.reason}")
             pose = pose.compose(result.prev_T_curr)
             errors[trial, k] = np.hypot(pose.x() - a.vo_step_m * (k + 1), pose.y())
         if progress is not None:

@@ -55,20 +55,20 @@ def read_trajectory(path: Path, origin: LocalFrame | None = None, gps_sigma_m: f
 
 def read_tum(path: Path) -> Trajectory:
     """A TUM file (`time tx ty tz qx qy qz qw`), checked: unit quaternions, increasing times."""
-    path = Path(path)
-    rows = _numeric_rows(path) if path.is_file() else None
-    if rows is None or rows.shape[1] != 8:
-        raise InputError(f"{path}: not a TUM trajectory (8 numbers per line: time tx ty tz qx qy qz qw)")
-    return _tum(path, rows)
+    return _tum(Path(path), _table(path, 8, "a TUM trajectory (8 numbers per line: time tx ty tz qx qy qz qw)"))
 
 
 def read_kitti_poses(path: Path) -> Trajectory:
     """A KITTI pose file (12 numbers per line: the top 3x4 of each pose matrix), checked."""
+    return _kitti(Path(path), _table(path, 12, "a KITTI pose file (12 numbers per line: r11 r12 r13 tx ... r33 tz)"))
+
+
+def _table(path: Path, columns: int, what: str) -> np.ndarray:
     path = Path(path)
     rows = _numeric_rows(path) if path.is_file() else None
-    if rows is None or rows.shape[1] != 12:
-        raise InputError(f"{path}: not a KITTI pose file (12 numbers per line: r11 r12 r13 tx r21 ... r33 tz)")
-    return _kitti(path, rows)
+    if rows is None or rows.shape[1] != columns:
+        raise InputError(f"{path}: not {what}")
+    return rows
 
 
 def _kitti(path: Path, rows: np.ndarray) -> Trajectory:
