@@ -446,7 +446,7 @@ def analyze_command(
     gain and the two-site BA (optimal FOV, longest site spacing for 1 %), as figures, a Table 3.2
     and analysis.json; every assumption is written with them."""
     from .analysis.design import AnalysisRig, Assumptions
-    from .analysis.report import analyze
+    from .analysis.report import SEED_TABLE_3_2, analyze
     from .rig import RIG_PRESETS
     from .viz.analysis_plots import write_analysis
 
@@ -471,8 +471,6 @@ def analyze_command(
     table = Table(title=f"two-site BA, {assumptions.tie_points} tie points, sigma {sigma_px} px")
     for column in ("rig", "optimal FOV deg", "FOV, 16 tie points", "max spacing for 1 % (m)", "seed (m)"):
         table.add_column(column, justify="right")
-    from .analysis.report import SEED_TABLE_3_2
-
     for row in rows:
         seed = SEED_TABLE_3_2.get(row.name, {}).get("max_site_spacing_m", "-")
         table.add_row(row.name, f"{row.optimal_fov_deg:.0f}", f"{row.optimal_fov_16_deg:.0f}",

@@ -37,7 +37,6 @@ class RunOptions:
     use_sites: bool = True
     use_hrc: bool = True
     batch: bool = False
-    crlb: bool = True  # CRLB, efficiency and ANEES for each configuration when truth is known
 
     def configurations(self) -> list[str]:
         names = []
@@ -227,7 +226,7 @@ def run_traverse(
         if truth is not None:
             metrics = compare(poses[:, :3, 3], truth.positions, alignment, poses, truth.world_T_body)
             # an observation folder's truth has poses only; the bound needs every landmark's truth
-            if options.crlb and all(j < len(truth.landmarks) for j in localizer.landmarks):
+            if all(j < len(truth.landmarks) for j in localizer.landmarks):
                 if progress is not None:
                     progress(f"CRLB of {name}", 0, 1)
                 crlb = crlb_position_covariances(localizer.smoother.graph, localizer.stops, truth.world_T_body,

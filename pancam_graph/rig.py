@@ -191,15 +191,22 @@ def triangulate_rectified(u_left, u_right, v, camera: Camera, baseline_m: float)
     return np.column_stack([x, y, z])
 
 
+def triangulation_jacobian(points: np.ndarray, baseline_m: float, fx: float, fy: float | None = None) -> np.ndarray:
+    """d(X, Y, Z) / d(u_left, u_right, v) of eq. (2.28) at left-camera points (N, 3): the seed's
+    (3.2) with the elevation row kept. With disparity d = B fx / Z:
+    [[(B - X) / d, X / d, 0], [-Y / d, Y / d, B fx / (d fy)], [-Z / d, Z / d, 0]]."""
+    x, y, z = np.atleast_2d(np.asarray(points, dtype=float)).T
+    d = baseline_m * fx / z
+    jac = np.zeros((len(x), 3, 3))  # rows X, Y, Z; columns u_left, u_right, v
+    jac[:, 0, 0], jac[:, 0, 1] = (baseline_m - x) / d, x / d
+    jac[:, 1, 0], jac[:, 1, 1], jac[:, 1, 2] = -y / d, y / d, baseline_m / d * fx / (fy or fx)
+    jac[:, 2, 0], jac[:, 2, 1] = -z / d, z / d
+    return jac
+
+
 def triangulation_covariance(u_left, u_right, v, camera: Camera, baseline_m: float, sigma_px: float) -> np.ndarray:
     """Covariances (N, 3, 3) of `triangulate_rectified`'s points for independent pixel noise
-    `sigma_px` on (u_left, u_right, v): J J^T sigma^2 with the Jacobian of eq. (2.28), the
-    seed's (3.2) with the elevation row kept."""
-    p = triangulate_rectified(u_left, u_right, v, camera, baseline_m)
-    d = np.asarray(u_left, dtype=float) - np.asarray(u_right, dtype=float)
-    x, y, z = p.T
-    jac = np.zeros((len(p), 3, 3))  # rows X, Y, Z; columns u_left, u_right, v
-    jac[:, 0, 0], jac[:, 0, 1] = (baseline_m - x) / d, x / d
-    jac[:, 1, 0], jac[:, 1, 1], jac[:, 1, 2] = -y / d, y / d, baseline_m / d * camera.fx / camera.fy
-    jac[:, 2, 0], jac[:, 2, 1] = -z / d, z / d
+    `sigma_px` on (u_left, u_right, v): J J^T sigma^2."""
+    jac = triangulation_jacobian(triangulate_rectified(u_left, u_right, v, camera, baseline_m), baseline_m,
+                                 camera.fx, camera.fy)
     return sigma_px**2 * jac @ np.transpose(jac, (0, 2, 1))

@@ -14,7 +14,7 @@ from .design import Assumptions, fov_grid
 
 
 def vo_monte_carlo(rig: Rig, a: Assumptions, stops: int, trials: int, seed: int = 0, fov_deg: float | None = None,
-                   elevation_m: float = 0.25, progress=None) -> np.ndarray:
+                   elevation_m: float = 0.25) -> np.ndarray:
     """DRMS horizontal position error (m) at stops 1..n over `trials` runs of straight VO.
 
     Every step sees the closed form's feature grid afresh, observed at both of its stops with
@@ -57,6 +57,4 @@ def vo_monte_carlo(rig: Rig, a: Assumptions, stops: int, trials: int, seed: int 
                 raise EvaluationError(f"Monte Carlo VO failed in trial {trial}, step {k}: {result.reason}")
             pose = pose.compose(result.prev_T_curr)
             errors[trial, k] = np.hypot(pose.x() - a.vo_step_m * (k + 1), pose.y())
-        if progress is not None:
-            progress(trial + 1, trials)
     return np.sqrt(np.mean(errors**2, axis=0))

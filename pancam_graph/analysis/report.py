@@ -80,14 +80,12 @@ class RigAnalysis:
         return entry
 
 
-def analyze_rig(rig: AnalysisRig, a: Assumptions, hrc: bool = False, wac_optimal_fov_deg: float | None = None,
-                curves: bool = True) -> RigAnalysis:
+def analyze_rig(rig: AnalysisRig, a: Assumptions, hrc: bool = False, wac_optimal_fov_deg: float | None = None
+                ) -> RigAnalysis:
     own = optimal_fov(rig, a, hrc)
     fov = wac_optimal_fov_deg if hrc and wac_optimal_fov_deg is not None else own
     sixteen = dataclasses.replace(a, ba_rays=4, ba_ranges=4)
     result = RigAnalysis(rig, hrc, fov, own, optimal_fov(rig, sixteen, hrc), max_site_spacing(rig, a, fov, hrc))
-    if not curves:
-        return result
     spacing = a.ba_fov_reference_spacing_m
     for rays, ranges in ((3, 3), (3, 4), (4, 4)):
         layout = dataclasses.replace(a, ba_rays=rays, ba_ranges=ranges)

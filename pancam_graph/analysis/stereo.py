@@ -12,11 +12,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
+from .. import rig
+
 
 def triangulation_jacobian(x_m: float, z_m: float, baseline_m: float, focal_px: float) -> np.ndarray:
-    """d(X, Z) / d(x_l, x_r), eq. (3.2): [[(B - X) Z, X Z], [-Z^2, Z^2]] / (B f)."""
-    bf = baseline_m * focal_px
-    return np.array([[(baseline_m - x_m) * z_m, x_m * z_m], [-z_m * z_m, z_m * z_m]]) / bf
+    """d(X, Z) / d(x_l, x_r), eq. (3.2): [[(B - X) Z, X Z], [-Z^2, Z^2]] / (B f), the planar
+    block of the stereo Jacobian the VO front end uses (`rig.triangulation_jacobian`)."""
+    return rig.triangulation_jacobian(np.array([[x_m, 0.0, z_m]]), baseline_m, focal_px)[0][np.ix_([0, 2], [0, 1])]
 
 
 def point_covariance(x_m: float, z_m: float, baseline_m: float, focal_px: float, sigma_left_px: float,

@@ -170,8 +170,6 @@ class KittiOdometrySequence:
 def read_kitti_odometry(sequence: Path, poses: Path | None = None) -> KittiOdometrySequence:
     """A `sequences/<NN>` folder. Poses come from `poses` or, when not given, from
     `<root>/poses/<NN>.txt` if it exists; the image size from the first left image."""
-    import cv2
-
     sequence = Path(sequence)
     if not (sequence / "calib.txt").is_file():
         raise InputError(f"{sequence}: not a KITTI odometry sequence (no calib.txt)")
@@ -184,9 +182,7 @@ def read_kitti_odometry(sequence: Path, poses: Path | None = None) -> KittiOdome
             raise InputError(f"{sequence / name}: {len(images)} images but {len(times)} lines in times.txt")
     if not left:
         raise InputError(f"{sequence}: no images in image_0")
-    first = cv2.imread(str(left[0]), cv2.IMREAD_GRAYSCALE)
-    if first is None:
-        raise InputError(f"{left[0]}: not a readable image")
+    first = _grayscale(left[0])
     stereo = rectified_from_projections(calib.numbers("P0", 12).reshape(3, 4), calib.numbers("P1", 12).reshape(3, 4),
                                         (first.shape[1], first.shape[0]), f"{sequence / 'calib.txt'}: P1")
     if poses is None and (sequence.parent.parent / "poses" / f"{sequence.name}.txt").is_file():

@@ -222,6 +222,12 @@ class _Table:
             raise InputError(f"{self.path}: line {line}: column '{column}' is not finite")
         return value
 
+    def stop_and_numbers(self, line: int, row: list[str], n: int) -> tuple[int, list[float]]:
+        """A row whose first column is a stop and the rest are numbers."""
+        values = self.values(line, row)
+        numbers = [self.number(line, c, v) for c, v in zip(self.columns[1:], values[1:], strict=True)]
+        return self.stop(line, values[0], n), numbers
+
     def stop(self, line: int, text: str, n: int) -> int:
         k = int(self.number(line, "stop", text, integer=True))
         if not 0 <= k < n:
@@ -304,9 +310,7 @@ def _read_gps(path: Path, n: int) -> dict[int, GpsFix]:
     table = _Table(path, GPS_COLUMNS)
     fixes = {}
     for line, row in table.rows:
-        values = table.values(line, row)
-        k = table.stop(line, values[0], n)
-        t, lat, lon, h, sh, sv = (table.number(line, c, v) for c, v in zip(GPS_COLUMNS[1:], values[1:], strict=True))
+        k, (t, lat, lon, h, sh, sv) = table.stop_and_numbers(line, row, n)
         if not (-90 <= lat <= 90 and -180 <= lon <= 360) or sh <= 0 or sv <= 0:
             raise InputError(f"{path}: line {line}: latitude/longitude out of range or sigma not positive")
         fixes[k] = GpsFix(t, lat, lon, h, sh, sv)
@@ -319,9 +323,7 @@ def _read_odometry(path: Path, n: int) -> dict[int, DeadReckoning]:
     table = _Table(path, ODOMETRY_COLUMNS)
     increments = {}
     for line, row in table.rows:
-        values = table.values(line, row)
-        k = table.stop(line, values[0], n)
-        numbers = [table.number(line, c, v) for c, v in zip(ODOMETRY_COLUMNS[1:], values[1:], strict=True)]
+        k, numbers = table.stop_and_numbers(line, row, n)
         pose = np.eye(4)
         pose[:3, :3], pose[:3, 3] = np.reshape(numbers[:9], (3, 3)), numbers[9:12]
         cov = np.zeros((6, 6))
