@@ -11,11 +11,11 @@ from scipy.stats import chi2
 
 from .config import EstimatorConfig
 from .frontend.motion import Motion
-from .graph import factors, noise
+from .graph import factors, noise, tie_gate
 from .graph.keys import L, X
 from .graph.smoother import Smoother
+from .graph.tie_gate import RelativePose, SitePoint
 from .records import Stop, Traverse
-from .rig import triangulate_rectified
 
 _SITE_MEMORY = 3  # earlier sites searched for tie points
 # A GPS fix whose residual at the updated estimate fails this 3-dof chi-square test is
@@ -40,6 +40,16 @@ class _SiteObservations:
     stop: int
     stereo: dict[int, list[tuple[gtsam.Pose3, np.ndarray]]] = field(default_factory=lambda: defaultdict(list))
     hrc: dict[int, list[tuple[gtsam.Pose3, np.ndarray]]] = field(default_factory=lambda: defaultdict(list))
+    points: dict[int, SitePoint | None] = field(default_factory=dict)  # per track, its body frame
+
+
+@dataclass(frozen=True)
+class _LandmarkReference:
+    """The site that first triangulated a landmark and that triangulation (its body frame): what
+    later views of the landmark must agree with."""
+
+    stop: int
+    point: SitePoint
 
 
 @dataclass(frozen=True)
@@ -47,8 +57,8 @@ class StepResult:
     """What one stop's iSAM2 update did."""
 
     stop: int
-    update_ms: float
-    relinearized: int  # variables iSAM2 relinearized in this update
+    update_ms: float  # iSAM2 update wall time of this stop
+    relinearized: int  # variables iSAM2 relinearized in this stop's updates
     new_landmarks: int
     rejected_ties: int
     gps_mahalanobis2: float | None  # squared Mahalanobis distance of this stop's fix after the update
@@ -92,13 +102,18 @@ class Localizer:
         self.landmark_sites: dict[int, list[int]] = defaultdict(list)  # track -> site stops seeing it
         self.stops: list[int] = []
         self.bridged_stops = 0
-        self.rejected_ties = 0
+        self.references: dict[int, _LandmarkReference] = {}
+        self._relative_cache: dict[tuple[int, int], RelativePose] = {}  # these two: one site's step
+        self._site_poses: dict[int, gtsam.Pose3] = {}
+        self.rejected_ties = 0  # candidate tie points whose two sites disagree
+        self.rejected_tie_views = 0  # later sites' views of a landmark that disagree with it
         self.rejected_hrc = 0
 
     # -- the step ---------------------------------------------------------------------------
 
     def step(self, stop: Stop, motion: Motion | None) -> StepResult:
         k = stop.index
+        updates = len(self.smoother.update_ms)  # a site stop takes two iSAM2 updates
         if motion is None:
             self.smoother.add(factors.start_prior(self.traverse.start_world_T_body, self.traverse.start_sigmas))
             self.smoother.insert(X(k), gtsam.Pose3(self.traverse.start_world_T_body))
@@ -115,10 +130,11 @@ class Localizer:
         gps_enu = None
         if stop.gps is not None and self.options.use_gps:
             gps_enu = self._add_gps(stop)
-        ms = self.smoother.update(context=f"at stop {k}")
+        self.smoother.update(context=f"at stop {k}")
         d2 = self._gps_mahalanobis2(stop, gps_enu) if gps_enu is not None else None
         outlier = d2 is not None and d2 > GPS_OUTLIER_GATE
-        return StepResult(k, ms, self.smoother.relinearized[-1], new_landmarks, rejected, d2, outlier)
+        ms, relinearized = sum(self.smoother.update_ms[updates:]), sum(self.smoother.relinearized[updates:])
+        return StepResult(k, ms, relinearized, new_landmarks, rejected, d2, outlier)
 
     # -- sites: tie points between panoramas ------------------------------------------------
 
@@ -133,17 +149,25 @@ class Localizer:
                 mount = self.rig.body_T_hrc(frame.pan_rad, frame.tilt_rad)
                 for track, uv in zip(frame.track_ids, frame.uv, strict=True):
                     obs.hrc[int(track)].append((mount, uv))
+        obs.points = tie_gate.site_points(obs.stereo, self.rig, self.traverse.image_noise_px)
         return obs
 
-    def _world_point(self, site: _SiteObservations, track: int) -> np.ndarray | None:
-        """Mean of the site's triangulations of the track, in the world, at the current estimate."""
-        world_T_body = self.smoother.pose(X(site.stop))
-        points = []
-        for mount, uvv in site.stereo[track]:
-            p = triangulate_rectified([uvv[0]], [uvv[1]], [uvv[2]], self.rig.wac, self.rig.baseline_m)[0]
-            if np.all(np.isfinite(p)) and p[2] > 0.5:
-                points.append(world_T_body.compose(mount).transformFrom(p))
-        return np.mean(points, axis=0) if points else None
+    def _site_pose(self, stop: int) -> gtsam.Pose3:
+        """A site's current pose estimate (cached for this site's step)."""
+        if stop not in self._site_poses:
+            self._site_poses[stop] = self.smoother.pose(X(stop))
+        return self._site_poses[stop]
+
+    def _relative(self, a: int, b: int) -> RelativePose:
+        """Site pose b seen from site pose a, with its covariance (cached for this site's step)."""
+        if (a, b) not in self._relative_cache:
+            joint = self.smoother.joint_marginal_covariance(X(a), X(b))
+            self._relative_cache[(a, b)] = RelativePose.from_joint(self._site_pose(a), self._site_pose(b), joint)
+        return self._relative_cache[(a, b)]
+
+    def _agrees(self, reference: _LandmarkReference, stop: int, seen: SitePoint) -> bool:
+        d2 = tie_gate.disagreement2(reference.point, seen, self._relative(reference.stop, stop))
+        return d2 <= tie_gate.AGREEMENT_GATE
 
     def _add_site(self, stop: Stop) -> tuple[int, int]:
         current = self._collect(stop)
@@ -157,34 +181,47 @@ class Localizer:
         if len(tracks) > self.tie_points_per_site:
             tracks = sorted(self.rng.choice(tracks, self.tie_points_per_site, replace=False).tolist())
 
+        # The gate needs this site's pose in the Bayes tree (its relative covariance to the
+        # earlier sites); the motion factor alone puts it there.
+        self.smoother.update(context=f"at stop {stop.index}, before its tie points")
+        self._relative_cache.clear()
+        self._site_poses.clear()
         added = rejected = 0
         for track in tracks:
             earlier = candidates[track]
-            p_then, p_now = self._world_point(earlier, track), self._world_point(current, track)
-            if p_then is None or p_now is None:
+            then, now = earlier.points[track], current.points[track]
+            if then is None or now is None:
                 rejected += 1
                 continue
-            rng_m = np.linalg.norm(p_then - self.smoother.pose(X(earlier.stop)).translation())
-            # Gate against false matches; generous enough for VO drift between sites.
-            if np.linalg.norm(p_then - p_now) > 2.0 + 0.1 * rng_m:
+            reference = _LandmarkReference(earlier.stop, then)
+            if not self._agrees(reference, current.stop, now):
                 rejected += 1
                 continue
-            self.smoother.insert(L(track), p_then)
-            self.smoother.add(factors.landmark_anchor(track, p_then))
+            self.smoother.insert(L(track), self._site_pose(earlier.stop).transformFrom(then.p_body))
+            self.smoother.add(factors.landmark_anchor(earlier.stop, track, then.p_body))
             self.landmarks.add(track)
+            self.references[track] = reference
             for site in recent:
-                self._add_observations(site, track)
+                self._add_observations(site, track, gated=site is not earlier)
+            self._add_observations(current, track, gated=False)
             added += 1
         # Landmarks already in the graph (tied earlier) seen again from here.
-        for track in current.stereo.keys() & self.landmarks:
-            self._add_observations(current, track)
+        for track in sorted(current.stereo.keys() & (self.landmarks - set(tracks))):
+            self._add_observations(current, track, gated=True)
 
         self.rejected_ties += rejected
         self.sites.append(current)
         return added, rejected
 
-    def _add_observations(self, site: _SiteObservations, track: int) -> None:
+    def _add_observations(self, site: _SiteObservations, track: int, gated: bool) -> None:
+        """The site's stereo and HRC measurements of a landmark. `gated`: the stereo ones only if
+        they agree with the landmark's reference triangulation."""
         stereo = site.stereo.get(track, ())
+        if stereo and gated:
+            seen = site.points[track]
+            if seen is None or not self._agrees(self.references[track], site.stop, seen):
+                self.rejected_tie_views += 1
+                stereo = ()
         for mount, uvv in stereo:
             self.smoother.add(factors.stereo(site.stop, track, uvv, self.stereo_calibration, mount, self.tie_noise))
         if stereo:
@@ -193,7 +230,7 @@ class Localizer:
         if not hrc:
             return
         p_world = self.smoother.point(L(track))
-        world_T_body = self.smoother.pose(X(site.stop))
+        world_T_body = self._site_pose(site.stop)
         for mount, uv in hrc:
             # An HRC false match pulls harder than the WAC can resist (7x the angular
             # resolution), so HRC measurements must agree with the WAC landmark first.

@@ -59,7 +59,8 @@ class ConfigurationResult:
     landmark_positions: np.ndarray  # (M, 3) final landmark estimates, world
     tie_links: list[tuple[int, int]]  # (track, site stop)
     bridged_stops: int
-    rejected_tie_points: int
+    rejected_tie_points: int  # candidate ties whose two sites' triangulations disagree
+    rejected_tie_views: int  # later sites' views of a landmark that disagree with it
     rejected_hrc_measurements: int
     solver: str
     metrics: TrajectoryMetrics | None  # against the reference; None without one
@@ -242,6 +243,7 @@ def run_traverse(
             tie_links=localizer.tie_links(),
             bridged_stops=localizer.bridged_stops,
             rejected_tie_points=localizer.rejected_ties,
+            rejected_tie_views=localizer.rejected_tie_views,
             rejected_hrc_measurements=localizer.rejected_hrc,
             solver="isam2+batch_lm" if options.batch else "isam2",
             metrics=metrics,
@@ -269,6 +271,7 @@ def metrics_document(result: RunResult) -> dict:
             bridged_stops=c.bridged_stops,
             landmarks=c.landmarks,
             rejected_tie_points=c.rejected_tie_points,
+            rejected_tie_views=c.rejected_tie_views,
             rejected_hrc_measurements=c.rejected_hrc_measurements,
             gps_fixes_used=c.gps_fixes_used,
             gps_outliers=c.gps_outliers,

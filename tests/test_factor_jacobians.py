@@ -96,8 +96,25 @@ def test_gps_factor_uses_the_lever_arm():
     assert f.error(_values()) == pytest.approx(0.0, abs=1e-18)
 
 
-def test_landmark_anchor_jacobian():
-    f = factors.landmark_anchor(7, np.array([10.0, 4.0, 1.0]))
+def test_landmark_anchor_jacobian_and_its_relative_measurement():
+    p_body = np.array([10.0, 4.0, 1.0])
+    f = factors.landmark_anchor(0, 7, p_body)
     v = gtsam.Values()
-    v.insert(L(7), np.array([10.5, 3.0, 1.2]))
+    v.insert(X(0), POSE_A)
+    # GTSAM differentiates the bearing in the predicted direction's tangent basis but measures the
+    # error in the measured one's: exact at zero bearing error, first order away from it (0.2 %
+    # at 3 mrad). Exact where it matters, then close nearby.
+    v.insert(L(7), POSE_A.transformFrom(p_body * 1.1))
     _check(f, v)
+    v.update(L(7), POSE_A.transformFrom(p_body + np.array([0.02, -0.03, 0.2])))
+    _check(f, v, rtol=5e-3)
+    # Zero error wherever the site is, as long as the landmark moves with it: no world information.
+    moved = gtsam.Values()
+    moved.insert(X(0), POSE_B)
+    moved.insert(L(7), POSE_B.transformFrom(p_body))
+    assert f.error(moved) == pytest.approx(0.0, abs=1e-18)
+    # 3 m along the line of sight is one sigma.
+    along = gtsam.Values()
+    along.insert(X(0), POSE_A)
+    along.insert(L(7), POSE_A.transformFrom(p_body * (1 + 3.0 / np.linalg.norm(p_body))))
+    assert 2 * f.error(along) == pytest.approx(1.0, rel=1e-9)

@@ -3,7 +3,7 @@ import numpy as np
 
 from pancam_graph.frontend.motion import motion_between
 from pancam_graph.frontend.stereo_vo import StereoVO
-from pancam_graph.graph.keys import X
+from pancam_graph.graph.keys import L, X
 from pancam_graph.localizer import Localizer, LocalizerOptions
 from pancam_graph.sim import simulate
 
@@ -47,3 +47,22 @@ def test_every_stop_has_a_pose_and_sites_add_landmarks(short_scenario):
             poses_seeing.setdefault(landmark_key, set()).add(pose_key)
     assert len(poses_seeing) == len(loc.landmarks)
     assert min(len(poses) for poses in poses_seeing.values()) >= 2
+
+
+def test_no_false_match_reaches_the_graph_and_true_ties_do(short_scenario):
+    """The simulation makes 5 % of panorama matches false (random pixels). The tie gate must keep
+    every one of them out of the graph while keeping the true ones in."""
+    loc, _, truth = _solve(short_scenario, LocalizerOptions(use_sites=True, use_hrc=False, use_gps=False))
+    values = gtsam.Values()
+    for k in loc.stops:
+        values.insert(X(k), gtsam.Pose3(truth.world_T_body[k]))
+    for j in loc.landmarks:
+        values.insert(L(j), truth.landmarks[j])
+    graph = loc.smoother.graph
+    pixels_off = np.array([np.linalg.norm(graph.at(i).unwhitenedError(values)) for i in range(graph.size())
+                           if isinstance(graph.at(i), gtsam.GenericStereoFactor3D)])
+    assert len(pixels_off) > 500
+    assert np.sum(pixels_off > 10.0) == 0  # a false match is hundreds of pixels off
+    # the true ones: 3 pixel components of 0.3 px noise each
+    assert np.sqrt(np.mean(pixels_off**2)) < 0.3 * np.sqrt(3) * 1.15
+    assert loc.rejected_ties > 0

@@ -20,9 +20,15 @@ def motion(i: int, j: int, prev_T_curr: gtsam.Pose3, covariance: np.ndarray) -> 
     return gtsam.BetweenFactorPose3(X(i), X(j), prev_T_curr, noise.pose_covariance(covariance))
 
 
-def landmark_anchor(track: int, p_world: np.ndarray) -> gtsam.PriorFactorPoint3:
-    """Weak prior holding a new landmark near its first triangulation (see noise.landmark_anchor)."""
-    return gtsam.PriorFactorPoint3(L(track), np.asarray(p_world, dtype=float), noise.landmark_anchor())
+def landmark_anchor(stop: int, track: int, p_body: np.ndarray) -> gtsam.BearingRangeFactor3D:
+    """Weak bearing and range of landmark L(track) from the site X(stop) that first triangulated
+    it, `p_body` in that site's body frame (see noise.landmark_anchor). Relative to the site, so
+    it carries no information about where the site is."""
+    p_body = np.asarray(p_body, dtype=float)
+    rng_m = float(np.linalg.norm(p_body))
+    if not np.all(np.isfinite(p_body)) or rng_m <= 0.0:
+        raise GraphError(f"landmark anchor of track {track} at stop {stop}: no usable triangulation")
+    return gtsam.BearingRangeFactor3D(X(stop), L(track), gtsam.Unit3(p_body), rng_m, noise.landmark_anchor(rng_m))
 
 
 def stereo(

@@ -84,6 +84,15 @@ class Smoother:
         except RuntimeError as exc:
             raise GraphError(f"marginal covariance of {gtsam.Symbol(key).string()} failed: {exc}") from None
 
+    def joint_marginal_covariance(self, a: int, b: int) -> np.ndarray:
+        """12x12 joint marginal covariance of two variables (a's block first), tangent spaces."""
+        try:
+            joint = self.isam.jointMarginalCovariance([a, b])
+        except RuntimeError as exc:
+            names = f"{gtsam.Symbol(a).string()}, {gtsam.Symbol(b).string()}"
+            raise GraphError(f"joint marginal covariance of {names} failed: {exc}") from None
+        return np.block([[joint.at(a, a), joint.at(a, b)], [joint.at(b, a), joint.at(b, b)]])
+
     def estimate(self) -> gtsam.Values:
         try:
             return self.isam.calculateEstimate()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 
 from ..config import Scenario
@@ -77,6 +78,12 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
             time_s += _SITE_DWELL_S
 
     est = scenario.estimator
+    start_sigmas = np.array([np.deg2rad(est.start_sigma_deg)] * 3 + [est.start_sigma_m] * 3)
+    # The surveyed start pose is off the truth by what the start prior says it may be; an exact
+    # one would make every estimate look better than its covariance (and than the bound).
+    # Drawn last, so the rest of the simulation is the same as without it.
+    survey_error = gtsam.Pose3.Expmap(rng.normal(0.0, start_sigmas))
+    surveyed_start = (gtsam.Pose3(poses[0]) * survey_error).matrix()
     traverse = Traverse(
         name=scenario.name,
         rig=rig,
@@ -85,7 +92,7 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
         traverse_tilt_rad=float(tilt),
         image_noise_px=cam_cfg.image_noise_px,
         gps_lever_arm_m=np.asarray(scenario.gps.lever_arm_m, dtype=float),
-        start_world_T_body=poses[0].copy(),
-        start_sigmas=np.array([np.deg2rad(est.start_sigma_deg)] * 3 + [est.start_sigma_m] * 3),
+        start_world_T_body=surveyed_start,
+        start_sigmas=start_sigmas,
     )
     return traverse, GroundTruth(world_T_body=poses, landmarks=field.points)
