@@ -204,9 +204,8 @@ def triangulation_jacobian(points: np.ndarray, baseline_m: float, fx: float, fy:
     return jac
 
 
-def triangulation_covariance(u_left, u_right, v, camera: Camera, baseline_m: float, sigma_px: float) -> np.ndarray:
-    """Covariances (N, 3, 3) of `triangulate_rectified`'s points for independent pixel noise
-    `sigma_px` on (u_left, u_right, v): J J^T sigma^2."""
-    jac = triangulation_jacobian(triangulate_rectified(u_left, u_right, v, camera, baseline_m), baseline_m,
-                                 camera.fx, camera.fy)
+def triangulation_covariance(points: np.ndarray, camera: Camera, baseline_m: float, sigma_px: float) -> np.ndarray:
+    """Covariances (N, 3, 3) of `triangulate_rectified`'s left-camera points (N, 3) for independent
+    pixel noise `sigma_px` on (u_left, u_right, v): J J^T sigma^2."""
+    jac = triangulation_jacobian(points, baseline_m, camera.fx, camera.fy)
     return sigma_px**2 * jac @ np.transpose(jac, (0, 2, 1))

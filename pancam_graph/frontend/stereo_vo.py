@@ -109,9 +109,10 @@ class StereoVO:
         cam, base = self.rig.wac, self.rig.baseline_m
         prev_T_curr_cam = self.left_T_body.compose(pose).compose(self.body_T_left)
         rot = prev_T_curr_cam.rotation().matrix()
-        p_curr = triangulate_rectified(b[:, 0], b[:, 1], b[:, 2], cam, base) @ rot.T + prev_T_curr_cam.translation()
-        cov = (triangulation_covariance(a[:, 0], a[:, 1], a[:, 2], cam, base, self.pixel_sigma)
-               + rot @ triangulation_covariance(b[:, 0], b[:, 1], b[:, 2], cam, base, self.pixel_sigma) @ rot.T)
+        p_curr_cam = triangulate_rectified(b[:, 0], b[:, 1], b[:, 2], cam, base)
+        p_curr = p_curr_cam @ rot.T + prev_T_curr_cam.translation()
+        cov = (triangulation_covariance(p_prev_cam, cam, base, self.pixel_sigma)
+               + rot @ triangulation_covariance(p_curr_cam, cam, base, self.pixel_sigma) @ rot.T)
         diff = p_curr - p_prev_cam
         ok = np.all(np.isfinite(diff), axis=1)
         d2 = np.full(len(diff), np.inf)

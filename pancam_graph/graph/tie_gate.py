@@ -44,15 +44,18 @@ def site_points(views: dict[int, list[tuple[gtsam.Pose3, np.ndarray]]], rig: Rig
     if not views:
         return {}
     uvv = np.array([m for vs in views.values() for _, m in vs], dtype=float)
-    mounts = [mount for vs in views.values() for mount, _ in vs]
-    rots = np.stack([m.rotation().matrix() for m in mounts])
-    shifts = np.stack([m.translation() for m in mounts])
+    # a panorama frame's views share one mount object: convert each mount once
+    mount_matrices: dict[int, np.ndarray] = {}
+    for vs in views.values():
+        for mount, _ in vs:
+            if id(mount) not in mount_matrices:
+                mount_matrices[id(mount)] = mount.matrix()
+    body_T_cam = np.stack([mount_matrices[id(mount)] for vs in views.values() for mount, _ in vs])
+    rots, shifts = body_T_cam[:, :3, :3], body_T_cam[:, :3, 3]
     p_cam = triangulate_rectified(uvv[:, 0], uvv[:, 1], uvv[:, 2], rig.wac, rig.baseline_m)
     usable = np.all(np.isfinite(p_cam), axis=1) & (p_cam[:, 2] > MIN_RANGE_M)
-    # placeholders keeping the arithmetic finite; such a track comes out None
-    p_cam[~usable] = [0.0, 0.0, 1.0]
-    uvv[~usable] = [1.0, 0.0, 1.0]
-    cov_cam = triangulation_covariance(uvv[:, 0], uvv[:, 1], uvv[:, 2], rig.wac, rig.baseline_m, sigma_px)
+    p_cam[~usable] = [0.0, 0.0, 1.0]  # a placeholder keeping the arithmetic finite; its track comes out None
+    cov_cam = triangulation_covariance(p_cam, rig.wac, rig.baseline_m, sigma_px)
     points = np.einsum("nij,nj->ni", rots, p_cam) + shifts
     covs = rots @ cov_cam @ np.transpose(rots, (0, 2, 1))
 

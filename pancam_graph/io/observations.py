@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import csv
 from collections import defaultdict
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -222,11 +223,12 @@ class _Table:
             raise InputError(f"{self.path}: line {line}: column '{column}' is not finite")
         return value
 
-    def stop_and_numbers(self, line: int, row: list[str], n: int) -> tuple[int, list[float]]:
-        """A row whose first column is a stop and the rest are numbers."""
-        values = self.values(line, row)
-        numbers = [self.number(line, c, v) for c, v in zip(self.columns[1:], values[1:], strict=True)]
-        return self.stop(line, values[0], n), numbers
+    def stops_and_numbers(self, n: int) -> Iterator[tuple[int, int, list[float]]]:
+        """(line, stop, numbers) of a table whose first column is a stop and the rest are numbers."""
+        for line, row in self.rows:
+            values = self.values(line, row)
+            numbers = [self.number(line, c, v) for c, v in zip(self.columns[1:], values[1:], strict=True)]
+            yield line, self.stop(line, values[0], n), numbers
 
     def stop(self, line: int, text: str, n: int) -> int:
         k = int(self.number(line, "stop", text, integer=True))
@@ -307,10 +309,8 @@ def _read_hrc(path: Path, n: int) -> dict[int, tuple[HrcFrame, ...]]:
 def _read_gps(path: Path, n: int) -> dict[int, GpsFix]:
     if not path.is_file():
         return {}
-    table = _Table(path, GPS_COLUMNS)
     fixes = {}
-    for line, row in table.rows:
-        k, (t, lat, lon, h, sh, sv) = table.stop_and_numbers(line, row, n)
+    for line, k, (t, lat, lon, h, sh, sv) in _Table(path, GPS_COLUMNS).stops_and_numbers(n):
         if not (-90 <= lat <= 90 and -180 <= lon <= 360) or sh <= 0 or sv <= 0:
             raise InputError(f"{path}: line {line}: latitude/longitude out of range or sigma not positive")
         fixes[k] = GpsFix(t, lat, lon, h, sh, sv)
@@ -320,10 +320,8 @@ def _read_gps(path: Path, n: int) -> dict[int, GpsFix]:
 def _read_odometry(path: Path, n: int) -> dict[int, DeadReckoning]:
     if not path.is_file():
         return {}
-    table = _Table(path, ODOMETRY_COLUMNS)
     increments = {}
-    for line, row in table.rows:
-        k, numbers = table.stop_and_numbers(line, row, n)
+    for line, k, numbers in _Table(path, ODOMETRY_COLUMNS).stops_and_numbers(n):
         pose = np.eye(4)
         pose[:3, :3], pose[:3, 3] = np.reshape(numbers[:9], (3, 3)), numbers[9:12]
         cov = np.zeros((6, 6))
