@@ -12,6 +12,7 @@ fi
 stamp=.venv/.setup-stamp
 want=$(sha256sum pyproject.toml | cut -d' ' -f1)
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+    echo "dev.sh: installing pancam-graph and its dependencies (gtsam, opencv, rerun, ...) into .venv" >&2
     .venv/bin/python -m pip install --quiet --upgrade pip
     .venv/bin/python -m pip install --quiet -e '.[dev]'
     echo "$want" > "$stamp"
@@ -21,7 +22,7 @@ cmd=${1:-run}
 shift || true
 case "$cmd" in
     run)  exec .venv/bin/pancam-graph run "$@" ;;
-    test) exec .venv/bin/python -m pytest -q "$@" ;;
+    test) .venv/bin/lint-imports && exec .venv/bin/python -m pytest -q "$@" ;;
     setup) exit 0 ;;
     *)    echo "usage: ./dev.sh run|test|setup [args]" >&2; exit 2 ;;
 esac

@@ -3,52 +3,84 @@
 from __future__ import annotations
 
 import json
+import os
 import resource
 import time
 from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.markup import escape
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 from rich.table import Table
+from rich.text import Text
 
-from .config import ConfigError, load_scenario, resolve_scenario
-from .errors import InputError, PancamGraphError
-from .pipeline import ProgressCallback, RunOptions, RunResult, percentiles, run
+from .errors import ConfigError, InputError, PancamGraphError
 
-app = typer.Typer(add_completion=False, no_args_is_help=True,
+if TYPE_CHECKING:  # the heavy imports wait until a command needs them: --help stays fast
+    from .results import RunOptions, RunResult
+    from .sources import SourceData
+
+# rich_markup_mode=None: usage errors as click's plain "Error: ..." line, not a box; user text
+# (file names with [brackets]) is never parsed as markup.
+app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None, pretty_exceptions_enable=False,
                   help="Rover localization over long traverses with a GTSAM factor graph.")
 console = Console(stderr=True)
-EXIT_USAGE = 2  # bad input: scenario file, options
+EXIT_USAGE = 2  # bad input: a file, a folder, an option
 EXIT_FAILURE = 1  # the run itself failed
+_USAGE_ERRORS = (ConfigError, InputError)
 
 
-def _load(scenario: str):
-    return load_scenario(resolve_scenario(scenario))
+def _version(value: bool) -> None:
+    if value:
+        from importlib.metadata import version
+
+        print(f"pancam-graph {version('pancam-graph')}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
+                                       help="print the version and exit")) -> None:
+    """Rover localization over long traverses with a GTSAM factor graph."""
 
 
 def _fail(exc: PancamGraphError, bad_input: bool = False) -> typer.Exit:
-    console.print(f"[bold red]error:[/] {exc}", markup=True, highlight=False, soft_wrap=True)
-    return typer.Exit(EXIT_USAGE if bad_input or isinstance(exc, ConfigError | InputError) else EXIT_FAILURE)
+    """Print the error (as plain text: user text may contain [brackets]) and choose the exit code."""
+    console.print(Text("error: ", style="bold red") + Text(str(exc)), soft_wrap=True)
+    return typer.Exit(EXIT_USAGE if bad_input or isinstance(exc, _USAGE_ERRORS) else EXIT_FAILURE)
+
+
+def _load(scenario: str):
+    from .config import load_scenario, resolve_scenario
+
+    return load_scenario(resolve_scenario(scenario))
+
+
+ProgressCallback = Callable[[str, int, int], None]
 
 
 def _with_progress(name: str, quiet: bool, work: Callable[[ProgressCallback], RunResult]) -> RunResult:
     """Run `work(progress)` under a progress bar labelled `name`."""
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+               TextColumn("eta"), TimeRemainingColumn())
     with Progress(*columns, console=console, transient=True, disable=quiet) as bar:
-        task = bar.add_task(f"{name}: stops", total=None)
+        task = bar.add_task(f"{escape(name)}: stops", total=None)
 
         def report(stage: str, done: int, total: int) -> None:
-            bar.update(task, description=f"{name}: {stage}", completed=done, total=total)
+            bar.update(task, description=f"{escape(name)}: {stage}", completed=done, total=total)
 
         return work(report)
-
-
-def _run_with_progress(scenario, options: RunOptions, quiet: bool = False, listener=None) -> RunResult:
-    return _with_progress(scenario.name, quiet, lambda report: run(scenario, options, report, listener))
 
 
 def _rerun_help(default_file: str) -> str:
@@ -61,7 +93,12 @@ def _rerun_target(text: str, memory_limit: str):
     from .viz.rerun_sink import RerunTarget
 
     mode, _, arg = text.partition(":")
-    if mode in ("spawn", "serve") and not arg:
+    if mode == "spawn" and not arg:
+        if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+            raise ConfigError("--rerun spawn: no display (DISPLAY is not set); use --rerun save (then open the "
+                              ".rrd elsewhere) or --rerun serve (a web viewer)")
+        return RerunTarget(mode, memory_limit=memory_limit)
+    if mode == "serve" and not arg:
         return RerunTarget(mode, memory_limit=memory_limit)
     if mode == "save":
         if arg and not arg.endswith(".rrd"):
@@ -85,74 +122,106 @@ def _serve_until_interrupted(url: str | None) -> None:
 
 
 def _summary_table(result: RunResult) -> Table:
-    table = Table(title=f"{result.name} (seed {result.seed}, {len(result.traverse.stops)} stops)")
-    for col in ("config", "avg err m", "closure m", "rel. closure %", "ATE m", "length ratio",
-                "drift %", "bridged", "landmarks", "vs GPS avg m"):
+    """One row per configuration; narrow enough for an 80-column terminal."""
+    from rich import box
+
+    held = any(c.holdout is not None for c in result.configurations.values())
+    table = Table(title=f"{escape(result.name)} (seed {result.seed}, {len(result.traverse.stops)} stops)",
+                  box=box.SIMPLE_HEAD, padding=(0, 1), caption="m: metres against the reference; GPS m: average "
+                  "error against the fixes in the graph; held m: RMS 2-D to the held-out fixes")
+    table.add_column("config", justify="left", no_wrap=True)
+    columns = ["avg m", "clos. %", "ATE m", "length", "bridged", "GPS m"] + (["held m"] if held else [])
+    for col in columns:
         table.add_column(col, justify="right")
     for name, c in result.configurations.items():
-        m = c.metrics
-        vs = c.metrics_vs_gps
-        if m is None:  # no reference: only the comparison with GPS
-            table.add_row(name, *["-"] * 6, str(c.bridged_stops), str(c.landmarks),
-                          "-" if vs is None else f"{vs.average_error_m:.2f}")
-            continue
-        table.add_row(
-            name, f"{m.average_error_m:.2f}", f"{m.closure_error_m:.2f}", f"{m.relative_closure_pct:.3f}",
-            f"{m.ate_rmse_m:.2f} ({m.ate_alignment.split()[0]})", f"{m.length_ratio:.4f}",
-            "-" if m.drift_translation_pct is None else f"{m.drift_translation_pct:.2f}",
-            str(c.bridged_stops), str(c.landmarks), "-" if vs is None else f"{vs.average_error_m:.2f}",
-        )
+        m, vs = c.metrics, c.metrics_vs_gps
+        cells = ["-"] * 4 if m is None else [f"{m.average_error_m:.2f}", f"{m.relative_closure_pct:.3f}",
+                                             f"{m.ate_rmse_m:.2f}", f"{m.length_ratio:.4f}"]
+        row = [name, *cells, str(c.bridged_stops), "-" if vs is None else f"{vs.average_error_m:.2f}"]
+        if held:
+            row.append("-" if c.holdout is None else f"{c.holdout.rms_2d_m:.3f}")
+        table.add_row(*row)
     return table
+
+
+def _parse_configs(text: str | None) -> tuple[str, ...] | None:
+    if text is None:
+        return None
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    if not names:
+        raise ConfigError("--configs: give one or more configuration names or kinds joined by '+', "
+                          "separated by commas (e.g. vo,vo+gps)")
+    return names
 
 
 @app.command("run")
 def run_command(
-    scenario: str = typer.Argument("denver_trail", help="bundled scenario name, a scenario TOML file, an "
-                                   "observation folder, a ROS bag or a KITTI raw drive folder"),
-    out: Path | None = typer.Option(None, "--out", help="results folder (default: results/<scenario>-seed<N>-<time>)"),
-    seed: int | None = typer.Option(None, "--seed", help="override the scenario's seed"),
-    no_gps: bool = typer.Option(False, "--no-gps", help="skip the configuration that uses GPS"),
-    no_sites: bool = typer.Option(False, "--no-sites", help="skip configurations that use site panoramas"),
-    no_hrc: bool = typer.Option(False, "--no-hrc", help="skip configurations that use the HRC"),
+    source: str = typer.Argument("denver_trail", help="bundled scenario name, a scenario TOML file, an "
+                                 "observation folder, a ROS bag or a KITTI raw drive folder"),
+    out: Path | None = typer.Option(None, "--out", help="results folder (default: results/<name>-<time>)"),
+    seed: int | None = typer.Option(None, "--seed", min=0, help="scenario: override its seed"),
+    configs: str | None = typer.Option(None, "--configs", help="configurations to run, comma-separated: names "
+                                       "(vo, vo_sites, full, ...) or kinds joined by '+' (vo+gps); default: "
+                                       "every configuration the source can feed"),
     batch: bool = typer.Option(False, "--batch", help="polish every estimate with batch Levenberg-Marquardt"),
     quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
     rerun: str | None = typer.Option(None, "--rerun", help=_rerun_help("recording.rrd")),
     viewer_memory: str = typer.Option("25%", "--viewer-memory", help="memory limit of a spawned or served viewer"),
     gps_topic: str | None = typer.Option(None, "--gps-topic", help="bag: NavSatFix topic (default: the only one)"),
     odom_topic: str | None = typer.Option(None, "--odom-topic", help="bag: Odometry topic (default: the only one)"),
-    holdout_every: int = typer.Option(5, "--holdout-every", min=0,
-                                      help="recorded drives: keep every N-th fix out of the graph for scoring "
-                                           "(0: use all)"),
-    geoid_height: float = typer.Option(0.0, "--geoid-height", help="KITTI: geoid height (m) added to OXTS alt"),
+    holdout_every: int | None = typer.Option(None, "--holdout-every", min=0,
+                                             help="bag, KITTI: keep every N-th fix out of the graph for scoring "
+                                                  "(default 5; 0: use all)"),
+    geoid_height: float | None = typer.Option(None, "--geoid-height", help="KITTI: geoid height (m) added to "
+                                                                           "OXTS alt"),
 ) -> None:
-    """Solve a traverse with iSAM2 and evaluate it; the source decides what runs.
+    """Solve a traverse with iSAM2 and evaluate it: every source goes through the same back-end.
 
-    A scenario is simulated and every configuration compared with truth and GPS; an observation
-    folder runs the same back-end on external observations; a ROS bag or a KITTI raw drive fuses
-    wheel (or inertial) odometry with GPS, scored on held-out fixes. Writes metrics.json,
-    trajectories (TUM, KITTI, WGS84 CSV, GeoJSON, KML) and more into the results folder; a failed
-    run leaves <out>.partial with what was done.
+    A scenario is simulated and compared with truth; an observation folder runs external
+    observations; a ROS bag or a KITTI raw drive becomes a traverse with a stop at each GPS fix,
+    scored on held-out fixes. Writes metrics.json, run.toml, trajectories (TUM, KITTI, WGS84 CSV,
+    GeoJSON, KML), plots and report.md into the results folder; a failed run leaves
+    <out>.partial with what was done.
     """
-    from .io.observations import is_observation_folder
+    from .pipeline import select_configurations
+    from .results import RunOptions
+    from .sources import SourceOptions, open_source
+
+    try:
+        options = RunOptions(seed=seed, configs=_parse_configs(configs), batch=batch)
+        target = _rerun_target(rerun, viewer_memory) if rerun is not None else None
+        _check_out(out)
+        with console.status(f"reading {escape(source)}"):
+            data = open_source(source, SourceOptions(seed, gps_topic, odom_topic, holdout_every, geoid_height))
+        select_configurations(data.estimator, data.traverse, options.configs)  # before anything is written
+    except PancamGraphError as exc:
+        raise _fail(exc, bad_input=True) from None
+    for reason in data.rejected[:10]:
+        console.print(Text("fix left out: ", style="yellow") + Text(reason))
+    if len(data.rejected) > 10:
+        console.print(Text(f"... {len(data.rejected) - 10} more fixes left out", style="yellow"))
+    _run_source(data, options, out, target, quiet)
+
+
+def _check_out(out: Path | None) -> None:
+    """Results are never written over: --out must be new or an empty folder."""
+    if out is None or not out.exists():
+        return
+    if not out.is_dir():
+        raise ConfigError(f"--out {out}: is a file, not a folder")
+    if any(out.iterdir()):
+        raise ConfigError(f"--out {out}: folder exists and is not empty; choose another --out")
+
+
+def _run_source(data: SourceData, options: RunOptions, out: Path | None, target, quiet: bool) -> None:
     from .io.results import results_folder, write_run
-    from .recorded import is_bag, is_kitti_drive
+    from .pipeline import run_traverse
     from .viz.report import write_report
 
-    source = Path(scenario)
-    if is_bag(source) or is_kitti_drive(source):
-        _run_recorded(source, out, gps_topic, odom_topic, holdout_every, geoid_height)
-        return
-    if is_observation_folder(source):
-        _run_observations(source, out, RunOptions(use_gps=not no_gps, use_sites=not no_sites, use_hrc=not no_hrc,
-                                                  batch=batch), quiet)
-        return
-    recording = None
+    label = f"seed{data.seed}-" if data.scenario is not None else ""
+    out = out or Path("results") / f"{data.traverse.name}-{label}{datetime.now():%Y%m%d-%H%M%S}"
+    recording = folder = None
     try:
-        sc = _load(scenario)
-        options = RunOptions(seed=seed, use_gps=not no_gps, use_sites=not no_sites, use_hrc=not no_hrc, batch=batch)
-        seed_used = sc.seed if seed is None else seed
-        out = out or Path("results") / f"{sc.name}-seed{seed_used}-{datetime.now():%Y%m%d-%H%M%S}"
-        target = _rerun_target(rerun, viewer_memory) if rerun is not None else None
         with results_folder(out) as folder:
             listener = None
             if target is not None:
@@ -163,10 +232,12 @@ def run_command(
 
                 if target.mode == "save" and target.path is None:
                     target = replace(target, path=folder / "recording.rrd")
-                recording = open_recording(target, f"{sc.name} seed {seed_used}")
+                recording = open_recording(target, f"{data.traverse.name} seed {data.seed}")
                 listener = RerunRecorder(recording.stream)
             try:
-                result = _run_with_progress(sc, options, quiet, listener)
+                result = _with_progress(data.traverse.name, quiet, lambda report: run_traverse(
+                    data.traverse, data.truth, data.estimator, data.seed, options, report, listener,
+                    source=data.info, scenario=data.scenario, held_out=data.held_out))
                 write_run(result, folder)
                 report = write_report(result, folder)
             finally:
@@ -174,7 +245,12 @@ def run_command(
                     recording.close()
     except PancamGraphError as exc:
         raise _fail(exc) from None
-    Console(width=150).print(_summary_table(result))
+    import sys
+
+    Console(width=80).print(_summary_table(result))
+    sys.stdout.flush()
+    for name, reason in result.skipped.items():
+        console.print(Text(f"not run: {name} ({reason})", style="dim"))
     console.print(f"wall {result.wall_s:.1f} s; results in {out} (report: {out / report.name})")
     if recording is not None and recording.target.mode == "save":
         path = recording.target.path
@@ -184,70 +260,17 @@ def run_command(
         _serve_until_interrupted(recording.served_url)
 
 
-def _run_observations(source: Path, out: Path | None, options: RunOptions, quiet: bool) -> None:
-    from .io.observations import read_observations
-    from .io.results import results_folder, write_run
-    from .pipeline import run_traverse
-    from .viz.report import write_report
+@app.command("show-config")
+def show_config_command(
+    scenario: str = typer.Argument("denver_trail", help="bundled scenario name or a scenario TOML file"),
+) -> None:
+    """Print a scenario's resolved configuration (every default filled in) as TOML."""
+    from .config import dump_scenario
 
     try:
-        with console.status(f"reading {source}"):
-            observations = read_observations(source)
-        traverse = observations.traverse
-        out = out or Path("results") / f"{traverse.name}-observations-{datetime.now():%Y%m%d-%H%M%S}"
-        with results_folder(out) as folder:
-            result = _with_progress(traverse.name, quiet, lambda report: run_traverse(
-                traverse, observations.truth, observations.estimator, observations.seed, options, progress=report))
-            write_run(result, folder)
-            if result.truth is not None:
-                write_report(result, folder)
+        print(dump_scenario(_load(scenario)), end="")
     except PancamGraphError as exc:
-        raise _fail(exc) from None
-    Console(width=150).print(_summary_table(result))
-    if result.truth is None:
-        console.print("no truth.kitti in the observation folder: metrics against GPS only, no report")
-    console.print(f"wall {result.wall_s:.1f} s; results in {out}")
-
-
-def _run_recorded(source: Path, out: Path | None, gps_topic: str | None, odom_topic: str | None,
-                  holdout_every: int, geoid_height: float) -> None:
-    from .fusion import FusionOptions
-    from .io.results import results_folder, write_fusion_run
-    from .recorded import drive_from_bag, drive_from_kitti, fuse_drive, fusion_metrics_document, is_bag
-
-    options = FusionOptions(holdout_every=holdout_every)
-    try:
-        with console.status(f"reading {source}"):
-            if is_bag(source):
-                drive = drive_from_bag(source, gps_topic, odom_topic)
-            else:
-                drive = drive_from_kitti(source, geoid_height)
-        for reason in drive.rejected_fixes[:10]:
-            console.print(f"[yellow]fix left out:[/] {reason}", highlight=False)
-        if len(drive.rejected_fixes) > 10:
-            console.print(f"[yellow]... {len(drive.rejected_fixes) - 10} more fixes left out[/]")
-        out = out or Path("results") / f"{drive.name}-{datetime.now():%Y%m%d-%H%M%S}"
-        with results_folder(out) as folder:
-            with console.status(f"fusing {len(drive.odometry)} odometry poses and {len(drive.fixes)} fixes"):
-                result = fuse_drive(drive, options)
-            document = fusion_metrics_document(drive, result, options)
-            write_fusion_run(drive, result, document, folder)
-    except PancamGraphError as exc:
-        raise _fail(exc) from None
-    held = f"every {holdout_every}th held out" if holdout_every else "none held out"
-    table = Table(title=f"{drive.name}: odometry + GPS ({len(result.times_s)} fixes, {held})")
-    for col in ("track", "RMS 2-D to held-out fixes m", "avg err vs all fixes m", "length ratio"):
-        table.add_column(col, justify="right")
-    scores = document["holdout"]
-    for name, key in (("odometry_gps", "fused_rms_m"), ("odometry", "odometry_only_rms_m")):
-        vs = document["configs"][name]["vs_gps"]
-        table.add_row(name, "-" if scores is None else f"{scores[key]:.3f}",
-                      f"{vs['average_error_m']:.3f}", f"{vs['length_ratio']:.4f}")
-    Console(width=150).print(table)
-    if scores is not None:
-        console.print(f"held-out fixes' own stated DRMS: {scores['stated_drms_m']:.3f} m "
-                      f"({scores['held_out_fixes']} fixes)")
-    console.print(f"results in {out}")
+        raise _fail(exc, bad_input=True) from None
 
 
 @app.command("view")
@@ -271,7 +294,7 @@ def view_command(
             saved = read_run(results)
         except PancamGraphError as exc:  # the folder given is the input: a usage error
             raise _fail(exc, bad_input=True) from None
-        recording = open_recording(target, f"{saved.scenario.name} (replay of {results.name})")
+        recording = open_recording(target, f"{saved.name} (replay of {results.name})")
         replay(saved, recording.stream)
         recording.close()
     except PancamGraphError as exc:
@@ -357,6 +380,11 @@ def bench_command(
                                     "configuration's efficiency (RMSE / CRLB) and ANEES with its chi-square band"),
 ) -> None:
     """Time full runs (all configurations) and print one JSON object."""
+    import numpy as np
+
+    from .pipeline import run
+    from .results import RunOptions, percentiles
+
     if monte_carlo:
         seeds = max(seeds, monte_carlo)
     try:
@@ -421,6 +449,8 @@ def bench_command(
 def _time_recorded_run(scenario, seed: int) -> float:
     import tempfile
 
+    from .pipeline import run
+    from .results import RunOptions
     from .viz.rerun_live import RerunRecorder
     from .viz.rerun_sink import RerunTarget, open_recording
 
@@ -450,6 +480,10 @@ def analyze_command(
     from .rig import RIG_PRESETS
     from .viz.analysis_plots import write_analysis
 
+    try:
+        _check_out(out)
+    except ConfigError as exc:
+        raise _fail(exc) from None
     custom = [baseline, focal_px, fov_deg]
     if any(v is not None for v in custom) and not all(v is not None for v in custom):
         console.print("[red]error:[/] a custom rig needs --baseline, --focal-px and --fov together")
@@ -497,7 +531,7 @@ def simulate_command(
         if out.exists() and any(out.iterdir()):
             raise ConfigError(f"{out}: folder exists and is not empty; choose another --out")
         seed_used = sc.seed if seed is None else seed
-        with console.status(f"simulating {sc.name} (seed {seed_used})"):
+        with console.status(f"simulating {escape(sc.name)} (seed {seed_used})"):
             traverse, truth = simulate(sc, seed_used)
             write_observations(out, traverse, sc.estimator, seed_used, None if no_truth else truth, sc.rig)
     except PancamGraphError as exc:
@@ -508,7 +542,7 @@ def simulate_command(
 @app.command("scenarios")
 def scenarios_command() -> None:
     """List the bundled scenarios."""
-    from .config import bundled_scenarios
+    from .config import bundled_scenarios, load_scenario
 
     for name, path in sorted(bundled_scenarios().items()):
         try:
@@ -518,5 +552,20 @@ def scenarios_command() -> None:
         print(f"{name:16s} {description}")
 
 
+def main() -> None:
+    """The console script: the one place that turns what escapes a command into an exit code."""
+    try:
+        app()
+    except KeyboardInterrupt:
+        console.print(Text("interrupted", style="bold red"))
+        raise SystemExit(130) from None
+    except PancamGraphError as exc:  # a command that forgot to catch its own
+        console.print(Text("error: ", style="bold red") + Text(str(exc)))
+        raise SystemExit(EXIT_USAGE if isinstance(exc, _USAGE_ERRORS) else EXIT_FAILURE) from None
+    except OSError as exc:  # a full disk, a permission: one line, not a traceback
+        console.print(Text("error: ", style="bold red") + Text(f"{exc.filename or ''}: {exc.strerror or exc}"))
+        raise SystemExit(EXIT_FAILURE) from None
+
+
 if __name__ == "__main__":
-    app()
+    main()

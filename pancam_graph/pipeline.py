@@ -1,114 +1,30 @@
-"""The run loop: simulate the traverse, estimate the motion of every stop once, feed every
-configuration's localizer stop by stop, then evaluate each against truth and GPS."""
+"""The run loop: estimate the motion of every stop once, feed every configuration's localizer
+stop by stop, then evaluate each against the reference, the GPS fixes and the held-out fixes."""
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Protocol
 
+import gtsam
 import numpy as np
 
-from .config import EstimatorConfig, Scenario
-from .evaluation.consistency import Consistency, consistency, crlb_position_covariances
+from .config import EstimatorConfig, Scenario, configuration_problem
+from .errors import ConfigError
+from .evaluation.consistency import consistency, crlb_position_covariances
 from .evaluation.metrics import GPS_REFERENCE_STEP_M, TrajectoryMetrics, compare, decimated_length
+from .evaluation.timed import poses_at_times
 from .frontend.motion import Motion, dead_reckoning_motion, motion_between
 from .frontend.stereo_vo import StereoVO
-from .localizer import Localizer, LocalizerOptions, StepResult
-from .records import GroundTruth, Stop, Traverse
+from .graph.keys import S
+from .kinds import KINDS, unavailable
+from .localizer import Localizer, StepResult
+from .records import GpsFix, GroundTruth, Stop, Traverse
+from .results import ConfigurationResult, HoldoutScore, RunOptions, RunResult, SourceInfo
 from .sim import simulate
 
-CONFIGURATIONS: dict[str, LocalizerOptions] = {
-    # Wheel odometry + IMU alone (the baseline VO is meant to beat); runs when the traverse has it.
-    "dead_reckoning": LocalizerOptions(use_sites=False, use_hrc=False, use_gps=False, use_vo=False),
-    "vo": LocalizerOptions(use_sites=False, use_hrc=False, use_gps=False),
-    "vo_sites": LocalizerOptions(use_sites=True, use_hrc=False, use_gps=False),
-    "vo_sites_hrc": LocalizerOptions(use_sites=True, use_hrc=True, use_gps=False),
-    "full": LocalizerOptions(use_sites=True, use_hrc=True, use_gps=True),
-}
 CHECKPOINT_EVERY_STOPS = 25  # listeners checkpoint at every site and at least this often
-
-
-@dataclass(frozen=True)
-class RunOptions:
-    seed: int | None = None
-    use_gps: bool = True
-    use_sites: bool = True
-    use_hrc: bool = True
-    batch: bool = False
-
-    def configurations(self) -> list[str]:
-        names = []
-        for name, opt in CONFIGURATIONS.items():
-            if (opt.use_gps and not self.use_gps) or (opt.use_sites and not self.use_sites):
-                continue
-            if opt.use_hrc and not self.use_hrc:
-                continue
-            names.append(name)
-        return names
-
-
-@dataclass(frozen=True)
-class ConfigurationResult:
-    name: str
-    world_T_body: np.ndarray  # (N, 4, 4)
-    position_covariance: np.ndarray  # (N, 3, 3) world-frame marginal of each position, m^2 (iSAM2)
-    steps: list[StepResult]  # one per stop
-    landmark_ids: np.ndarray  # (M,)
-    landmark_positions: np.ndarray  # (M, 3) final landmark estimates, world
-    tie_links: list[tuple[int, int]]  # (track, site stop)
-    bridged_stops: int
-    rejected_tie_points: int  # candidate ties whose two sites' triangulations disagree
-    rejected_tie_views: int  # later sites' views of a landmark that disagree with it
-    rejected_hrc_measurements: int
-    solver: str
-    metrics: TrajectoryMetrics | None  # against the reference; None without one
-    consistency: Consistency | None  # CRLB and NEES against simulation truth; None without landmark truth
-    metrics_vs_gps: TrajectoryMetrics | None
-
-    @property
-    def update_ms(self) -> np.ndarray:
-        """Wall time of each stop's iSAM2 update."""
-        return np.array([s.update_ms for s in self.steps])
-
-    @property
-    def landmarks(self) -> int:
-        return len(self.landmark_ids)
-
-    @property
-    def gps_fixes_used(self) -> int:
-        return sum(s.gps_used for s in self.steps)
-
-    @property
-    def gps_outliers(self) -> int:
-        """Fixes failing the 99 % chi-square test at the estimate after their update."""
-        return sum(s.gps_outlier for s in self.steps)
-
-
-@dataclass(frozen=True)
-class RunResult:
-    scenario: Scenario | None  # None for a traverse read from an observation folder
-    seed: int
-    traverse: Traverse
-    truth: GroundTruth | None  # None when a recorded traverse comes without a reference
-    motions: list[Motion | None]
-    configurations: dict[str, ConfigurationResult]
-    wall_s: float
-    vo_s: float
-
-    @property
-    def update_ms(self) -> np.ndarray:
-        return np.concatenate([c.update_ms for c in self.configurations.values()])
-
-    @property
-    def name(self) -> str:
-        return self.traverse.name
-
-    @property
-    def description(self) -> str:
-        return self.scenario.description if self.scenario is not None else "traverse from an observation folder"
-
 
 ProgressCallback = Callable[[str, int, int], None]
 
@@ -140,36 +56,87 @@ class NullListener:
         pass
 
 
-def gps_enu(traverse: Traverse) -> tuple[np.ndarray, np.ndarray]:
-    """Stop indices with a fix and the fixes converted to ENU (N, 3) with pyproj."""
-    idx = np.array([s.index for s in traverse.stops if s.gps is not None], dtype=int)
-    if len(idx) == 0:
-        return idx, np.zeros((0, 3))
-    fixes = [traverse.stops[i].gps for i in idx]
+def select_configurations(estimator: EstimatorConfig, traverse: Traverse, requested: tuple[str, ...] | None
+                          ) -> tuple[dict[str, list[str]], dict[str, str]]:
+    """(name -> kinds to run, name -> why a defined configuration is skipped). Without a request,
+    every defined configuration the traverse can feed; a requested one is a defined name or kinds
+    joined by '+' (e.g. vo+gps), and one the traverse cannot feed is an error."""
+    defined = estimator.configurations
+    if requested is None:
+        chosen, skipped = {}, {}
+        for name, kinds in defined.items():
+            reason = unavailable(kinds, traverse)
+            if reason:
+                skipped[name] = reason
+            else:
+                chosen[name] = list(kinds)
+        if not chosen:
+            raise ConfigError(f"{traverse.name}: no configuration can run on this traverse: "
+                              + "; ".join(f"{n}: {r}" for n, r in skipped.items()))
+        return chosen, skipped
+    chosen = {}
+    for name in requested:
+        kinds = list(defined[name]) if name in defined else name.split("+")
+        unknown = [k for k in kinds if k not in KINDS]
+        if unknown:
+            raise ConfigError(f"--configs {name}: {unknown[0]!r} is neither a configuration "
+                              f"({', '.join(defined)}) nor a kind ({', '.join(KINDS)})")
+        problem = configuration_problem(kinds)
+        if problem:
+            raise ConfigError(f"--configs {name}: {problem}")
+        reason = unavailable(kinds, traverse)
+        if reason:
+            raise ConfigError(f"--configs {name}: this traverse cannot feed it ({reason})")
+        chosen[name] = kinds
+    return chosen, {}
+
+
+def gps_enu(traverse: Traverse, fixes: tuple[GpsFix, ...] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Fix times and the fixes converted to ENU (N, 3) with pyproj (default: the traverse's)."""
+    fixes = traverse.gps_fixes if fixes is None else fixes
+    if not fixes:
+        return np.zeros(0), np.zeros((0, 3))
     enu = traverse.origin.to_enu([f.lat_deg for f in fixes], [f.lon_deg for f in fixes], [f.h_m for f in fixes])
-    return idx, enu
+    return np.array([f.time_s for f in fixes]), enu
 
 
-def evaluate_against_gps(traverse: Traverse, world_T_body: np.ndarray) -> TrajectoryMetrics | None:
-    idx, enu = gps_enu(traverse)
-    if len(idx) < 2:
+def antenna_at_times(traverse: Traverse, world_T_body: np.ndarray, times_s: np.ndarray) -> np.ndarray:
+    stops = traverse.stops
+    poses = poses_at_times(np.array([s.time_s for s in stops]), np.array([s.departure_s for s in stops]),
+                           world_T_body, times_s)
+    return np.einsum("nij,j->ni", poses[:, :3, :3], traverse.gps_lever_arm_m) + poses[:, :3, 3]
+
+
+def evaluate_against_gps(traverse: Traverse, world_T_body: np.ndarray,
+                         fixes: tuple[GpsFix, ...] | None = None) -> TrajectoryMetrics | None:
+    """The antenna, interpolated to each fix's time, against the fixes (unaligned)."""
+    times, enu = gps_enu(traverse, fixes)
+    if len(times) < 2:
         return None
-    antenna = np.einsum("nij,j->ni", world_T_body[idx, :3, :3], traverse.gps_lever_arm_m)
-    antenna += world_T_body[idx, :3, 3]
-    return compare(antenna, enu, "none", reference_length_m=decimated_length(enu, GPS_REFERENCE_STEP_M))
+    return compare(antenna_at_times(traverse, world_T_body, times), enu, "none",
+                   reference_length_m=decimated_length(enu, GPS_REFERENCE_STEP_M))
 
 
-def run(
-    scenario: Scenario,
-    options: RunOptions = RunOptions(),
-    progress: ProgressCallback | None = None,
-    listener: RunListener | None = None,
-) -> RunResult:
+def holdout_score(traverse: Traverse, world_T_body: np.ndarray, held_out: tuple[GpsFix, ...]) -> HoldoutScore | None:
+    if not held_out:
+        return None
+    times, enu = gps_enu(traverse, held_out)
+    antenna = antenna_at_times(traverse, world_T_body, times)
+    rms = float(np.sqrt(np.mean(np.sum((antenna[:, :2] - enu[:, :2]) ** 2, axis=1))))
+    drms = float(np.sqrt(np.mean([2.0 * f.sigma_horizontal_m**2 for f in held_out])))
+    return HoldoutScore(len(held_out), rms, drms)
+
+
+def run(scenario: Scenario, options: RunOptions = RunOptions(), progress: ProgressCallback | None = None,
+        listener: RunListener | None = None) -> RunResult:
     """Simulate the scenario and run every configuration on it."""
     start = time.perf_counter()
     seed = scenario.seed if options.seed is None else options.seed
     traverse, truth = simulate(scenario, seed)
-    return run_traverse(traverse, truth, scenario.estimator, seed, options, progress, listener, scenario, start)
+    resolved = scenario.model_copy(update={"seed": seed})  # its scenario.toml reproduces this run
+    return run_traverse(traverse, truth, scenario.estimator, seed, options, progress, listener,
+                        source=SourceInfo("scenario", scenario.name, "simulation ground truth"), scenario=resolved,
+                        started=start)
 
 
 def run_traverse(
@@ -180,32 +147,38 @@ def run_traverse(
     options: RunOptions = RunOptions(),
     progress: ProgressCallback | None = None,
     listener: RunListener | None = None,
+    source: SourceInfo | None = None,
     scenario: Scenario | None = None,
+    held_out: tuple[GpsFix, ...] = (),
     started: float | None = None,
 ) -> RunResult:
     """Estimate the motion of every stop once, feed every configuration's localizer stop by
     stop, then evaluate each against the reference (when there is one) and GPS."""
     start = time.perf_counter() if started is None else started
+    source = source or SourceInfo("traverse", traverse.name, "truth" if truth is not None else "none")
     listener = listener or NullListener()
     n = len(traverse.stops)
-    vo = StereoVO.for_traverse(traverse, estimator)
-    names = options.configurations()
-    if not any(s.dead_reckoning is not None for s in traverse.stops):
-        names = [name for name in names if CONFIGURATIONS[name].use_vo]
-    localizers = {name: Localizer(traverse, CONFIGURATIONS[name], estimator, seed=seed) for name in names}
+    chosen, skipped = select_configurations(estimator, traverse, options.configs)
+    localizers = {name: Localizer(traverse, kinds, estimator, seed=seed) for name, kinds in chosen.items()}
+    any_vo = any(loc.uses_vo for loc in localizers.values())
+    vo = StereoVO.for_traverse(traverse, estimator) if any_vo else None
     listener.start(traverse, truth, localizers)
 
+    slip = traverse.wheel_slip
     motions: list[Motion | None] = [None]
     dr_motions: list[Motion | None] = [None]
-    steps: dict[str, list[StepResult]] = {name: [] for name in names}
+    steps: dict[str, list[StepResult]] = {name: [] for name in localizers}
     vo_s = 0.0
     for k, stop in enumerate(traverse.stops):
         if k > 0:
-            t0 = time.perf_counter()
-            motions.append(motion_between(vo, traverse.stops[k - 1], stop, motions[-1]))
-            vo_s += time.perf_counter() - t0
-            dr_motions.append(dead_reckoning_motion(stop, dr_motions[-1]))
-        now = {name: localizer.step(stop, motions[k] if CONFIGURATIONS[name].use_vo else dr_motions[k])
+            dr_motions.append(dead_reckoning_motion(stop, dr_motions[-1], slip))
+            if vo is not None:
+                t0 = time.perf_counter()
+                motions.append(motion_between(vo, traverse.stops[k - 1], stop, motions[-1], slip))
+                vo_s += time.perf_counter() - t0
+            else:
+                motions.append(dr_motions[-1])
+        now = {name: localizer.step(stop, motions[k] if localizer.uses_vo else dr_motions[k])
                for name, localizer in localizers.items()}
         for name, step in now.items():
             steps[name].append(step)
@@ -219,86 +192,55 @@ def run_traverse(
     for name, localizer in localizers.items():
         if progress is not None:
             progress(f"finishing {name}", 0, 1)
+        localizer.finish()
         final = localizer.final(batch=options.batch)
         poses = final.world_T_body
-        alignment = "none" if CONFIGURATIONS[name].use_gps else "se3"
+        alignment = "none" if "gps" in localizer.kinds else "se3"
         metrics = consistency_result = None
         covariance = np.stack([localizer.position_covariance(k) for k in localizer.stops])
         if truth is not None:
             metrics = compare(poses[:, :3, 3], truth.positions, alignment, poses, truth.world_T_body)
-            # an observation folder's truth has poses only; the bound needs every landmark's truth
-            if all(j < len(truth.landmarks) for j in localizer.landmarks):
+            extra = _truth_of_extra_variables(localizer, truth)
+            # the bound needs the truth of every variable (an observation folder may have poses only)
+            if extra is not None and all(j < len(truth.landmarks) and np.all(np.isfinite(truth.landmarks[j]))
+                                         for j in localizer.landmarks):
                 if progress is not None:
                     progress(f"CRLB of {name}", 0, 1)
                 crlb = crlb_position_covariances(localizer.smoother.graph, localizer.stops, truth.world_T_body,
-                                                 {j: truth.landmarks[j] for j in localizer.landmarks})
+                                                 {j: truth.landmarks[j] for j in localizer.landmarks}, extra)
                 consistency_result = consistency(poses[:, :3, 3], truth.positions, covariance, crlb)
         results[name] = ConfigurationResult(
             name=name,
+            kinds=tuple(localizer.kind_names),
             world_T_body=poses,
             position_covariance=covariance,
             steps=steps[name],
             landmark_ids=final.landmark_ids,
             landmark_positions=final.landmarks,
             tie_links=localizer.tie_links(),
-            bridged_stops=localizer.bridged_stops,
-            rejected_tie_points=localizer.rejected_ties,
-            rejected_tie_views=localizer.rejected_tie_views,
-            rejected_hrc_measurements=localizer.rejected_hrc,
+            counters=localizer.counters(),
+            interpolated=list(localizer.interpolated),
             solver="isam2+batch_lm" if options.batch else "isam2",
             metrics=metrics,
             consistency=consistency_result,
             metrics_vs_gps=evaluate_against_gps(traverse, poses),
+            holdout=holdout_score(traverse, poses, held_out),
         )
-    result = RunResult(scenario, seed, traverse, truth, motions, results, time.perf_counter() - start, vo_s)
+    result = RunResult(source, scenario, estimator, options, seed, traverse, truth, tuple(held_out), motions,
+                       results, skipped, time.perf_counter() - start, vo_s)
     listener.finish(result)
     return result
 
 
-def percentiles(ms: np.ndarray) -> dict[str, float]:
-    return {"median": float(np.median(ms)), "p99": float(np.percentile(ms, 99)), "max": float(ms.max())}
-
-
-def metrics_document(result: RunResult) -> dict:
-    """The content of metrics.json."""
-    vo_motions = [m for m in result.motions[1:] if m is not None]
-    configs = {}
-    for name, c in result.configurations.items():
-        entry = c.metrics.as_dict() if c.metrics is not None else {}
-        if c.consistency is not None:
-            entry.update(c.consistency.as_dict())
-        entry.update(
-            bridged_stops=c.bridged_stops,
-            landmarks=c.landmarks,
-            rejected_tie_points=c.rejected_tie_points,
-            rejected_tie_views=c.rejected_tie_views,
-            rejected_hrc_measurements=c.rejected_hrc_measurements,
-            gps_fixes_used=c.gps_fixes_used,
-            gps_outliers=c.gps_outliers,
-            solver=c.solver,
-            isam2_update_ms=percentiles(c.update_ms),
-            vs_gps=c.metrics_vs_gps.as_dict() if c.metrics_vs_gps is not None else None,
-        )
-        configs[name] = entry
-    return {
-        "scenario": result.name,
-        "seed": result.seed,
-        "rig": result.traverse.rig.name,
-        "stops": len(result.traverse.stops),
-        "sites": sum(s.is_site for s in result.traverse.stops),
-        "gps_fixes": sum(s.gps is not None for s in result.traverse.stops),
-        "reference": ("simulation ground truth" if result.scenario is not None else
-                      "truth.kitti of the observation folder" if result.truth is not None else "none")
-                     + " (configs.*), GPS fixes (configs.*.vs_gps)",
-        "vo": {
-            "stops_bridged": sum(m.bridged for m in vo_motions),
-            "bridge_sources": sorted({m.source for m in vo_motions if m.bridged}),
-            "median_inliers": float(np.median([m.vo_inliers for m in vo_motions])) if vo_motions else 0.0,
-        },
-        "configs": configs,
-        "timing": {
-            "isam2_update_ms": percentiles(result.update_ms),
-            "vo_s": result.vo_s,
-            "wall_s": result.wall_s,
-        },
-    }
+def _truth_of_extra_variables(localizer: Localizer, truth: GroundTruth) -> gtsam.Values | None:
+    """True values of the variables that are not stop poses or landmarks (poses inserted between
+    stops: the true poses interpolated the same way; the wheel slip), or None when unknown."""
+    extra = gtsam.Values()
+    for p in localizer.interpolated:
+        a, b = gtsam.Pose3(truth.world_T_body[p.prev_stop]), gtsam.Pose3(truth.world_T_body[p.stop])
+        extra.insert(p.key, a.slerp(p.fraction, b))
+    if "wheel_slip" in localizer.kinds:
+        if truth.wheel_slip is None:
+            return None
+        extra.insert(S(0), float(truth.wheel_slip))
+    return extra

@@ -8,7 +8,9 @@ travels separately (`GroundTruth`) and is used only for evaluation.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
+import gtsam
 import numpy as np
 
 from .geodesy import LocalFrame
@@ -81,10 +83,21 @@ class OdometryTrack:
 @dataclass(frozen=True)
 class DeadReckoning:
     """Wheel odometry + IMU increment from the previous stop: prev_T_curr (4x4) and its 6x6
-    covariance ordered [rotation, translation] in the current body frame (GTSAM convention)."""
+    covariance ordered [rotation, translation] in the current body frame (GTSAM convention).
+    The covariance is the step's own noise, independent from step to step; the wheel slip
+    shared by every step is the traverse's `wheel_slip`."""
 
     prev_T_curr: np.ndarray
     covariance: np.ndarray
+
+
+@dataclass(frozen=True)
+class SlipPrior:
+    """Wheel slip shared along the traverse: odometry distance = (1 + slip) x true distance, with
+    slip ~ N(mean, sigma) once per traverse (terrain and load, not step-to-step noise)."""
+
+    mean: float = 0.0
+    sigma: float = 0.05
 
 
 @dataclass(frozen=True)
@@ -97,8 +110,12 @@ class Stop:
     site_id: int | None = None
     panorama: tuple[PanoramaFrame, ...] = ()
     hrc: tuple[HrcFrame, ...] = ()
-    gps: GpsFix | None = None
     dead_reckoning: DeadReckoning | None = None
+    dwell_s: float = 0.0  # the rover stands still for this long after time_s, then drives on
+
+    @property
+    def departure_s(self) -> float:
+        return self.time_s + self.dwell_s
 
     @property
     def is_site(self) -> bool:
@@ -118,6 +135,26 @@ class Traverse:
     gps_lever_arm_m: np.ndarray  # antenna in the body frame
     start_world_T_body: np.ndarray  # 4x4, surveyed start pose
     start_sigmas: np.ndarray  # (6,) [rot rad x3, pos m x3]
+    gps_fixes: tuple[GpsFix, ...] = ()  # in time order, each used at its own time
+    wheel_slip: SlipPrior = SlipPrior()
+    # The navigation stereo pair's left camera in the body frame; None: on the mast at pan 0 and
+    # the traverse tilt (PanCam). A body-fixed pair (a car, a rover's navigation cameras) gives it.
+    body_T_nav_left: np.ndarray | None = None
+
+    def body_T_nav(self) -> gtsam.Pose3:
+        """The navigation pair's left camera in the body frame."""
+        if self.body_T_nav_left is not None:
+            return gtsam.Pose3(self.body_T_nav_left)
+        return self.rig.body_T_left(0.0, self.traverse_tilt_rad)
+
+    @cached_property
+    def gps_times_s(self) -> np.ndarray:
+        return np.array([f.time_s for f in self.gps_fixes])
+
+    def fixes_between(self, after_s: float, until_s: float) -> list[GpsFix]:
+        """The fixes with after_s < time_s <= until_s."""
+        lo, hi = np.searchsorted(self.gps_times_s, [after_s, until_s], side="right")
+        return list(self.gps_fixes[lo:hi])
 
 
 @dataclass(frozen=True)
@@ -126,7 +163,27 @@ class GroundTruth:
 
     world_T_body: np.ndarray  # (N, 4, 4)
     landmarks: np.ndarray  # (M, 3)
+    wheel_slip: float | None = None  # the traverse's true slip, when simulated
 
     @property
     def positions(self) -> np.ndarray:
         return self.world_T_body[:, :3, 3]
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Positions in a local metric frame, with full poses and times when the file has them."""
+
+    source: str
+    positions: np.ndarray  # (N, 3)
+    times_s: np.ndarray | None = None  # (N,)
+    world_T_body: np.ndarray | None = None  # (N, 4, 4)
+    geodetic: np.ndarray | None = None  # (N, 3) lat, lon, h when read from a GPS log
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    def subset(self, index: np.ndarray) -> Trajectory:
+        pick = lambda a: None if a is None else a[index]  # noqa: E731
+        return Trajectory(self.source, self.positions[index], pick(self.times_s), pick(self.world_T_body),
+                          pick(self.geodetic))

@@ -1,6 +1,6 @@
 """Camera and rig models: intrinsics, stereo pairs, HRC and pan/tilt mast kinematics.
 
-Frames (DESIGN.md section 3): rover body x forward, y left, z up with the origin on
+Frames (docs/design.md section 3): rover body x forward, y left, z up with the origin on
 the ground under the mast; the mast head frame has the same axes after pan (about z)
 and tilt (about the panned y axis, positive looks up); camera frames are OpenCV
 (x right, y down, z forward).
@@ -128,7 +128,7 @@ class Rig:
 
 
 def _exomars() -> Rig:
-    # DESIGN.md section 2: WAC 580 urad/px (f = 1724 px), HRC 82 urad/px (f = 12195 px),
+    # docs/design.md section 2: WAC 580 urad/px (f = 1724 px), HRC 82 urad/px (f = 12195 px),
     # HRC 0.154 m right of the rig centre -> 0.404 m from the left WAC.
     return Rig(
         name="exomars",

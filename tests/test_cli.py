@@ -75,7 +75,7 @@ def test_run_writes_a_complete_results_folder(results, tmp_path):
     assert metrics["timing"]["wall_s"] > 0
     # the resolved scenario re-runs
     again = runner.invoke(app, ["run", str(out / "scenario.toml"), "--out", str(tmp_path / "again"),
-                                "--quiet", "--seed", "3", "--no-gps"])
+                                "--quiet", "--seed", "3", "--configs", "vo,vo_sites"])
     assert again.exit_code == 0, again.output
     rerun = json.loads((tmp_path / "again" / "metrics.json").read_text())["configs"]["vo"]
     original = metrics["configs"]["vo"]
@@ -84,7 +84,7 @@ def test_run_writes_a_complete_results_folder(results, tmp_path):
     assert rerun == original
     # a results folder is never overwritten
     clash = runner.invoke(app, ["run", "short_trail", "--out", str(out), "--quiet"])
-    assert clash.exit_code == 1 and "not empty" in clash.output
+    assert clash.exit_code == 2 and "not empty" in clash.output
 
 
 def test_report_tabulates_the_metrics_and_shows_the_figures(results):
@@ -93,8 +93,9 @@ def test_report_tabulates_the_metrics_and_shows_the_figures(results):
     for name, m in metrics["configs"].items():
         row = next(line for line in report.splitlines() if line.startswith(f"| {name} |"))
         cells = [c.strip() for c in row.strip("|").split("|")]
-        assert float(cells[3]) == pytest.approx(m["relative_closure_pct"], abs=5e-5)
-        assert float(cells[1]) == pytest.approx(m["average_error_m"], abs=5e-4)
+        assert cells[1] == "+".join(m["kinds"])
+        assert float(cells[4]) == pytest.approx(m["relative_closure_pct"], abs=5e-5)
+        assert float(cells[2]) == pytest.approx(m["average_error_m"], abs=5e-4)
     for png in ("trajectories.png", "error_vs_distance.png", "distance_relation.png", "elevation_profile.png"):
         assert f"]({png})" in report
         assert (results / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -128,7 +129,7 @@ def test_view_names_what_is_wrong_with_a_results_folder(results, tmp_path):
     empty = tmp_path / "empty"
     empty.mkdir()
     result = runner.invoke(app, ["view", str(empty), "--rerun", f"save:{tmp_path / 'x.rrd'}"])
-    assert result.exit_code == 2 and "scenario.toml" in result.output and "Traceback" not in result.output
+    assert result.exit_code == 2 and "run.toml" in result.output and "Traceback" not in result.output
     broken = tmp_path / "broken"
     broken.mkdir()
     for f in results.iterdir():
@@ -161,3 +162,26 @@ def test_scenarios_lists_bundled_files():
     assert result.exit_code == 0
     for name in ("denver_trail", "straight_500m", "gps_multipath", "short_trail"):
         assert name in result.output
+
+
+def test_the_reproduce_line_reproduces_the_run(tmp_path, monkeypatch):
+    out = tmp_path / "first"
+    first = runner.invoke(app, ["run", "short_trail", "--seed", "5", "--configs", "vo,vo+gps", "--batch",
+                                "--quiet", "--out", str(out)])
+    assert first.exit_code == 0, first.output
+    line = next(x for x in (out / "report.md").read_text().splitlines() if x.startswith("- reproduce"))
+    command = line.split("`")[1].split()
+    assert command[:2] == ["pancam-graph", "run"] and "--batch" in command and "vo,vo+gps" in command
+    monkeypatch.chdir(out)  # a scenario run reproduces from its folder's scenario.toml
+    again = runner.invoke(app, [*command[1:], "--quiet", "--out", str(tmp_path / "again")])
+    assert again.exit_code == 0, again.output
+
+    def configs(folder):
+        document = json.loads((folder / "metrics.json").read_text())
+        for c in document["configs"].values():
+            c.pop("isam2_update_ms")
+        return document["configs"], document["seed"]
+
+    assert configs(tmp_path / "again") == configs(out)
+    run_toml = (out / "run.toml").read_text()
+    assert 'batch = true' in run_toml and '"vo+gps" = [' in run_toml and "gtsam" in run_toml

@@ -25,7 +25,7 @@ def test_twenty_seeds_sites_beat_vo_and_their_covariances_tell_the_truth(short_s
     closures = {"vo": [], "vo_sites": [], "vo_sites_hrc": []}
     bounds = {"vo": [], "vo_sites": []}
     for seed in range(20):
-        result = run(short_scenario, RunOptions(seed=seed, use_gps=False))
+        result = run(short_scenario, RunOptions(seed=seed, configs=("vo", "vo_sites", "vo_sites_hrc")))
         for name, values in closures.items():
             values.append(result.configurations[name].metrics.relative_closure_pct)
         for name, values in bounds.items():
@@ -45,7 +45,7 @@ def test_twenty_seeds_sites_beat_vo_and_their_covariances_tell_the_truth(short_s
 def test_900m_vo_only_run_completes_without_indeterminate_system():
     """Cholesky iSAM2 throws 'indeterminate' near stop 400 of this chain; the run must not."""
     scenario = load_scenario(resolve_scenario("denver_trail"))
-    result = run(scenario, RunOptions(seed=0, use_gps=False, use_sites=False))
+    result = run(scenario, RunOptions(seed=0, configs=("dead_reckoning", "vo")))
     assert list(result.configurations) == ["dead_reckoning", "vo"]
     vo = result.configurations["vo"]
     assert len(vo.world_T_body) == len(result.traverse.stops) > 500
@@ -63,12 +63,12 @@ def test_robust_gps_survives_multipath_outliers():
     scenario = load_scenario(resolve_scenario("gps_multipath"))
     result = run(scenario, RunOptions(seed=0))
     full = result.configurations["full"]
-    assert full.gps_fixes_used < len(result.traverse.stops)  # dropouts
+    assert full.gps_fixes_used == len(result.traverse.gps_fixes) < len(result.traverse.stops)  # dropouts
     assert full.metrics.ate_rmse_m < 2.0
 
 
 @pytest.mark.parametrize("name", ["straight_500m"])
 def test_other_bundled_scenarios_run(name):
     scenario = load_scenario(resolve_scenario(name))
-    result = run(scenario, RunOptions(seed=0, use_gps=False))
+    result = run(scenario, RunOptions(seed=0, configs=("vo_sites",)))
     assert result.configurations["vo_sites"].metrics.relative_closure_pct < 0.5

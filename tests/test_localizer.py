@@ -4,7 +4,7 @@ import numpy as np
 from pancam_graph.frontend.motion import motion_between
 from pancam_graph.frontend.stereo_vo import StereoVO
 from pancam_graph.graph.keys import L, X
-from pancam_graph.localizer import Localizer, LocalizerOptions
+from pancam_graph.localizer import Localizer
 from pancam_graph.sim import simulate
 
 
@@ -15,13 +15,13 @@ def _solve(scenario, options, seed=4):
     last = None
     for k, stop in enumerate(traverse.stops):
         if k > 0:
-            last = motion_between(vo, traverse.stops[k - 1], stop, last)
+            last = motion_between(vo, traverse.stops[k - 1], stop, last, traverse.wheel_slip)
         loc.step(stop, last)
     return loc, traverse, truth
 
 
 def test_batch_polish_does_not_increase_graph_error(short_scenario):
-    loc, _, truth = _solve(short_scenario, LocalizerOptions(use_sites=True, use_hrc=True, use_gps=False))
+    loc, _, truth = _solve(short_scenario, ["vo", "sites", "hrc"])
     loc.smoother.settle()
     incremental = loc.smoother.estimate()
     polished = loc.smoother.batch_polish(incremental)
@@ -34,7 +34,7 @@ def test_batch_polish_does_not_increase_graph_error(short_scenario):
 
 
 def test_every_stop_has_a_pose_and_sites_add_landmarks(short_scenario):
-    loc, traverse, _ = _solve(short_scenario, LocalizerOptions(use_sites=True, use_hrc=False, use_gps=False))
+    loc, traverse, _ = _solve(short_scenario, ["vo", "sites"])
     assert loc.stops == [s.index for s in traverse.stops]
     assert len(loc.landmarks) > 50
     # tie points only: each landmark in the graph has stereo factors from two sites or more
@@ -52,7 +52,7 @@ def test_every_stop_has_a_pose_and_sites_add_landmarks(short_scenario):
 def test_no_false_match_reaches_the_graph_and_true_ties_do(short_scenario):
     """The simulation makes 5 % of panorama matches false (random pixels). The tie gate must keep
     every one of them out of the graph while keeping the true ones in."""
-    loc, _, truth = _solve(short_scenario, LocalizerOptions(use_sites=True, use_hrc=False, use_gps=False))
+    loc, _, truth = _solve(short_scenario, ["vo", "sites"])
     values = gtsam.Values()
     for k in loc.stops:
         values.insert(X(k), gtsam.Pose3(truth.world_T_body[k]))
@@ -65,4 +65,4 @@ def test_no_false_match_reaches_the_graph_and_true_ties_do(short_scenario):
     assert np.sum(pixels_off > 10.0) == 0  # a false match is hundreds of pixels off
     # the true ones: 3 pixel components of 0.3 px noise each
     assert np.sqrt(np.mean(pixels_off**2)) < 0.3 * np.sqrt(3) * 1.15
-    assert loc.rejected_ties > 0
+    assert loc.kind("sites").rejected_ties > 0

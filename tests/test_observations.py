@@ -30,18 +30,10 @@ def folders(tmp_path_factory):
     return base
 
 
-# The CRLB needs the true landmarks, which an observation folder does not carry (truth.kitti
-# holds poses): only configurations without landmarks get these fields from it.
-CRLB_FIELDS = ("rmse_m", "crlb_rms_m", "efficiency", "anees", "anees_band")
-
-
 def _metrics(folder):
     document = json.loads((folder / "metrics.json").read_text())
-    for name, config in document["configs"].items():
+    for config in document["configs"].values():
         config.pop("isam2_update_ms")
-        if name != "vo":
-            for field in CRLB_FIELDS:
-                config.pop(field, None)
     return document
 
 
@@ -50,10 +42,32 @@ def test_observation_folder_reproduces_the_scenario_run_exactly(folders):
     assert observed["vo"] == scenario["vo"]
     assert observed["configs"]["vo"] == scenario["configs"]["vo"]  # every field, bit for bit
     assert observed["configs"]["vo"]["relative_closure_pct"] > 0.01  # a real estimate, not a copy of truth
-    # Sites, HRC, GPS and dead reckoning travel through the format too.
-    assert observed["configs"] == scenario["configs"]
+    # Sites, HRC, GPS and dead reckoning travel through the format too (GPS through iSAM2 can
+    # differ in the last bits between two runs of the same graph), and so do the consistency
+    # fields (truth_landmarks.csv and truth.toml carry what the bound needs).
+    for name in ("vo_sites", "full", "dead_reckoning"):
+        assert observed["configs"][name]["efficiency"] > 0.3, name
+    assert observed["configs"].keys() == scenario["configs"].keys()
+    for name in scenario["configs"]:
+        _assert_close(observed["configs"][name], scenario["configs"][name], name)
     assert (observed["stops"], observed["sites"], observed["gps_fixes"]) == (
         scenario["stops"], scenario["sites"], scenario["gps_fixes"])
+
+
+def _assert_close(a, b, where: str) -> None:
+    """Equal structure and text, numbers equal to 1e-9 relative."""
+    if isinstance(b, dict):
+        assert a.keys() == b.keys(), where
+        for key in b:
+            _assert_close(a[key], b[key], f"{where}.{key}")
+    elif isinstance(b, list):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _assert_close(x, y, f"{where}[{i}]")
+    elif isinstance(b, float):
+        assert a == pytest.approx(b, rel=1e-9, abs=1e-12), where
+    else:
+        assert a == b, where
 
 
 def _copy(folders, tmp_path):
@@ -65,7 +79,7 @@ def _copy(folders, tmp_path):
 def test_observation_file_with_a_missing_column_is_named(folders, tmp_path):
     folder = _copy(folders, tmp_path)
     lines = (folder / "stereo.csv").read_text().splitlines()
-    (folder / "stereo.csv").write_text("\n".join(",".join(line.split(",")[:4] + line.split(",")[5:])
+    (folder / "stereo.csv").write_text("\n".join(",".join(line.split(",")[:5] + line.split(",")[6:])
                                                  for line in lines) + "\n")
     out = tmp_path / "out"
     result = runner.invoke(app, ["run", str(folder), "--out", str(out), "--quiet"])
@@ -86,9 +100,9 @@ def test_bad_values_name_file_line_and_column(folders, tmp_path):
         read_observations(folder)
     folder = _copy(folders, tmp_path / "b")
     lines = (folder / "gps.csv").read_text().splitlines()
-    lines.insert(2, "9999," + lines[1].split(",", 1)[1])
+    lines.insert(3, lines[1])  # an earlier fix again: time goes back
     (folder / "gps.csv").write_text("\n".join(lines) + "\n")
-    with pytest.raises(Exception, match=r"gps.csv: line 3: stop 9999 is not one of stereo.csv's stops 0..\d+"):
+    with pytest.raises(Exception, match=r"gps.csv: line 4: time_s [\d.]+ does not increase \(previous fix [\d.]+\)"):
         read_observations(folder)
 
 
@@ -122,6 +136,6 @@ def test_a_track_listed_twice_at_a_stop_names_its_line(folders, tmp_path):
     lines = (folder / "stereo.csv").read_text().splitlines()
     lines.insert(4, lines[2])  # line 3's observation again, as line 5
     (folder / "stereo.csv").write_text("\n".join(lines) + "\n")
-    track = lines[2].split(",")[2]
+    track = lines[2].split(",")[3]  # stop,time_s,dwell_s,track,...
     with pytest.raises(Exception, match=rf"stereo.csv: line 5: stop 0 lists track {track} a second time"):
         read_observations(folder)

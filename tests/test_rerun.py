@@ -86,7 +86,7 @@ def test_covariance_ellipsoids_are_the_95_percent_marginals(recorded):
 
 def test_geo_points_are_the_gps_fixes_and_the_map_line_is_the_estimate(recorded):
     result, _, rec = recorded
-    fixes = [s.gps for s in result.traverse.stops if s.gps is not None]
+    fixes = result.traverse.gps_fixes
     geo = array(rec.latest("/map/gps", "GeoPoints:positions"))
     np.testing.assert_allclose(geo, [[f.lat_deg, f.lon_deg] for f in fixes], atol=1e-12)
     line = array(rec.latest("/map/estimate/full", "GeoLineStrings:line_strings")[0])

@@ -35,7 +35,7 @@ def test_vo_fails_at_sharp_turn_and_is_bridged_by_dead_reckoning(short_scenario)
     vo = StereoVO.for_traverse(traverse)
     motions, last = [], None
     for k in range(1, len(traverse.stops)):
-        last = motion_between(vo, traverse.stops[k - 1], traverse.stops[k], last)
+        last = motion_between(vo, traverse.stops[k - 1], traverse.stops[k], last, traverse.wheel_slip)
         motions.append(last)
     bridged = [k + 1 for k, m in enumerate(motions) if m.bridged]
     assert bridged, "the sharp turn and the featureless patch must defeat VO"

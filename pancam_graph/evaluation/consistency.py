@@ -22,10 +22,11 @@ POSITION_DOF = 3
 
 
 def crlb_position_covariances(graph: gtsam.NonlinearFactorGraph, stops: list[int], world_T_body: np.ndarray,
-                              landmarks: dict[int, np.ndarray]) -> np.ndarray:
+                              landmarks: dict[int, np.ndarray], extra: gtsam.Values | None = None) -> np.ndarray:
     """(N, 3, 3) world-frame position covariances of X(stop) from `graph` linearized at the truth:
-    `world_T_body` (N, 4, 4) for `stops`, `landmarks` track -> true position."""
-    values = gtsam.Values()
+    `world_T_body` (N, 4, 4) for `stops`, `landmarks` track -> true position, `extra` the true
+    values of any other variable."""
+    values = gtsam.Values() if extra is None else gtsam.Values(extra)
     for k, pose in zip(stops, world_T_body, strict=True):
         values.insert(X(k), gtsam.Pose3(pose))
     for track, point in landmarks.items():

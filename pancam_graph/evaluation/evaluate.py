@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import EvaluationError
-from ..io.trajectories import Trajectory
+from ..records import Trajectory
 from .metrics import (
     GPS_REFERENCE_STEP_M,
     RPE_DELTA_M,

@@ -1,4 +1,4 @@
-"""Trajectory metrics of DESIGN.md section 5: average, closure and relative closure error,
+"""Trajectory metrics of docs/design.md section 5: average, closure and relative closure error,
 ATE after a stated alignment, KITTI-style drift and the path-length ratio."""
 
 from __future__ import annotations

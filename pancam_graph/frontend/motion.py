@@ -12,7 +12,7 @@ from typing import Literal
 import gtsam
 import numpy as np
 
-from ..records import Stop
+from ..records import DeadReckoning, SlipPrior, Stop
 from .stereo_vo import StereoVO
 
 # Without any dead reckoning the bridge only says "the rover moved about as before":
@@ -27,25 +27,37 @@ class Motion:
     source: Literal["vo", "dead_reckoning", "constant_velocity"]
     vo_inliers: int
     vo_failure: str = ""
+    # The raw odometry increment behind a dead-reckoning motion: the wheel-slip kind builds its
+    # own factor from it (prev_T_curr above already has the expected slip taken out).
+    odometry: DeadReckoning | None = None
 
     @property
     def bridged(self) -> bool:
         return self.source != "vo"
 
 
-def motion_between(vo: StereoVO, prev: Stop, curr: Stop, last: Motion | None) -> Motion:
+def motion_between(vo: StereoVO, prev: Stop, curr: Stop, last: Motion | None, slip: SlipPrior) -> Motion:
     """Stereo VO, bridged by dead reckoning (or constant velocity) where VO fails."""
     result = vo.estimate(prev.stereo, curr.stereo)
     if result.ok:
         return Motion(result.prev_T_curr, result.covariance, "vo", result.inliers)
-    return dead_reckoning_motion(curr, last, result.inliers, result.reason)
+    return dead_reckoning_motion(curr, last, slip, result.inliers, result.reason)
 
 
-def dead_reckoning_motion(curr: Stop, last: Motion | None, vo_inliers: int = 0, vo_failure: str = "") -> Motion:
-    """The stop's wheel odometry + IMU increment with its covariance; constant velocity with a
-    wide covariance when the stop has none."""
+def dead_reckoning_motion(curr: Stop, last: Motion | None, slip: SlipPrior, vo_inliers: int = 0,
+                          vo_failure: str = "") -> Motion:
+    """The stop's wheel odometry + IMU increment with the expected slip taken out, and its own
+    covariance widened along the drive by the slip's uncertainty (as if it were independent per
+    step, which it is not: over many steps only the wheel-slip kind is honest); constant velocity
+    with a wide covariance when the stop has none."""
     if curr.dead_reckoning is not None:
         dr = curr.dead_reckoning
-        return Motion(gtsam.Pose3(dr.prev_T_curr), dr.covariance, "dead_reckoning", vo_inliers, vo_failure)
+        t = dr.prev_T_curr[:3, 3]
+        corrected = gtsam.Pose3(gtsam.Rot3(dr.prev_T_curr[:3, :3]), t / (1.0 + slip.mean))
+        # translation sigma along the drive, expressed in the current body frame (GTSAM's)
+        along = dr.prev_T_curr[:3, :3].T @ t / (1.0 + slip.mean) * slip.sigma
+        covariance = dr.covariance.copy()
+        covariance[3:, 3:] += np.outer(along, along)
+        return Motion(corrected, covariance, "dead_reckoning", vo_inliers, vo_failure, odometry=dr)
     guess = last.prev_T_curr if last is not None else gtsam.Pose3()
     return Motion(guess, np.diag(_WIDE_SIGMAS**2), "constant_velocity", vo_inliers, vo_failure)

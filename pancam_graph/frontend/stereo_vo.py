@@ -39,7 +39,8 @@ class VoResult:
 
 class StereoVO:
     def __init__(self, rig: Rig, body_T_left: gtsam.Pose3, pixel_sigma: float, min_inliers: int = 12,
-                 ransac_px: float = 1.5, max_step_m: float = 5.0):
+                 ransac_px: float = 1.5, max_step_m: float = 5.0, pnp_iterations: int = 200,
+                 pnp_confidence: float = 0.999):
         self.rig = rig
         self.body_T_left = body_T_left
         self.left_T_body = body_T_left.inverse()
@@ -50,14 +51,17 @@ class StereoVO:
         self.min_inliers = min_inliers
         self.ransac_px = max(ransac_px, 4.0 * pixel_sigma)
         self.max_step_m = max_step_m
+        self.pnp_iterations = pnp_iterations
+        self.pnp_confidence = pnp_confidence
 
     @classmethod
     def for_traverse(cls, traverse: Traverse, estimator: EstimatorConfig | None = None) -> StereoVO:
         """The VO of a traverse's navigation stereo pair (pan 0, traverse tilt)."""
         est = estimator or EstimatorConfig()
         return cls(
-            traverse.rig, traverse.rig.body_T_left(0.0, traverse.traverse_tilt_rad), traverse.image_noise_px,
+            traverse.rig, traverse.body_T_nav(), traverse.image_noise_px,
             min_inliers=est.vo_min_inliers, ransac_px=est.vo_ransac_px, max_step_m=est.vo_max_step_m,
+            pnp_iterations=est.vo_pnp_iterations, pnp_confidence=est.vo_pnp_confidence,
         )
 
     def estimate(self, prev: StereoObservations, curr: StereoObservations) -> VoResult:
@@ -73,8 +77,8 @@ class StereoVO:
             return VoResult(False, None, None, matches, 0, "too few matches with positive disparity")
 
         found, rvec, tvec, inliers = cv2.solvePnPRansac(
-            p_prev, b[:, [0, 2]].copy(), self.K, None, iterationsCount=200,
-            reprojectionError=self.ransac_px, confidence=0.999, flags=cv2.SOLVEPNP_EPNP,
+            p_prev, b[:, [0, 2]].copy(), self.K, None, iterationsCount=self.pnp_iterations,
+            reprojectionError=self.ransac_px, confidence=self.pnp_confidence, flags=cv2.SOLVEPNP_EPNP,
         )
         if not found or inliers is None or len(inliers) < self.min_inliers:
             n = 0 if inliers is None else len(inliers)

@@ -20,7 +20,7 @@ def motion(i: int, j: int, prev_T_curr: gtsam.Pose3, covariance: np.ndarray) -> 
     return gtsam.BetweenFactorPose3(X(i), X(j), prev_T_curr, noise.pose_covariance(covariance))
 
 
-def landmark_anchor(stop: int, track: int, p_body: np.ndarray) -> gtsam.BearingRangeFactor3D:
+def landmark_anchor(stop: int, track: int, p_body: np.ndarray, sigma_m: float = 3.0) -> gtsam.BearingRangeFactor3D:
     """Weak bearing and range of landmark L(track) from the site X(stop) that first triangulated
     it, `p_body` in that site's body frame (see noise.landmark_anchor). Relative to the site, so
     it carries no information about where the site is."""
@@ -28,7 +28,8 @@ def landmark_anchor(stop: int, track: int, p_body: np.ndarray) -> gtsam.BearingR
     rng_m = float(np.linalg.norm(p_body))
     if not np.all(np.isfinite(p_body)) or rng_m <= 0.0:
         raise GraphError(f"landmark anchor of track {track} at stop {stop}: no usable triangulation")
-    return gtsam.BearingRangeFactor3D(X(stop), L(track), gtsam.Unit3(p_body), rng_m, noise.landmark_anchor(rng_m))
+    return gtsam.BearingRangeFactor3D(X(stop), L(track), gtsam.Unit3(p_body), rng_m,
+                                      noise.landmark_anchor(rng_m, sigma_m))
 
 
 def stereo(
@@ -57,8 +58,18 @@ def projection(
 
 
 def gps(stop: int, antenna_enu: np.ndarray, lever_arm_m: np.ndarray, model: gtsam.noiseModel.Base):
-    """An ENU antenna position (never latitude/longitude) with the body-frame lever arm."""
+    """An ENU antenna position (never latitude/longitude) with the body-frame lever arm, at stop X(stop)."""
+    return gps_at(X(stop), antenna_enu, lever_arm_m, model)
+
+
+def gps_at(pose_key: int, antenna_enu: np.ndarray, lever_arm_m: np.ndarray, model: gtsam.noiseModel.Base):
+    """An ENU antenna position with the body-frame lever arm, on any pose variable."""
     antenna_enu = np.asarray(antenna_enu, dtype=float)
     if not np.all(np.isfinite(antenna_enu)):
-        raise GraphError(f"non-finite GPS position at stop {stop}")
-    return gtsam.GPSFactorArm(X(stop), antenna_enu, np.asarray(lever_arm_m, dtype=float), model)
+        raise GraphError(f"non-finite GPS position for {gtsam.Symbol(pose_key).string()}")
+    return gtsam.GPSFactorArm(pose_key, antenna_enu, np.asarray(lever_arm_m, dtype=float), model)
+
+
+def between(key_a: int, key_b: int, a_T_b: gtsam.Pose3, covariance: np.ndarray) -> gtsam.BetweenFactorPose3:
+    """Relative body motion between any two pose variables."""
+    return gtsam.BetweenFactorPose3(key_a, key_b, a_T_b, noise.pose_covariance(covariance))

@@ -8,16 +8,17 @@ import numpy as np
 from ..errors import GraphError
 
 _KERNELS = {
-    "huber": lambda: gtsam.noiseModel.mEstimator.Huber.Create(1.345),
-    "cauchy": lambda: gtsam.noiseModel.mEstimator.Cauchy.Create(1.0),
+    "huber": gtsam.noiseModel.mEstimator.Huber.Create,
+    "cauchy": gtsam.noiseModel.mEstimator.Cauchy.Create,
 }
+_DEFAULT_K = {"huber": 1.345, "cauchy": 1.0}  # Huber: 95 % efficiency on Gaussian noise
 
 
-def robust(kind: str, base: gtsam.noiseModel.Base) -> gtsam.noiseModel.Base:
-    """Wrap `base` in an M-estimator ('huber', 'cauchy') or return it ('none')."""
+def robust(kind: str, base: gtsam.noiseModel.Base, k: float | None = None) -> gtsam.noiseModel.Base:
+    """Wrap `base` in an M-estimator ('huber', 'cauchy') with threshold `k` sigmas, or return it ('none')."""
     if kind == "none":
         return base
-    return gtsam.noiseModel.Robust.Create(_KERNELS[kind](), base)
+    return gtsam.noiseModel.Robust.Create(_KERNELS[kind](_DEFAULT_K[kind] if k is None else k), base)
 
 
 def stereo_pixels(sigma_px: float) -> gtsam.noiseModel.Base:

@@ -64,6 +64,9 @@ class Smoother:
     def pose(self, key: int) -> gtsam.Pose3:
         return self._current(key, gtsam.Values.atPose3, gtsam.ISAM2.calculateEstimatePose3)
 
+    def estimate_double(self, key: int) -> float:
+        return float(self._current(key, gtsam.Values.atDouble, gtsam.ISAM2.calculateEstimateDouble))
+
     def point(self, key: int) -> np.ndarray:
         return self._current(key, gtsam.Values.atPoint3, gtsam.ISAM2.calculateEstimatePoint3)
 

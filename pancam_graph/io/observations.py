@@ -6,12 +6,15 @@ A folder (documented in docs/observation_format.md):
     stereo.csv      stop,time_s,track,u_left,u_right,v        navigation stereo pair, rectified px
     panorama.csv    stop,site,pan_rad,tilt_rad,track,u_left,u_right,v   (optional) site panoramas
     hrc.csv         stop,pan_rad,tilt_rad,track,u,v                     (optional) HRC frames
-    gps.csv         stop,time_s,lat_deg,lon_deg,h_m,sigma_h_m,sigma_v_m (optional)
+    gps.csv         time_s,lat_deg,lon_deg,h_m,sigma_h_m,sigma_v_m      (optional) each used at its time
     odometry.csv    stop,r11..r33,tx,ty,tz,c00..c55 (upper triangle)    (optional) dead reckoning
     truth.kitti     (optional) reference pose of every stop, KITTI layout, for evaluation
+    truth_landmarks.csv  track,x_m,y_m,z_m (optional, with truth.kitti) true landmarks (ENU)
+    truth.toml      wheel_slip = ... (optional, with truth.kitti) the traverse's true slip
 
 Stops are numbered 0..N-1 and every stop has at least one row in stereo.csv (a stop that saw
-nothing has one row with empty track and pixel fields, so its time is still known). Numbers are
+nothing has one row with empty track and pixel fields, so its time is still known); an optional
+dwell_s column says how long the rover stood at the stop after its time. Numbers are
 written with repr(), so a folder written from a traverse reads back bit for bit.
 """
 
@@ -30,14 +33,24 @@ from pydantic import BaseModel, ConfigDict, Field
 from ..config import EstimatorConfig, OriginConfig, load_toml_model
 from ..errors import InputError
 from ..geodesy import LocalFrame
-from ..records import DeadReckoning, GpsFix, GroundTruth, HrcFrame, PanoramaFrame, StereoObservations, Stop, Traverse
+from ..records import (
+    DeadReckoning,
+    GpsFix,
+    GroundTruth,
+    HrcFrame,
+    PanoramaFrame,
+    SlipPrior,
+    StereoObservations,
+    Stop,
+    Traverse,
+)
 from ..rig import Rig, rig_preset
 
 MANIFEST = "traverse.toml"
 STEREO_COLUMNS = ["stop", "time_s", "track", "u_left", "u_right", "v"]
 PANORAMA_COLUMNS = ["stop", "site", "pan_rad", "tilt_rad", "track", "u_left", "u_right", "v"]
 HRC_COLUMNS = ["stop", "pan_rad", "tilt_rad", "track", "u", "v"]
-GPS_COLUMNS = ["stop", "time_s", "lat_deg", "lon_deg", "h_m", "sigma_h_m", "sigma_v_m"]
+GPS_COLUMNS = ["time_s", "lat_deg", "lon_deg", "h_m", "sigma_h_m", "sigma_v_m"]
 _UPPER = np.triu_indices(6)
 ODOMETRY_COLUMNS = (["stop"] + [f"r{i}{j}" for i in range(1, 4) for j in range(1, 4)] + ["tx", "ty", "tz"]
                     + [f"c{i}{j}" for i, j in zip(*_UPPER, strict=True)])
@@ -54,6 +67,9 @@ class RigSource(_Strict):
     calibration: str | None = Field(None, description="OpenCV YAML, Kalibr camchain or left camera_info")
     calibration_right: str | None = Field(None, description="right camera_info (with a camera_info left)")
     mast_height_m: float = Field(1.5, gt=0.0)
+    body_T_left: list[list[float]] | None = Field(
+        None, description="4x4: the navigation pair's left camera in the body frame, for a body-fixed pair "
+        "(default: on the mast at pan 0 and traverse_tilt_rad)")
 
 
 class Manifest(_Strict):
@@ -67,6 +83,8 @@ class Manifest(_Strict):
     start_world_T_body: list[list[float]] = Field(description="4x4, surveyed start pose in local ENU")
     start_sigmas: tuple[float, float, float, float, float, float] = Field(
         description="rotation rad x3, position m x3 (1 sigma)")
+    wheel_slip_mean: float = Field(0.0, description="expected odometry slip shared along the traverse")
+    wheel_slip_sigma: float = Field(0.05, gt=0.0, description="its uncertainty (1 sigma)")
     estimator: EstimatorConfig = EstimatorConfig()
 
 
@@ -90,11 +108,13 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
         name=traverse.name, seed=seed,
         origin=OriginConfig(lat_deg=traverse.origin.lat0_deg, lon_deg=traverse.origin.lon0_deg,
                             h_m=traverse.origin.h0_m),
-        rig=RigSource(preset=rig_preset_name or traverse.rig.name, mast_height_m=traverse.rig.mast_height_m),
+        rig=RigSource(preset=rig_preset_name or traverse.rig.name, mast_height_m=traverse.rig.mast_height_m,
+                      body_T_left=None if traverse.body_T_nav_left is None else traverse.body_T_nav_left.tolist()),
         image_noise_px=traverse.image_noise_px, traverse_tilt_rad=traverse.traverse_tilt_rad,
         gps_lever_arm_m=tuple(float(v) for v in traverse.gps_lever_arm_m),
         start_world_T_body=traverse.start_world_T_body.tolist(),
-        start_sigmas=tuple(float(v) for v in traverse.start_sigmas), estimator=estimator)
+        start_sigmas=tuple(float(v) for v in traverse.start_sigmas), wheel_slip_mean=traverse.wheel_slip.mean,
+        wheel_slip_sigma=traverse.wheel_slip.sigma, estimator=estimator)
     (folder / MANIFEST).write_text(tomli_w.dumps(manifest.model_dump(mode="json", exclude_none=True)),
                                    encoding="utf-8")
     def r(x) -> str:  # shortest text that reads back to the same float
@@ -103,31 +123,36 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
     stereo, panorama, hrc, gps, odometry = [], [], [], [], []
     for s in traverse.stops:
         obs = s.stereo
-        stereo += [(s.index, r(s.time_s), int(t), r(a), r(b), r(c)) for t, (a, b, c) in zip(obs.track_ids, obs.uvv,
-                                                                                          strict=True)]
+        stereo += [(s.index, r(s.time_s), r(s.dwell_s), int(t), r(a), r(b), r(c))
+                   for t, (a, b, c) in zip(obs.track_ids, obs.uvv, strict=True)]
         if not len(obs):
-            stereo.append((s.index, r(s.time_s), "", "", "", ""))
+            stereo.append((s.index, r(s.time_s), r(s.dwell_s), "", "", "", ""))
         for f in s.panorama:
             panorama += [(s.index, s.site_id, r(f.pan_rad), r(f.tilt_rad), int(t), r(a), r(b), r(c))
                          for t, (a, b, c) in zip(f.observations.track_ids, f.observations.uvv, strict=True)]
         for f in s.hrc:
             hrc += [(s.index, r(f.pan_rad), r(f.tilt_rad), int(t), r(u), r(v))
                     for t, (u, v) in zip(f.track_ids, f.uv, strict=True)]
-        if s.gps is not None:
-            g = s.gps
-            gps.append((s.index, r(g.time_s), r(g.lat_deg), r(g.lon_deg), r(g.h_m), r(g.sigma_horizontal_m),
-                        r(g.sigma_vertical_m)))
         if s.dead_reckoning is not None:
             m, cov = s.dead_reckoning.prev_T_curr, s.dead_reckoning.covariance
             odometry.append((s.index, *(r(v) for v in m[:3, :3].ravel()), *(r(v) for v in m[:3, 3]),
                              *(r(v) for v in cov[_UPPER])))
-    _write_csv(folder / "stereo.csv", STEREO_COLUMNS, stereo)
+    gps = [(r(g.time_s), r(g.lat_deg), r(g.lon_deg), r(g.h_m), r(g.sigma_horizontal_m), r(g.sigma_vertical_m))
+           for g in traverse.gps_fixes]
+    _write_csv(folder / "stereo.csv", STEREO_COLUMNS[:2] + ["dwell_s"] + STEREO_COLUMNS[2:], stereo)
     for name, columns, rows in (("panorama.csv", PANORAMA_COLUMNS, panorama), ("hrc.csv", HRC_COLUMNS, hrc),
                                 ("gps.csv", GPS_COLUMNS, gps), ("odometry.csv", ODOMETRY_COLUMNS, odometry)):
         if rows:
             _write_csv(folder / name, columns, rows)
     if truth is not None:
         np.savetxt(folder / "truth.kitti", truth.world_T_body[:, :3, :].reshape(-1, 12), fmt="%.17g")
+        # what the bound (CRLB) of a configuration with landmarks or a slip variable needs
+        seen = sorted({int(t) for s in traverse.stops for f in s.panorama for t in f.observations.track_ids})
+        seen = [t for t in seen if t < len(truth.landmarks)]
+        _write_csv(folder / "truth_landmarks.csv", ["track", "x_m", "y_m", "z_m"],
+                   [(t, *(r(v) for v in truth.landmarks[t])) for t in seen])
+        if truth.wheel_slip is not None:
+            (folder / "truth.toml").write_text(tomli_w.dumps({"wheel_slip": truth.wheel_slip}), encoding="utf-8")
 
 
 def _write_csv(path: Path, header: list[str], rows: list) -> None:
@@ -148,24 +173,33 @@ def read_observations(folder: Path) -> ObservationSet:
     folder = Path(folder)
     manifest = _manifest(folder / MANIFEST)
     rig = _rig(folder, manifest.rig)
-    times, stereo = _read_stereo(folder / "stereo.csv")
+    times, dwells, stereo = _read_stereo(folder / "stereo.csv")
     n = len(times)
     panoramas, sites = _read_panorama(folder / "panorama.csv", n)
     hrc = _read_hrc(folder / "hrc.csv", n)
-    gps = _read_gps(folder / "gps.csv", n)
+    gps = _read_gps(folder / "gps.csv")
     odometry = _read_odometry(folder / "odometry.csv", n)
-    stops = tuple(Stop(k, times[k], stereo[k], sites.get(k), panoramas.get(k, ()), hrc.get(k, ()), gps.get(k),
-                       odometry.get(k)) for k in range(n))
+    stops = tuple(Stop(k, times[k], stereo[k], sites.get(k), panoramas.get(k, ()), hrc.get(k, ()), odometry.get(k),
+                       dwells[k]) for k in range(n))
     o = manifest.origin
     start = np.array(manifest.start_world_T_body, dtype=float)
     if start.shape != (4, 4):
         raise InputError(f"{folder / MANIFEST}: field 'start_world_T_body': expected 4x4, got {start.shape}")
+    body_T_left = None
+    if manifest.rig.body_T_left is not None:
+        body_T_left = np.array(manifest.rig.body_T_left, dtype=float)
+        if body_T_left.shape != (4, 4) or not np.allclose(body_T_left[:3, :3] @ body_T_left[:3, :3].T, np.eye(3),
+                                                           atol=1e-6):
+            raise InputError(f"{folder / MANIFEST}: [rig] body_T_left: expected a 4x4 rigid transform")
     traverse = Traverse(manifest.name, rig, LocalFrame(o.lat_deg, o.lon_deg, o.h_m), stops,
                         manifest.traverse_tilt_rad, manifest.image_noise_px,
-                        np.array(manifest.gps_lever_arm_m, dtype=float), start, np.array(manifest.start_sigmas))
+                        np.array(manifest.gps_lever_arm_m, dtype=float), start, np.array(manifest.start_sigmas),
+                        gps_fixes=gps, wheel_slip=SlipPrior(manifest.wheel_slip_mean, manifest.wheel_slip_sigma),
+                        body_T_nav_left=body_T_left)
     truth = None
     if (folder / "truth.kitti").is_file():
-        truth = GroundTruth(_read_truth(folder / "truth.kitti", n), np.zeros((0, 3)))
+        landmarks = _read_truth_landmarks(folder / "truth_landmarks.csv")
+        truth = GroundTruth(_read_truth(folder / "truth.kitti", n), landmarks, _read_truth_slip(folder / "truth.toml"))
     return ObservationSet(traverse, truth, manifest.estimator, manifest.seed, folder)
 
 
@@ -191,7 +225,7 @@ def _rig(folder: Path, source: RigSource) -> Rig:
 class _Table:
     """Rows of a CSV file with required columns; every bad value names file, line and column."""
 
-    def __init__(self, path: Path, columns: list[str]):
+    def __init__(self, path: Path, columns: list[str], optional: list[str] = ()):
         self.path = path
         try:
             f = path.open(encoding="utf-8", newline="")
@@ -205,6 +239,7 @@ class _Table:
                 raise InputError(f"{path}: line 1: missing column(s) {', '.join(missing)} "
                                  f"(expected {','.join(columns)})")
             self.index = [header.index(c) for c in columns]
+            self.optional_index = {c: header.index(c) for c in optional if c in header}
             self.columns = columns
             self.rows = [(line, row) for line, row in enumerate(reader, start=2) if row]
 
@@ -223,6 +258,12 @@ class _Table:
             raise InputError(f"{self.path}: line {line}: column '{column}' is not finite")
         return value
 
+    def optional_number(self, line: int, row: list[str], column: str, default: float) -> float:
+        i = self.optional_index.get(column)
+        if i is None or i >= len(row) or row[i] == "":
+            return default
+        return self.number(line, column, row[i])
+
     def stops_and_numbers(self, n: int) -> Iterator[tuple[int, int, list[float]]]:
         """(line, stop, numbers) of a table whose first column is a stop and the rest are numbers."""
         for line, row in self.rows:
@@ -237,9 +278,10 @@ class _Table:
         return k
 
 
-def _read_stereo(path: Path) -> tuple[list[float], list[StereoObservations]]:
-    table = _Table(path, STEREO_COLUMNS)
+def _read_stereo(path: Path) -> tuple[list[float], list[float], list[StereoObservations]]:
+    table = _Table(path, STEREO_COLUMNS, optional=["dwell_s"])
     times: dict[int, float] = {}
+    dwells: dict[int, float] = {}
     rows: dict[int, list] = defaultdict(list)
     for line, row in table.rows:
         stop, time_s, track, ul, ur, v = table.values(line, row)
@@ -247,6 +289,9 @@ def _read_stereo(path: Path) -> tuple[list[float], list[StereoObservations]]:
         t = table.number(line, "time_s", time_s)
         if times.setdefault(k, t) != t:
             raise InputError(f"{path}: line {line}: stop {k} has time {t}, earlier rows say {times[k]}")
+        dwell = table.optional_number(line, row, "dwell_s", 0.0)
+        if dwell < 0 or dwells.setdefault(k, dwell) != dwell:
+            raise InputError(f"{path}: line {line}: stop {k}: dwell_s must be >= 0 and the same on every row")
         if track == "" and ul == "" and ur == "" and v == "":
             continue
         rows[k].append((table.number(line, "track", track, integer=True), table.number(line, "u_left", ul),
@@ -265,7 +310,12 @@ def _read_stereo(path: Path) -> tuple[list[float], list[StereoObservations]]:
             seen.add(track)
         uvv = np.array([r[1:4] for r in rows[k]], dtype=float).reshape(-1, 3)
         observations.append(StereoObservations(tracks, uvv))
-    return [times[k] for k in range(n)], observations
+    ordered = [times[k] for k in range(n)]
+    if any(b < a + dwells[k] for k, (a, b) in enumerate(zip(ordered[:-1], ordered[1:], strict=True))):
+        k = next(k for k in range(n - 1) if ordered[k + 1] < ordered[k] + dwells[k])
+        raise InputError(f"{path}: stop {k + 1} (t = {ordered[k + 1]} s) comes before stop {k} ends "
+                         f"(t = {ordered[k]} s + dwell {dwells[k]} s): stop times must increase")
+    return ordered, [dwells[k] for k in range(n)], observations
 
 
 def _read_frames(table: _Table, n: int, measured: list[str]) -> dict[int, dict[tuple[float, float], tuple]]:
@@ -306,15 +356,22 @@ def _read_hrc(path: Path, n: int) -> dict[int, tuple[HrcFrame, ...]]:
             for k, by_frame in frames.items()}
 
 
-def _read_gps(path: Path, n: int) -> dict[int, GpsFix]:
+def _read_gps(path: Path) -> tuple[GpsFix, ...]:
+    """Fixes in time order (times must increase); a `stop` column of older folders is ignored:
+    each fix is used at its own time."""
     if not path.is_file():
-        return {}
-    fixes = {}
-    for line, k, (t, lat, lon, h, sh, sv) in _Table(path, GPS_COLUMNS).stops_and_numbers(n):
+        return ()
+    table = _Table(path, GPS_COLUMNS)
+    fixes = []
+    for line, row in table.rows:
+        t, lat, lon, h, sh, sv = (table.number(line, c, v) for c, v in zip(GPS_COLUMNS, table.values(line, row),
+                                                                            strict=True))
         if not (-90 <= lat <= 90 and -180 <= lon <= 360) or sh <= 0 or sv <= 0:
             raise InputError(f"{path}: line {line}: latitude/longitude out of range or sigma not positive")
-        fixes[k] = GpsFix(t, lat, lon, h, sh, sv)
-    return fixes
+        if fixes and t <= fixes[-1].time_s:
+            raise InputError(f"{path}: line {line}: time_s {t} does not increase (previous fix {fixes[-1].time_s})")
+        fixes.append(GpsFix(t, lat, lon, h, sh, sv))
+    return tuple(fixes)
 
 
 def _read_odometry(path: Path, n: int) -> dict[int, DeadReckoning]:
@@ -333,6 +390,41 @@ def _read_odometry(path: Path, n: int) -> dict[int, DeadReckoning]:
             raise InputError(f"{path}: line {line}: covariance c00..c55 is not positive definite")
         increments[k] = DeadReckoning(pose, cov)
     return increments
+
+
+_MAX_TRACK = 10_000_000  # true landmarks are stored densely by track id
+
+
+def _read_truth_landmarks(path: Path) -> np.ndarray:
+    """(M, 3) indexed by track id; NaN for tracks without a true position."""
+    if not path.is_file():
+        return np.zeros((0, 3))
+    table = _Table(path, ["track", "x_m", "y_m", "z_m"])
+    rows = []
+    for line, row in table.rows:
+        track, x, y, z = table.values(line, row)
+        t = int(table.number(line, "track", track, integer=True))
+        if not 0 <= t < _MAX_TRACK:
+            raise InputError(f"{path}: line {line}: track {t} outside 0..{_MAX_TRACK - 1}")
+        rows.append((t, table.number(line, "x_m", x), table.number(line, "y_m", y), table.number(line, "z_m", z)))
+    points = np.full((max((r[0] for r in rows), default=-1) + 1, 3), np.nan)
+    for t, *p in rows:
+        points[t] = p
+    return points
+
+
+def _read_truth_slip(path: Path) -> float | None:
+    if not path.is_file():
+        return None
+    import tomllib
+
+    try:
+        value = tomllib.loads(path.read_text(encoding="utf-8")).get("wheel_slip")
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not valid TOML: {exc}") from None
+    if not isinstance(value, int | float) or not np.isfinite(value):
+        raise InputError(f"{path}: field 'wheel_slip': expected a finite number, got {value!r}")
+    return float(value)
 
 
 def _read_truth(path: Path, n: int) -> np.ndarray:

@@ -17,11 +17,11 @@ import numpy as np
 
 from ..errors import InputError, ResultsError
 from ..geodesy import LocalFrame
+from ..results import metrics_document, reproduce_command, run_configuration
+from ..rig import Camera, Rig
 
 if TYPE_CHECKING:
-    from ..fusion import FusionResult
-    from ..pipeline import RunResult
-    from ..recorded import RecordedDrive
+    from ..results import RunResult
 
 
 @contextlib.contextmanager
@@ -95,29 +95,34 @@ def write_csv(path: Path, header: list[str], rows) -> None:
 
 # -- a run's results folder -----------------------------------------------------------------
 
-STEP_COLUMNS = ["config", "stop", "update_ms", "relinearized", "new_landmarks", "rejected_ties",
-                "gps_mahalanobis2", "gps_outlier"]
+STEP_COLUMNS = ["config", "stop", "update_ms", "relinearized", "new_landmarks", "rejected_ties", "gps_fixes",
+                "gps_outliers", "gps_mahalanobis2"]
+GPS_COLUMNS = ["time_s", "lat_deg", "lon_deg", "h_m", "sigma_h_m", "sigma_v_m", "used_in_graph"]  # h: ellipsoidal
+RUN_FILE = "run.toml"  # the complete resolved configuration of the run
 COVARIANCE_COLUMNS = ["stop", "cxx", "cxy", "cxz", "cyy", "cyz", "czz"]
 _UPPER = ([0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2])
 
 
 def write_run(result: RunResult, folder: Path) -> None:
     """Everything a run computed, as plain files (see the README's "Outputs")."""
+    import tomli_w
+
     from ..config import dump_scenario
-    from ..pipeline import metrics_document
 
     stops = result.traverse.stops
     times = np.array([s.time_s for s in stops])
+    (folder / RUN_FILE).write_text(tomli_w.dumps(run_configuration(result)), encoding="utf-8")
     if result.scenario is not None:
         (folder / "scenario.toml").write_text(dump_scenario(result.scenario), encoding="utf-8")
     write_json(folder / "metrics.json", metrics_document(result))
     if result.truth is not None:
         write_tum(folder / "truth.tum", times, result.truth.world_T_body)
         np.save(folder / "truth_landmarks.npy", result.truth.landmarks.astype(np.float32))
-    write_csv(folder / "gps_fixes.csv",
-              ["stop", "time_s", "lat_deg", "lon_deg", "h_ellipsoidal_m", "sigma_h_m", "sigma_v_m"],
-              [(s.index, s.time_s, f"{s.gps.lat_deg:.9f}", f"{s.gps.lon_deg:.9f}", f"{s.gps.h_m:.4f}",
-                s.gps.sigma_horizontal_m, s.gps.sigma_vertical_m) for s in stops if s.gps is not None])
+    fixes = sorted([(f, 1) for f in result.traverse.gps_fixes] + [(f, 0) for f in result.held_out_fixes],
+                   key=lambda fu: fu[0].time_s)
+    write_csv(folder / "gps_fixes.csv", GPS_COLUMNS,
+              [(f"{f.time_s:.6f}", f"{f.lat_deg:.10f}", f"{f.lon_deg:.10f}", f"{f.h_m:.4f}", f.sigma_horizontal_m,
+                f.sigma_vertical_m, used) for f, used in fixes])
     write_csv(folder / "motions.csv", ["stop", "source", "vo_inliers", "vo_failure", "translation_m"],
               [(k, m.source, m.vo_inliers, m.vo_failure, f"{np.linalg.norm(m.prev_T_curr.translation()):.6f}")
                for k, m in enumerate(result.motions) if m is not None])
@@ -137,35 +142,17 @@ def write_run(result: RunResult, folder: Path) -> None:
         write_csv(folder / f"landmarks_{name}.csv", ["track", "x_m", "y_m", "z_m", "site_stops"],
                   [(int(t), *(f"{v:.6f}" for v in p), " ".join(map(str, sites_of.get(int(t), []))))
                    for t, p in zip(c.landmark_ids, c.landmark_positions, strict=True)])
-        rows += [(name, s.stop, f"{s.update_ms:.4f}", s.relinearized, s.new_landmarks, s.rejected_ties,
-                  "" if s.gps_mahalanobis2 is None else f"{s.gps_mahalanobis2:.4f}", int(s.gps_outlier))
+        rows += [(name, s.stop, f"{s.update_ms:.4f}", s.relinearized, s.new_landmarks, s.rejected_ties, s.gps_fixes,
+                  s.gps_outliers, "" if s.gps_mahalanobis2 is None else f"{s.gps_mahalanobis2:.4f}")
                  for s in c.steps]
     write_csv(folder / "steps.csv", STEP_COLUMNS, rows)
     write_json(folder / LOCAL_FRAME_FILE, local_frame_dict(result.traverse.origin))
+    (folder / "reproduce.sh").write_text(f"#!/bin/sh\n# reproduces this run\n{reproduce_command(result)}\n",
+                                         encoding="utf-8")
     from .export import write_trajectory_exports  # export builds on this module's CSV writer
 
     for name, c in result.configurations.items():
         write_trajectory_exports(folder, f"trajectory_{name}", result.traverse.origin, times, c.world_T_body)
-
-
-def write_fusion_run(drive: RecordedDrive, result: FusionResult, document: dict, folder: Path) -> None:
-    """A recorded drive's results: metrics, both tracks as TUM plus GIS/KITTI exports, the fixes."""
-    from .export import write_trajectory_exports
-
-    write_json(folder / "metrics.json", document)
-    write_json(folder / LOCAL_FRAME_FILE, local_frame_dict(result.origin))
-    tracks = {"odometry_gps": result.world_T_body, "odometry": result.odometry_world_T_body}
-    for name, poses in tracks.items():
-        write_tum(folder / f"trajectory_{name}.tum", result.times_s, poses)
-        write_trajectory_exports(folder, f"trajectory_{name}", result.origin, result.times_s, poses)
-    if drive.reference_world_T_body is not None:
-        write_tum(folder / "reference.tum", drive.odometry.times_s, drive.reference_world_T_body(result.origin))
-    llh = result.origin.to_geodetic(result.gps_enu)
-    write_csv(folder / "gps_fixes.csv", ["time_s", "lat_deg", "lon_deg", "h_m", "sigma_h_m", "used_in_graph"],
-              [(f"{t:.6f}", f"{p[0]:.10f}", f"{p[1]:.10f}", f"{p[2]:.4f}", f"{s:.4f}", int(u))
-               for t, p, s, u in zip(result.times_s, llh, result.sigma_horizontal_m, result.used, strict=True)])
-    if drive.rejected_fixes:
-        (folder / "rejected_fixes.txt").write_text("\n".join(drive.rejected_fixes) + "\n", encoding="utf-8")
 
 
 @dataclass(frozen=True)
@@ -175,8 +162,8 @@ class SavedConfiguration:
     position_covariance: np.ndarray  # (N, 3, 3)
     update_ms: np.ndarray  # (N,)
     relinearized: np.ndarray  # (N,)
-    gps_outlier: np.ndarray  # (N,) bool
-    gps_used: np.ndarray  # (N,) bool
+    gps_outliers: np.ndarray  # (N,) fixes flagged at each stop
+    gps_fixes: np.ndarray  # (N,) fixes used at each stop
     landmark_ids: np.ndarray  # (M,)
     landmark_positions: np.ndarray  # (M, 3)
     tie_links: list[tuple[int, int]]
@@ -187,7 +174,11 @@ class SavedRun:
     """A results folder read back (what `pancam-graph view` replays)."""
 
     folder: Path
-    scenario: object  # config.Scenario
+    name: str
+    rig: Rig
+    body_T_nav: np.ndarray  # 4x4, the navigation pair's left camera in the body frame
+    origin: LocalFrame
+    run: dict  # run.toml
     metrics: dict
     stops: np.ndarray  # (N,)
     times_s: np.ndarray  # (N,)
@@ -197,18 +188,31 @@ class SavedRun:
     motion_translation_m: np.ndarray  # (N,), 0 at the first stop
     vo_inliers: np.ndarray  # (N,), -1 where there is no motion
     bridged: list[tuple[int, str, str]]  # (stop, source, VO failure)
-    gps_stops: np.ndarray
+    gps_times_s: np.ndarray  # (G,)
     gps_lat_lon_h: np.ndarray  # (G, 3)
+    gps_used: np.ndarray  # (G,) bool: in the graph (else held out)
+    departures_s: np.ndarray  # (N,) each stop's time plus its dwell
     panoramas: list[tuple[int, int, str, float, float]]  # (stop, site id, camera, pan deg, tilt deg)
 
 
 def read_run(folder: Path) -> SavedRun:
-    from ..config import load_scenario
+    import tomllib
 
     folder = Path(folder)
     if not folder.is_dir():
         raise ResultsError(f"{folder}: not a results folder (no such directory)")
-    scenario = load_scenario(_need(folder / "scenario.toml"))
+    try:
+        run = tomllib.loads(_need(folder / RUN_FILE).read_text(encoding="utf-8"))
+        r = run["rig"]
+        camera = Camera(r["fx"], r["fy"], r["cx"], r["cy"], int(r["width"]), int(r["height"]))
+        rig = Rig(r["name"], camera, float(r["baseline_m"]), float(r["mast_height_m"]))
+        body_T_nav = np.array(r["body_T_nav_left"], dtype=float).reshape(4, 4)
+        departures = np.array(run["stops"]["departure_s"], dtype=float)
+    except (tomllib.TOMLDecodeError, KeyError, TypeError, ValueError, UnicodeDecodeError) as exc:
+        raise ResultsError(f"{folder / RUN_FILE}: not a run configuration written by pancam-graph ({exc})") from None
+    origin = read_local_frame(folder)
+    if origin is None:
+        raise ResultsError(f"{folder / LOCAL_FRAME_FILE}: missing from the results folder")
     try:
         metrics = json.loads(_need(folder / "metrics.json").read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
@@ -241,8 +245,8 @@ def read_run(folder: Path) -> SavedRun:
             position_covariance=cov,
             update_ms=np.array([r.number("update_ms") for r in mine]),
             relinearized=np.array([r.number("relinearized") for r in mine]),
-            gps_outlier=np.array([r["gps_outlier"] == "1" for r in mine]),
-            gps_used=np.array([r["gps_mahalanobis2"] != "" for r in mine]),
+            gps_outliers=np.array([int(r.number("gps_outliers")) for r in mine], dtype=int),
+            gps_fixes=np.array([int(r.number("gps_fixes")) for r in mine], dtype=int),
             landmark_ids=ids,
             landmark_positions=np.array([[r.number(c) for c in ("x_m", "y_m", "z_m")] for r in lm_rows]).reshape(-1, 3),
             tie_links=links,
@@ -257,17 +261,20 @@ def read_run(folder: Path) -> SavedRun:
         translation[k], inliers[k] = r.number("translation_m"), int(r.number("vo_inliers"))
         if r["source"] != "vo":
             bridged.append((k, r["source"], r["vo_failure"]))
-    gps = _read_csv(folder / "gps_fixes.csv", ["stop", "lat_deg", "lon_deg", "h_ellipsoidal_m"])
+    gps = _read_csv(folder / "gps_fixes.csv", GPS_COLUMNS)
     panoramas = [(int(r.number("stop")), int(r.number("site_id")), r["camera"], r.number("pan_deg"),
                   r.number("tilt_deg"))
                  for r in _read_csv(folder / "panoramas.csv", ["stop", "site_id", "camera", "pan_deg", "tilt_deg"])]
     return SavedRun(
-        folder=folder, scenario=scenario, metrics=metrics, stops=np.arange(n), times_s=times,
+        folder=folder, name=str(metrics.get("scenario", folder.name)), rig=rig, body_T_nav=body_T_nav,
+        origin=origin, run=run, metrics=metrics, stops=np.arange(n), times_s=times,
         truth_world_T_body=truth, truth_landmarks=truth_landmarks, configurations=configurations,
         motion_translation_m=translation, vo_inliers=inliers, bridged=bridged,
-        gps_stops=np.array([int(r.number("stop")) for r in gps], dtype=int),
-        gps_lat_lon_h=np.array([[r.number("lat_deg"), r.number("lon_deg"), r.number("h_ellipsoidal_m")]
+        gps_times_s=np.array([r.number("time_s") for r in gps]),
+        gps_lat_lon_h=np.array([[r.number("lat_deg"), r.number("lon_deg"), r.number("h_m")]
                                 for r in gps]).reshape(-1, 3),
+        gps_used=np.array([r["used_in_graph"] == "1" for r in gps], dtype=bool),
+        departures_s=departures,
         panoramas=panoramas,
     )
 

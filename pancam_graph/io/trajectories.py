@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import gtsam
@@ -10,26 +9,8 @@ import numpy as np
 
 from ..errors import InputError
 from ..geodesy import LocalFrame
+from ..records import Trajectory
 from .gps import read_gps_file
-
-
-@dataclass(frozen=True)
-class Trajectory:
-    """Positions in a local metric frame, with full poses and times when the file has them."""
-
-    source: str
-    positions: np.ndarray  # (N, 3)
-    times_s: np.ndarray | None = None  # (N,)
-    world_T_body: np.ndarray | None = None  # (N, 4, 4)
-    geodetic: np.ndarray | None = None  # (N, 3) lat, lon, h when read from a GPS log
-
-    def __len__(self) -> int:
-        return len(self.positions)
-
-    def subset(self, index: np.ndarray) -> Trajectory:
-        pick = lambda a: None if a is None else a[index]  # noqa: E731
-        return Trajectory(self.source, self.positions[index], pick(self.times_s), pick(self.world_T_body),
-                          pick(self.geodetic))
 
 
 def read_trajectory(path: Path, origin: LocalFrame | None = None, gps_sigma_m: float = 1.0) -> Trajectory:

@@ -7,12 +7,10 @@ import numpy as np
 
 from ..config import Scenario
 from ..geodesy import LocalFrame
-from ..records import GroundTruth, PanoramaFrame, Stop, Traverse
+from ..records import GroundTruth, PanoramaFrame, SlipPrior, Stop, Traverse
 from ..rig import rig_preset
 from .sensors import LandmarkField, dead_reckoning, gps_fix, observe_hrc, observe_stereo
 from .world import dense_path, landmark_field, rover_poses, site_stops, stop_distances
-
-_SITE_DWELL_S = 900.0  # a full panorama takes a while
 
 
 def _in_ranges(s: float, ranges: list[tuple[float, float]]) -> bool:
@@ -38,14 +36,20 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
     pans = np.deg2rad(np.arange(*scenario.sites.pan_range_deg, scenario.sites.pan_step_deg))
     site_range = (1.0, scenario.sites.max_range_m)
 
-    stops, time_s, site_id = [], 0.0, 0
+    # The traverse's wheel slip: one draw per traverse (terrain, load), from its own stream so
+    # that the rest of the simulation does not depend on it.
+    dr_cfg = scenario.dead_reckoning
+    traverse_slip = np.random.default_rng([seed, 1]).normal(dr_cfg.wheel_slip_mean, dr_cfg.wheel_slip_bias_sigma)
+    at_stops = scenario.gps.enabled and scenario.gps.rate_hz is None
+
+    stops, fixes, time_s, site_id = [], [], 0.0, 0
     for k, s in enumerate(stop_s):
         dr = None
         if k > 0:
             dt = (s - stop_s[k - 1]) / scenario.path.speed_mps + scenario.path.dwell_s
             time_s += dt
-            if scenario.dead_reckoning.enabled:
-                dr = dead_reckoning(poses[k - 1], poses[k], dt, scenario.dead_reckoning, rng)
+            if dr_cfg.enabled:
+                dr = dead_reckoning(poses[k - 1], poses[k], dt, dr_cfg, traverse_slip, rng)
         stereo = observe_stereo(field, poses[k], body_T_nav, rig, cam_cfg.vo_range_m, cam_cfg, rng)
         panorama, hrc, this_site = (), (), None
         if k in sites:
@@ -66,16 +70,14 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
                     observe_hrc(field, poses[k], float(p), hrc_tilt, rig, site_range, cam_cfg, rng)
                     for p in pans
                 )
-        gps = None
-        if (
-            scenario.gps.enabled
-            and k % scenario.gps.every_n_stops == 0
-            and not _in_ranges(s, scenario.gps.dropouts)
-        ):
-            gps = gps_fix(poses[k], time_s, scenario.gps, frame, rng)
-        stops.append(Stop(k, time_s, stereo, this_site, panorama, hrc, gps, dr))
+        if at_stops and k % scenario.gps.every_n_stops == 0 and not _in_ranges(s, scenario.gps.dropouts):
+            fixes.append(gps_fix(poses[k], time_s, scenario.gps, frame, rng))
+        dwell = scenario.path.dwell_s + (scenario.sites.dwell_s if k in sites else 0.0)
+        stops.append(Stop(k, time_s, stereo, this_site, panorama, hrc, dr, dwell_s=dwell))
         if k in sites:
-            time_s += _SITE_DWELL_S
+            time_s += scenario.sites.dwell_s
+    if scenario.gps.enabled and scenario.gps.rate_hz is not None:
+        fixes = _fixes_while_driving(scenario, path, stops, stop_s, frame, np.random.default_rng([seed, 2]))
 
     est = scenario.estimator
     start_sigmas = np.array([np.deg2rad(est.start_sigma_deg)] * 3 + [est.start_sigma_m] * 3)
@@ -94,5 +96,20 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
         gps_lever_arm_m=np.asarray(scenario.gps.lever_arm_m, dtype=float),
         start_world_T_body=surveyed_start,
         start_sigmas=start_sigmas,
+        gps_fixes=tuple(fixes),
+        wheel_slip=SlipPrior(dr_cfg.wheel_slip_mean, dr_cfg.wheel_slip_bias_sigma),
     )
-    return traverse, GroundTruth(world_T_body=poses, landmarks=field.points)
+    return traverse, GroundTruth(world_T_body=poses, landmarks=field.points, wheel_slip=float(traverse_slip))
+
+
+def _fixes_while_driving(scenario: Scenario, path, stops: list[Stop], stop_s: np.ndarray, frame: LocalFrame,
+                         rng: np.random.Generator) -> list:
+    """Fixes at the configured rate from the first stop to the last one's departure, wherever the
+    rover is then: standing at a stop or driving between two at constant speed."""
+    knots_t = np.ravel([[st.time_s, st.departure_s] for st in stops])
+    knots_s = np.repeat(stop_s, 2)
+    times = np.arange(0.0, knots_t[-1], 1.0 / scenario.gps.rate_hz)
+    distances = np.interp(times, knots_t, knots_s)
+    keep = np.array([not _in_ranges(d, scenario.gps.dropouts) for d in distances], dtype=bool)
+    poses = rover_poses(path, distances[keep])
+    return [gps_fix(pose, float(t), scenario.gps, frame, rng) for pose, t in zip(poses, times[keep], strict=True)]

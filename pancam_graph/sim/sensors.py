@@ -107,14 +107,14 @@ def gps_fix(
 
 def dead_reckoning(
     world_T_prev: np.ndarray, world_T_curr: np.ndarray, dt_s: float, cfg: DeadReckoningConfig,
-    rng: np.random.Generator,
+    traverse_slip: float, rng: np.random.Generator,
 ) -> DeadReckoning:
-    """Wheel odometry (distance scaled by slip) and IMU (heading increment with noise and gyro
-    drift, absolute roll/pitch from gravity) between two stops, with an honest covariance that
-    also covers the mean slip the estimator cannot know."""
+    """Wheel odometry (distance scaled by the traverse's slip plus step noise) and IMU (heading
+    increment with noise and gyro drift, absolute roll/pitch from gravity) between two stops, with
+    the covariance of this step's own noise; the shared slip is the traverse's SlipPrior."""
     true = gtsam.Pose3(world_T_prev).between(gtsam.Pose3(world_T_curr))
     distance = float(np.linalg.norm(true.translation()))
-    slip = rng.normal(cfg.wheel_slip_mean, cfg.wheel_slip_sigma)
+    slip = rng.normal(traverse_slip, cfg.wheel_slip_sigma)
     heading_sigma = np.hypot(np.deg2rad(cfg.heading_noise_deg), np.deg2rad(cfg.gyro_drift_deg_per_h) * dt_s / 3600)
     tilt_sigma = np.deg2rad(cfg.tilt_noise_deg) * np.sqrt(2.0)
     d_yaw = rng.normal(0.0, heading_sigma)
@@ -126,7 +126,7 @@ def dead_reckoning(
     direction = gtsam.Rot3.Rz(0.5 * d_yaw).rotate(direction)
     measured = gtsam.Pose3(rot, direction * distance * (1.0 + slip))
 
-    along = np.hypot(cfg.wheel_slip_mean, cfg.wheel_slip_sigma) * distance + 0.005
+    along = cfg.wheel_slip_sigma * distance + 0.005
     cross = heading_sigma * distance + 0.01 * distance + 0.005
     vertical = 0.02 * distance + 0.005
     # Translation sigmas are along/cross/vertical in the previous body frame; GTSAM wants them

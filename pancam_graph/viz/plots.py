@@ -13,10 +13,19 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ..evaluation.evaluate import Evaluation  # noqa: E402
-from ..pipeline import RunResult, gps_enu  # noqa: E402
+from ..pipeline import antenna_at_times, gps_enu  # noqa: E402
+from ..results import RunResult  # noqa: E402
 
-_COLOURS = {"dead_reckoning": "tab:purple", "vo": "tab:red", "vo_sites": "tab:orange", "vo_sites_hrc": "tab:green",
-            "full": "tab:blue"}
+_COLOURS = {"dead_reckoning": "tab:purple", "dead_reckoning_gps": "tab:brown", "vo": "tab:red",
+            "vo_sites": "tab:orange", "vo_sites_hrc": "tab:green", "full": "tab:blue"}
+
+
+def reference_positions(result: RunResult) -> tuple[np.ndarray, str]:
+    """The truth at each stop, or without one the last (richest) configuration's estimate."""
+    if result.truth is not None:
+        return result.truth.positions, "truth"
+    name = list(result.configurations)[-1]
+    return result.configurations[name].world_T_body[:, :3, 3], f"{name} estimate (no truth)"
 
 
 def plot_trajectories(result: RunResult, path: Path) -> None:
@@ -24,23 +33,28 @@ def plot_trajectories(result: RunResult, path: Path) -> None:
     _, gps = gps_enu(result.traverse)
     if len(gps):
         ax.scatter(gps[:, 0], gps[:, 1], s=3, c="0.6", label="GPS fixes", zorder=1)
-    truth = result.truth.positions
-    ax.plot(truth[:, 0], truth[:, 1], "k-", lw=2.0, label="truth", zorder=2)
+    _, held = gps_enu(result.traverse, result.held_out_fixes)
+    if len(held):
+        ax.scatter(held[:, 0], held[:, 1], s=6, marker="x", c="tab:red", label="held-out GPS fixes", zorder=1)
+    truth, _ = reference_positions(result)
+    if result.truth is not None:
+        ax.plot(truth[:, 0], truth[:, 1], "k-", lw=2.0, label="truth", zorder=2)
     for name, c in result.configurations.items():
         p = c.world_T_body[:, :3, 3]
-        ax.plot(p[:, 0], p[:, 1], "-", lw=1.2, color=_COLOURS.get(name), zorder=3,
-                label=f"{name} (closure {c.metrics.relative_closure_pct:.2f} %)")
+        score = (f"closure {c.metrics.relative_closure_pct:.2f} %" if c.metrics is not None else
+                 f"held-out RMS {c.holdout.rms_2d_m:.2f} m" if c.holdout is not None else "")
+        ax.plot(p[:, 0], p[:, 1], "-", lw=1.2, color=_COLOURS.get(name), zorder=3, label=f"{name} ({score})")
     sites = [s.index for s in result.traverse.stops if s.is_site]
     ax.plot(truth[sites, 0], truth[sites, 1], "k^", ms=5, label="sites (panoramas)", zorder=4)
     ax.plot(*truth[0, :2], "go", ms=8, label="start")
     ax.set_aspect("equal", adjustable="datalim")
-    _label(ax, "east (m)", "north (m)", f"{result.name}, seed {result.seed}: estimated vs true trajectory")
+    _label(ax, "east (m)", "north (m)", f"{result.name}, seed {result.seed}: estimated trajectories")
     _save(fig, path)
 
 
 def reference_distance(result: RunResult) -> np.ndarray:
-    """Distance travelled along the true trajectory at each stop (m)."""
-    return _accumulated(result.truth.positions)
+    """Distance travelled along the reference (see `reference_positions`) at each stop (m)."""
+    return _accumulated(reference_positions(result)[0])
 
 
 def _accumulated(positions: np.ndarray) -> np.ndarray:
@@ -56,6 +70,9 @@ def distance_scale(result: RunResult, name: str) -> float:
 
 
 def plot_error_vs_distance(result: RunResult, path: Path) -> None:
+    if result.truth is None:
+        _plot_gps_error(result, path)
+        return
     truth = result.truth.positions
     dist = reference_distance(result)
     fig, ax = plt.subplots(figsize=(9, 4.5), dpi=110)
@@ -74,11 +91,30 @@ def plot_error_vs_distance(result: RunResult, path: Path) -> None:
     _save(fig, path)
 
 
+def _plot_gps_error(result: RunResult, path: Path) -> None:
+    """Without truth: each configuration's antenna against the held-out fixes (or, with none held
+    out, against the fixes in the graph), horizontally."""
+    fixes = result.held_out_fixes or result.traverse.gps_fixes
+    what = "held-out GPS fixes" if result.held_out_fixes else "GPS fixes in the graph"
+    times, enu = gps_enu(result.traverse, fixes)
+    fig, ax = plt.subplots(figsize=(9, 4.5), dpi=110)
+    dist = _accumulated(enu)
+    for name, c in result.configurations.items():
+        antenna = antenna_at_times(result.traverse, c.world_T_body, times)
+        ax.plot(dist, np.linalg.norm(antenna[:, :2] - enu[:, :2], axis=1), color=_COLOURS.get(name), lw=1.0,
+                label=name)
+    sigma = np.array([f.sigma_horizontal_m for f in fixes])
+    ax.plot(dist, np.sqrt(2.0) * sigma, color="0.4", lw=0.8, ls=":", label="fixes' stated 2-D RMS")
+    _label(ax, "distance along the fixes (m)", f"horizontal distance to the {what} (m)",
+           f"position against the {what}")
+    _save(fig, path)
+
+
 def plot_distance_relation(result: RunResult, path: Path) -> None:
     """Estimated against reference travelled distance (seed Fig. 4.12) and their difference."""
     ref = reference_distance(result)
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.5), dpi=110)
-    left.plot(ref, ref, "k-", lw=2.0, label="reference (truth)")
+    left.plot(ref, ref, "k-", lw=2.0, label=f"reference ({reference_positions(result)[1]})")
     for name, c in result.configurations.items():
         est = _accumulated(c.world_T_body[:, :3, 3])
         label = f"{name} (scale {distance_scale(result, name):.4f})"
@@ -96,12 +132,14 @@ def plot_elevation_profile(result: RunResult, path: Path) -> None:
     """Height against reference travelled distance (seed Fig. 4.14)."""
     ref = reference_distance(result)
     fig, ax = plt.subplots(figsize=(9, 4.5), dpi=110)
-    idx, gps = gps_enu(result.traverse)
-    if len(idx):
+    times, gps = gps_enu(result.traverse)
+    if len(times):
         arm = result.traverse.gps_lever_arm_m[2]
-        ax.scatter(ref[idx], gps[:, 2] - arm, s=3, c="0.6", zorder=1,
+        at_fix = np.interp(times, [s.time_s for s in result.traverse.stops], ref)
+        ax.scatter(at_fix, gps[:, 2] - arm, s=3, c="0.6", zorder=1,
                    label=f"GPS fixes (antenna height - {arm:.2f} m lever arm)")
-    ax.plot(ref, result.truth.positions[:, 2], "k-", lw=2.0, label="truth", zorder=2)
+    if result.truth is not None:
+        ax.plot(ref, result.truth.positions[:, 2], "k-", lw=2.0, label="truth", zorder=2)
     for name, c in result.configurations.items():
         ax.plot(ref, c.world_T_body[:, 2, 3], color=_COLOURS.get(name), lw=1.2, label=name, zorder=3)
     _label(ax, "reference distance travelled (m)", "up (m, local ENU)", "elevation profile")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..pipeline import RunResult
+from ..results import RunResult, reproduce_command
 from . import plots
 
 FIGURES = (
@@ -34,40 +34,47 @@ def report_markdown(result: RunResult) -> str:
     tr = result.traverse
     stops = tr.stops
     length = plots.reference_distance(result)[-1]
+    where = "in this folder" if result.scenario is not None else ""
     lines = [
         f"# {result.name}, seed {result.seed}",
         "",
         f"{result.description}",
         "",
-        f"- rig: {tr.rig.name}; {len(stops)} stops over {length:.1f} m (reference); "
-        f"{sum(s.is_site for s in stops)} sites with panoramas; {sum(s.gps is not None for s in stops)} GPS fixes",
-        f"- reference: {'simulation ground truth' if result.scenario else 'truth.kitti of the observation folder'}; "
+        f"- rig: {tr.rig.name}; {len(stops)} stops over {length:.1f} m ({plots.reference_positions(result)[1]}); "
+        f"{sum(s.is_site for s in stops)} sites with panoramas; {len(tr.gps_fixes)} GPS fixes in the graph"
+        + (f", {len(result.held_out_fixes)} held out" if result.held_out_fixes else ""),
+        f"- source: {result.source.kind} `{result.source.path}`; reference: {result.source.reference}; "
         f"wall time {result.wall_s:.1f} s (VO {result.vo_s:.1f} s)",
-        f"- reproduce: `pancam-graph run scenario.toml --seed {result.seed}` in this folder" if result.scenario
-        else "- reproduce: `pancam-graph run OBSERVATION_FOLDER`",
+        *(f"- note: {note}" for note in result.source.notes),
+        f"- reproduce {where}: `{reproduce_command(result)}` (the whole configuration is in run.toml)",
         "",
         "## Metrics",
         "",
-        "| config | avg err m | closure m | rel. closure % | ATE m (alignment) | length ratio | distance scale "
-        "| KITTI drift % | bridged | landmarks | GPS used / outliers | avg err vs GPS m |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| config | kinds | avg err m | closure m | rel. closure % | ATE m (alignment) | length ratio "
+        "| distance scale | KITTI drift % | bridged | landmarks | GPS used / outliers | avg err vs GPS m "
+        "| RMS 2-D vs held-out m |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, c in result.configurations.items():
-        m, vs = c.metrics, c.metrics_vs_gps
-        drift = "-" if m.drift_translation_pct is None else f"{m.drift_translation_pct:.3f}"
-        scale = plots.distance_scale(result, name)
+        m, vs, held = c.metrics, c.metrics_vs_gps, c.holdout
+        cells = ["-"] * 7
+        if m is not None:
+            drift = "-" if m.drift_translation_pct is None else f"{m.drift_translation_pct:.3f}"
+            cells = [f"{m.average_error_m:.3f}", f"{m.closure_error_m:.3f}", f"{m.relative_closure_pct:.4f}",
+                     f"{m.ate_rmse_m:.3f} ({m.ate_alignment})", f"{m.length_ratio:.5f}",
+                     f"{plots.distance_scale(result, name):.5f}", drift]
         lines.append(
-            f"| {name} | {m.average_error_m:.3f} | {m.closure_error_m:.3f} | {m.relative_closure_pct:.4f} "
-            f"| {m.ate_rmse_m:.3f} ({m.ate_alignment}) | {m.length_ratio:.5f} | {scale:.5f} "
-            f"| {drift} | {c.bridged_stops} | {c.landmarks} | {c.gps_fixes_used} / {c.gps_outliers} "
-            f"| {'-' if vs is None else f'{vs.average_error_m:.2f}'} |"
+            f"| {name} | {'+'.join(c.kinds)} | {' | '.join(cells)} | {c.bridged_stops} | {c.landmarks} "
+            f"| {c.gps_fixes_used} / {c.gps_outliers} | {'-' if vs is None else f'{vs.average_error_m:.2f}'} "
+            f"| {'-' if held is None else f'{held.rms_2d_m:.3f} (stated {held.stated_drms_m:.3f})'} |"
         )
     lines += [
         "",
-        "Relative closure is the closure error over the reference length (DESIGN.md section 5); "
+        "Relative closure is the closure error over the reference length (docs/design.md section 5); "
         "ATE is the RMS position error after the stated alignment (none for configurations with GPS); "
         "distance scale is the least-squares slope of estimated against reference distance travelled; "
-        "a GPS outlier is a fix failing the 99 % chi-square test at the estimate after its update.",
+        "a GPS outlier is a fix failing the chi-square test at the estimate after its update; held-out fixes are "
+        "never in any graph.",
         "",
         "## Figures",
         "",

@@ -73,9 +73,12 @@ class RerunRecorder:
         self.primary = self.configs[-1]  # the richest configuration drives the rover and camera
         self.positions = {c: np.zeros((0, 3)) for c in self.configs}
         self.gps_outliers = dict.fromkeys(self.configs, 0)
-        self.gps_stops, self.gps_enu = gps_enu(traverse)  # fixes are inputs: converted once
-        self.gps_lat_lon = np.array([[traverse.stops[k].gps.lat_deg, traverse.stops[k].gps.lon_deg]
-                                     for k in self.gps_stops]).reshape(-1, 2)
+        self.gps_times, self.gps_enu = gps_enu(traverse)  # fixes are inputs: converted once
+        self.gps_lat_lon = np.array([[f.lat_deg, f.lon_deg] for f in traverse.gps_fixes]).reshape(-1, 2)
+        # each fix is updated with the stop whose drive (or dwell) it falls in
+        departures = np.array([s.departure_s for s in traverse.stops])
+        self.gps_stops = np.minimum(np.searchsorted(departures, self.gps_times - 1e-3, side="left"),
+                                    len(departures) - 1)
         self.last_stop = -1
         self.flagged: set[int] = set()  # stops whose fix the primary configuration flagged
         self.panoramas = np.zeros((0, 2, 3), dtype=np.float32)  # frustum segments of every site so far
@@ -85,7 +88,7 @@ class RerunRecorder:
         rig = traverse.rig
         self.rec.send_blueprint(scene.blueprint(self.configs, None if truth is None else truth.positions))
         self.rec.log("world/rover/left_cam/features", rr.Points2D.from_fields(radii=2.0), FEATURES, static=True)
-        scene.log_static(self.rec, self.configs, rig, rig.body_T_left(0.0, traverse.traverse_tilt_rad).matrix(),
+        scene.log_static(self.rec, self.configs, rig, traverse.body_T_nav().matrix(),
                          traverse.origin, None if truth is None else truth.positions,
                          None if truth is None else truth.landmarks)
 
@@ -106,11 +109,11 @@ class RerunRecorder:
             self.series.add(scene.series_path("isam2_update_ms", config), *when, step.update_ms)
             self.series.add(scene.series_path("relinearized", config), *when, step.relinearized)
             if step.gps_used:
-                self.gps_outliers[config] += step.gps_outlier
+                self.gps_outliers[config] += step.gps_outliers
                 self.series.add(scene.series_path("gps_outliers", config), *when, self.gps_outliers[config])
-                if step.gps_outlier:
+                if step.gps_outliers:
                     self.rec.log("events", rr.TextLog(
-                        f"stop {k}: {config} flags the GPS fix as an outlier "
+                        f"stop {k}: {config} flags {step.gps_outliers} GPS fix(es) as outliers "
                         f"(Mahalanobis^2 {step.gps_mahalanobis2:.1f})", level=rr.TextLogLevel.WARN))
                     if config == self.primary:
                         self.flagged.add(k)

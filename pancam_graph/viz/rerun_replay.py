@@ -10,22 +10,17 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-from ..geodesy import LocalFrame
 from ..io.results import SavedRun
-from ..rig import rig_preset
 from . import rerun_scene as scene
 
 
 def replay(run: SavedRun, rec: rr.RecordingStream) -> None:
-    sc = run.scenario
-    rig = rig_preset(sc.rig)
-    origin = LocalFrame(sc.origin.lat_deg, sc.origin.lon_deg, sc.origin.h_m)
+    rig, origin = run.rig, run.origin
     configs = list(run.configurations)
     primary = configs[-1]
-    tilt = np.deg2rad(sc.camera.traverse_tilt_deg)
     rec.send_blueprint(scene.blueprint(configs, run.configurations[primary].world_T_body[:, :3, 3]))
     truth = run.truth_world_T_body
-    scene.log_static(rec, configs, rig, rig.body_T_left(0.0, tilt).matrix(), origin,
+    scene.log_static(rec, configs, rig, run.body_T_nav, origin,
                      None if truth is None else truth[:, :3, 3], run.truth_landmarks)
 
     distance = np.cumsum(run.motion_translation_m)
@@ -45,11 +40,11 @@ def replay(run: SavedRun, rec: rr.RecordingStream) -> None:
                     np.linalg.norm(positions - truth[:, :3, 3], axis=1))
         _series(rec, scene.series_path("isam2_update_ms", name), columns, c.update_ms)
         _series(rec, scene.series_path("relinearized", name), columns, c.relinearized)
-        used = np.flatnonzero(c.gps_used)
+        used = np.flatnonzero(c.gps_fixes)
         if len(used):
             _series(rec, scene.series_path("gps_outliers", name),
                     scene.time_columns(run.stops[used], run.times_s[used], distance[used]),
-                    np.cumsum(c.gps_outlier[used]))
+                    np.cumsum(c.gps_outliers[used]))
         if len(c.landmark_ids):
             rgb = scene.colour(name)
             rec.log(scene.landmarks_path(name), rr.Points3D(c.landmark_positions, radii=0.12, colors=rgb), static=True)
@@ -66,9 +61,12 @@ def replay(run: SavedRun, rec: rr.RecordingStream) -> None:
     rec.send_columns("world/rover", indexes=columns,
                      columns=rr.Transform3D.columns(translation=main[:, :3, 3], mat3x3=main[:, :3, :3]))
     _log_sites(rec, run, rig, main)
-    if len(run.gps_stops):
-        flagged = run.configurations[primary].gps_outlier[run.gps_stops]
-        colours = [scene.OUTLIER_COLOUR if f else scene.GPS_COLOUR for f in flagged]
+    if len(run.gps_times_s):
+        # a fix is updated with the stop whose drive (or dwell) it falls in
+        stop_of = np.minimum(np.searchsorted(run.departures_s, run.gps_times_s - 1e-3, side="left"), n - 1)
+        flagged = (run.configurations[primary].gps_outliers[stop_of] > 0) & run.gps_used
+        colours = [scene.OUTLIER_COLOUR if f else scene.GPS_COLOUR if u else scene.HELD_OUT_COLOUR
+                   for f, u in zip(flagged, run.gps_used, strict=True)]
         enu = origin.to_enu(run.gps_lat_lon_h[:, 0], run.gps_lat_lon_h[:, 1], run.gps_lat_lon_h[:, 2])
         rec.log("world/gps", rr.Points3D(enu, radii=0.15, colors=colours), static=True)
         rec.log("map/gps", rr.GeoPoints(lat_lon=run.gps_lat_lon_h[:, :2], radii=rr.Radius.ui_points(3.0),

@@ -42,6 +42,7 @@ TRUTH_COLOUR = (235, 235, 235)
 TIE_ALPHA = 50  # tie links are many: faint, so the trajectories stay visible
 GPS_COLOUR = (150, 150, 150)
 OUTLIER_COLOUR = (230, 30, 30)
+HELD_OUT_COLOUR = (60, 120, 230)  # fixes kept out of the graph for scoring
 ELLIPSOID_SCALE_95 = float(np.sqrt(chi2.ppf(0.95, 3)))  # 95 % of a 3-D Gaussian
 FRUSTUM_DEPTH_M = 0.6
 SERIES = {  # entity under plots/ -> (title, per configuration)

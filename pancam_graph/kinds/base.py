@@ -1,0 +1,45 @@
+"""What a measurement kind is to the localizer: hooks around one stop's iSAM2 update.
+
+A kind owns its factor builder, its gate, its counters and the metrics it reports. The localizer
+calls, for every stop: `pose_times` (measurements between the previous stop and this one that
+need a pose of their own), `add` (this stop's factors, before the update), `after_update`; and
+`counters` once at the end.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, ClassVar
+
+from ..records import Stop, Traverse
+
+if TYPE_CHECKING:
+    from ..localizer import Localizer, StepCounts
+
+
+class Kind:
+    name: ClassVar[str]
+
+    def __init__(self, localizer: Localizer):
+        self.loc = localizer
+
+    @staticmethod
+    def unavailable(traverse: Traverse) -> str | None:
+        """Why this traverse cannot feed the kind, or None."""
+        return None
+
+    def pose_times(self, prev: Stop, stop: Stop) -> list[float]:
+        """Times strictly inside the drive from `prev` to `stop` at which this kind needs a pose."""
+        return []
+
+    def add(self, stop: Stop, counts: StepCounts) -> None:
+        """This stop's factors (before the stop's update)."""
+
+    def after_update(self, stop: Stop, counts: StepCounts) -> None:
+        """Checks against the updated estimate."""
+
+    def finish(self) -> None:
+        """The traverse is over: anything left to account for."""
+
+    def counters(self) -> dict[str, int | float | list[str]]:
+        """What this kind did over the whole traverse, for metrics.json."""
+        return {}

@@ -1,0 +1,106 @@
+"""GPS fixes, each at its own time: a fix taken while the rover stands at a stop constrains that
+stop's pose; a fix taken while driving constrains a pose inserted at the fix time, the motion
+between the two stops being split there by time (see `Localizer.step`). ENU from pyproj, the
+antenna lever arm, a robust kernel, and a chi-square test at the updated estimate."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.stats import chi2
+
+from ..graph import factors, noise
+from ..graph.keys import X
+from ..records import GpsFix, Stop, Traverse
+from .base import Kind
+
+TIME_TOLERANCE_S = 1e-3  # a fix this close to a stop's time is taken at the stop
+_REASONS_KEPT = 20
+
+
+class Gps(Kind):
+    name = "gps"
+
+    @staticmethod
+    def unavailable(traverse: Traverse) -> str | None:
+        return None if traverse.gps_fixes else "the traverse has no GPS fixes"
+
+    def __init__(self, localizer):
+        super().__init__(localizer)
+        est = localizer.estimator
+        self.gate = float(chi2.ppf(est.gps_outlier_probability, 3))
+        self.interpolate = est.gps_time_association == "interpolate"
+        self.max_gap_s = est.gps_max_gap_s
+        self.refused: list[str] = []
+        self.refused_count = 0
+        self._pending: list[tuple[int, GpsFix, np.ndarray]] = []  # this stop's (key, fix, ENU)
+        first = localizer.traverse.stops[0].time_s
+        for fix in localizer.traverse.gps_fixes:
+            if fix.time_s < first - TIME_TOLERANCE_S:
+                self._refuse(fix, f"before the first stop (t = {first:.3f} s): no motion estimate reaches it")
+
+    def _refuse(self, fix: GpsFix, reason: str) -> None:
+        self.refused_count += 1
+        if len(self.refused) < _REASONS_KEPT:
+            self.refused.append(f"fix at t = {fix.time_s:.3f} s: {reason}")
+
+    def _window(self, prev: Stop | None, stop: Stop) -> list[GpsFix]:
+        after = stop.time_s - TIME_TOLERANCE_S if prev is None else prev.departure_s
+        return self.loc.traverse.fixes_between(after, stop.departure_s)
+
+    def _drive_too_long(self, prev: Stop, stop: Stop) -> bool:
+        return stop.time_s - prev.departure_s > self.max_gap_s
+
+    def pose_times(self, prev: Stop, stop: Stop) -> list[float]:
+        if not self.interpolate or self._drive_too_long(prev, stop):
+            return []
+        return [f.time_s for f in self._window(prev, stop)
+                if prev.departure_s + TIME_TOLERANCE_S < f.time_s < stop.time_s - TIME_TOLERANCE_S]
+
+    def _key(self, prev: Stop | None, stop: Stop, fix: GpsFix) -> int | None:
+        """The pose the fix constrains, or None (refused)."""
+        t = fix.time_s
+        if prev is None or t >= stop.time_s - TIME_TOLERANCE_S:
+            return X(stop.index)  # at the stop, or while standing there
+        if t <= prev.departure_s + TIME_TOLERANCE_S:
+            return X(prev.index)
+        if not self.interpolate:  # nearest stop in time
+            return X(prev.index) if t - prev.departure_s < stop.time_s - t else X(stop.index)
+        if self._drive_too_long(prev, stop):
+            self._refuse(fix, f"inside a {stop.time_s - prev.departure_s:.0f} s drive between stops {prev.index} "
+                              f"and {stop.index}, longer than gps_max_gap_s = {self.max_gap_s:g} s")
+            return None
+        return self.loc.pose_key_at(t)
+
+    def add(self, stop: Stop, counts) -> None:
+        prev = self.loc.previous_stop
+        est = self.loc.estimator
+        lever = self.loc.traverse.gps_lever_arm_m
+        for fix in self._window(prev, stop):
+            key = self._key(prev, stop, fix)
+            if key is None:
+                continue
+            enu = self.loc.traverse.origin.to_enu(fix.lat_deg, fix.lon_deg, fix.h_m)[0]
+            k = est.huber_k if est.gps_kernel == "huber" else est.cauchy_k
+            model = noise.robust(est.gps_kernel, noise.gps_position(fix.sigma_horizontal_m, fix.sigma_vertical_m), k)
+            self.loc.smoother.add(factors.gps_at(key, enu, lever, model))
+            self._pending.append((key, fix, enu))
+
+    def after_update(self, stop: Stop, counts) -> None:
+        lever = self.loc.traverse.gps_lever_arm_m
+        for key, fix, enu in self._pending:
+            antenna = self.loc.smoother.pose(key).transformFrom(lever)
+            sigmas = np.array([fix.sigma_horizontal_m, fix.sigma_horizontal_m, fix.sigma_vertical_m])
+            d2 = float(np.sum(((antenna - enu) / sigmas) ** 2))
+            counts.gps_fixes += 1
+            counts.gps_outliers += d2 > self.gate
+            counts.gps_mahalanobis2 = max(d2, counts.gps_mahalanobis2 or 0.0)
+        self._pending.clear()
+
+    def finish(self) -> None:
+        last = self.loc.traverse.stops[-1]
+        for fix in self.loc.traverse.gps_fixes:
+            if fix.time_s > last.departure_s:
+                self._refuse(fix, f"after the last stop's departure (t = {last.departure_s:.3f} s)")
+
+    def counters(self) -> dict:
+        return {"gps_fixes_refused": self.refused_count, "gps_refusals": self.refused}

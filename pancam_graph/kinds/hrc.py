@@ -1,0 +1,58 @@
+"""High-resolution camera views of site landmarks: projection factors with the HRC calibration,
+each gated against the WAC landmark first (an HRC false match pulls harder than the WAC can
+resist: 7x the angular resolution)."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from ..graph import factors, noise
+from ..graph.keys import L
+from ..records import Stop, Traverse
+from .base import Kind
+from .sites import SiteObservations
+
+
+class Hrc(Kind):
+    name = "hrc"
+
+    @staticmethod
+    def unavailable(traverse: Traverse) -> str | None:
+        if traverse.rig.hrc is None:
+            return f"rig {traverse.rig.name!r} has no HRC"
+        return None if any(s.hrc for s in traverse.stops) else "the traverse has no HRC frames"
+
+    def __init__(self, localizer):
+        super().__init__(localizer)
+        self.rig = localizer.traverse.rig
+        self.calibration = self.rig.hrc.gtsam_calibration()
+        # HRC residuals start large (landmarks come from the WAC), so only a convex kernel keeps
+        # them pulling: Huber, whatever the tie-point kernel is.
+        self.noise = noise.robust("huber", noise.image_pixels(localizer.traverse.image_noise_px),
+                                  localizer.estimator.huber_k)
+        self.gate_px = localizer.estimator.hrc_gate_px
+        self.rejected = 0
+        localizer.kind("sites").hrc = self
+
+    def collect(self, stop: Stop, obs: SiteObservations) -> None:
+        for frame in stop.hrc:
+            mount = self.rig.body_T_hrc(frame.pan_rad, frame.tilt_rad)
+            for track, uv in zip(frame.track_ids, frame.uv, strict=True):
+                obs.hrc[int(track)].append((mount, uv))
+
+    def add_views(self, site: SiteObservations, track: int, world_T_body: gtsam.Pose3) -> None:
+        views = site.hrc.get(track, ())
+        if not views:
+            return
+        p_world = self.loc.smoother.point(L(track))
+        for mount, uv in views:
+            camera = gtsam.PinholeCameraCal3_S2(world_T_body.compose(mount), self.calibration)
+            p_cam = camera.pose().transformTo(p_world)
+            if p_cam[2] <= 0 or np.linalg.norm(camera.project(p_world) - uv) > self.gate_px:
+                self.rejected += 1
+                continue
+            self.loc.smoother.add(factors.projection(site.stop, track, uv, self.calibration, mount, self.noise))
+
+    def counters(self) -> dict:
+        return {"rejected_hrc_measurements": self.rejected}

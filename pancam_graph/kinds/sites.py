@@ -1,0 +1,175 @@
+"""Site panoramas: tie points seen from two or more sites become landmarks with stereo factors.
+
+A candidate tie (a track seen by this site and one of the last few) passes the Mahalanobis tie
+gate (graph/tie_gate.py) before it becomes a landmark; later sites' views of a landmark pass the
+same test against its first triangulation. Each new landmark is anchored by a weak
+bearing-range factor from the site that first triangulated it.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+
+from ..graph import factors, noise, tie_gate
+from ..graph.keys import L, X
+from ..graph.tie_gate import RelativePose, SitePoint
+from ..records import Stop, Traverse
+from .base import Kind
+
+
+@dataclass
+class SiteObservations:
+    """What one site saw: per track, its stereo and HRC measurements with their camera mounts."""
+
+    stop: int
+    stereo: dict[int, list[tuple[gtsam.Pose3, np.ndarray]]] = field(default_factory=lambda: defaultdict(list))
+    hrc: dict[int, list[tuple[gtsam.Pose3, np.ndarray]]] = field(default_factory=lambda: defaultdict(list))
+    points: dict[int, SitePoint | None] = field(default_factory=dict)  # per track, its body frame
+
+
+@dataclass(frozen=True)
+class LandmarkReference:
+    """The site that first triangulated a landmark and that triangulation (its body frame): what
+    later views of the landmark must agree with."""
+
+    stop: int
+    point: SitePoint
+
+
+class Sites(Kind):
+    name = "sites"
+
+    @staticmethod
+    def unavailable(traverse: Traverse) -> str | None:
+        return None if any(s.is_site for s in traverse.stops) else "the traverse has no site panoramas"
+
+    def __init__(self, localizer):
+        super().__init__(localizer)
+        est = localizer.estimator
+        self.rig = localizer.traverse.rig
+        self.sigma_px = localizer.traverse.image_noise_px
+        self.memory = est.site_memory
+        self.anchor_sigma_m = est.landmark_anchor_sigma_m
+        self.tie_points_per_site = est.tie_points_per_site
+        k = est.huber_k if est.tie_kernel == "huber" else est.cauchy_k
+        self.tie_noise = noise.robust(est.tie_kernel, noise.stereo_pixels(self.sigma_px), k)
+        self.stereo_calibration = self.rig.stereo_calibration()
+        self.sites: list[SiteObservations] = []
+        self.landmarks: set[int] = set()
+        self.landmark_sites: dict[int, list[int]] = defaultdict(list)  # track -> site stops seeing it
+        self.references: dict[int, LandmarkReference] = {}
+        self._relative_cache: dict[tuple[int, int], RelativePose] = {}  # these two: one site's step
+        self._site_poses: dict[int, gtsam.Pose3] = {}
+        self.rejected_ties = 0  # candidate tie points whose two sites disagree
+        self.rejected_tie_views = 0  # later sites' views of a landmark that disagree with it
+        self.hrc = None  # the HRC kind, when the configuration has it, adds its views of landmarks
+
+    def add(self, stop: Stop, counts) -> None:
+        if stop.is_site:
+            counts.new_landmarks, counts.rejected_ties = self._add_site(stop)
+
+    # -- one site ------------------------------------------------------------------------------
+
+    def _collect(self, stop: Stop) -> SiteObservations:
+        obs = SiteObservations(stop.index)
+        for frame in stop.panorama:
+            mount = self.rig.body_T_left(frame.pan_rad, frame.tilt_rad)
+            for track, uvv in zip(frame.observations.track_ids, frame.observations.uvv, strict=True):
+                obs.stereo[int(track)].append((mount, uvv))
+        if self.hrc is not None:
+            self.hrc.collect(stop, obs)
+        obs.points = tie_gate.site_points(obs.stereo, self.rig, self.sigma_px)
+        return obs
+
+    def site_pose(self, stop: int) -> gtsam.Pose3:
+        """A site's current pose estimate (cached for this site's step)."""
+        if stop not in self._site_poses:
+            self._site_poses[stop] = self.loc.smoother.pose(X(stop))
+        return self._site_poses[stop]
+
+    def _relative(self, a: int, b: int) -> RelativePose:
+        """Site pose b seen from site pose a, with its covariance (cached for this site's step)."""
+        if (a, b) not in self._relative_cache:
+            joint = self.loc.smoother.joint_marginal_covariance(X(a), X(b))
+            self._relative_cache[(a, b)] = RelativePose.from_joint(self.site_pose(a), self.site_pose(b), joint)
+        return self._relative_cache[(a, b)]
+
+    def _agrees(self, reference: LandmarkReference, stop: int, seen: SitePoint) -> bool:
+        d2 = tie_gate.disagreement2(reference.point, seen, self._relative(reference.stop, stop))
+        return d2 <= tie_gate.AGREEMENT_GATE
+
+    def _add_site(self, stop: Stop) -> tuple[int, int]:
+        current = self._collect(stop)
+        recent = self.sites[-self.memory:]
+        candidates: dict[int, SiteObservations] = {}
+        for earlier in recent:
+            for track in earlier.stereo.keys() & current.stereo.keys():
+                if track not in self.landmarks:
+                    candidates.setdefault(track, earlier)
+        tracks = sorted(candidates)
+        if len(tracks) > self.tie_points_per_site:
+            tracks = sorted(self.loc.rng.choice(tracks, self.tie_points_per_site, replace=False).tolist())
+
+        # The gate needs this site's pose in the Bayes tree (its relative covariance to the
+        # earlier sites); the motion factor alone puts it there.
+        self.loc.smoother.update(context=f"at stop {stop.index}, before its tie points")
+        self._relative_cache.clear()
+        self._site_poses.clear()
+        added = rejected = 0
+        for track in tracks:
+            earlier = candidates[track]
+            then, now = earlier.points[track], current.points[track]
+            if then is None or now is None:
+                rejected += 1
+                continue
+            reference = LandmarkReference(earlier.stop, then)
+            if not self._agrees(reference, current.stop, now):
+                rejected += 1
+                continue
+            self.loc.smoother.insert(L(track), self.site_pose(earlier.stop).transformFrom(then.p_body))
+            self.loc.smoother.add(factors.landmark_anchor(earlier.stop, track, then.p_body, self.anchor_sigma_m))
+            self.landmarks.add(track)
+            self.references[track] = reference
+            for site in recent:
+                self._add_observations(site, track, gated=site is not earlier)
+            self._add_observations(current, track, gated=False)
+            added += 1
+        # Landmarks already in the graph (tied earlier) seen again from here.
+        for track in sorted(current.stereo.keys() & (self.landmarks - set(tracks))):
+            self._add_observations(current, track, gated=True)
+
+        self.rejected_ties += rejected
+        self.sites.append(current)
+        # Only the last `memory` sites are searched for ties again: drop the older ones' views.
+        if len(self.sites) > self.memory:
+            self.sites = self.sites[-self.memory:]
+        return added, rejected
+
+    def _add_observations(self, site: SiteObservations, track: int, gated: bool) -> None:
+        """The site's stereo (and, with the HRC kind, HRC) measurements of a landmark. `gated`: the
+        stereo ones only if they agree with the landmark's reference triangulation."""
+        stereo = site.stereo.get(track, ())
+        if stereo and gated:
+            seen = site.points[track]
+            if seen is None or not self._agrees(self.references[track], site.stop, seen):
+                self.rejected_tie_views += 1
+                stereo = ()
+        for mount, uvv in stereo:
+            self.loc.smoother.add(factors.stereo(site.stop, track, uvv, self.stereo_calibration, mount,
+                                                 self.tie_noise))
+        if stereo:
+            self.landmark_sites[track].append(site.stop)
+        if self.hrc is not None:
+            self.hrc.add_views(site, track, self.site_pose(site.stop))
+
+    def tie_links(self) -> list[tuple[int, int]]:
+        """(track, site stop) for every landmark and every site whose panorama observed it."""
+        return [(track, stop) for track in sorted(self.landmark_sites) for stop in self.landmark_sites[track]]
+
+    def counters(self) -> dict:
+        return {"landmarks": len(self.landmarks), "rejected_tie_points": self.rejected_ties,
+                "rejected_tie_views": self.rejected_tie_views}

@@ -1,0 +1,234 @@
+"""The typed result of a run, owned below the run loop: what `pipeline` produces, what `io`
+writes and reads back, what plots, the report and rerun show."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .config import EstimatorConfig, Scenario
+from .evaluation.consistency import Consistency
+from .evaluation.metrics import TrajectoryMetrics
+from .frontend.motion import Motion
+from .localizer import InterpolatedPose, StepResult
+from .records import GpsFix, GroundTruth, Traverse
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How to run a traverse: which configurations (None: every one the traverse can feed),
+    the seed of a simulated scenario, batch polishing."""
+
+    seed: int | None = None
+    configs: tuple[str, ...] | None = None
+    batch: bool = False
+
+
+@dataclass(frozen=True)
+class SourceInfo:
+    """Where a traverse came from: the kind of source, the path or name given, what the reader
+    assumed, and the source's options (e.g. which fixes were held out)."""
+
+    kind: str  # scenario, observations, rosbag, kitti_raw
+    path: str
+    reference: str  # what the metrics compare against, in words
+    notes: tuple[str, ...] = ()
+    options: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class HoldoutScore:
+    """A configuration against GPS fixes kept out of every graph."""
+
+    fixes: int
+    rms_2d_m: float  # RMS horizontal distance of the estimate to the held-out fixes
+    stated_drms_m: float  # the fixes' own stated 2-D RMS: what a perfect track would score
+
+    def as_dict(self) -> dict:
+        return {"held_out_fixes": self.fixes, "rms_2d_m": self.rms_2d_m, "stated_drms_m": self.stated_drms_m,
+                "drms_ratio": self.rms_2d_m / self.stated_drms_m}
+
+
+@dataclass(frozen=True)
+class ConfigurationResult:
+    name: str
+    kinds: tuple[str, ...]
+    world_T_body: np.ndarray  # (N, 4, 4)
+    position_covariance: np.ndarray  # (N, 3, 3) world-frame marginal of each position, m^2 (iSAM2)
+    steps: list[StepResult]  # one per stop
+    landmark_ids: np.ndarray  # (M,)
+    landmark_positions: np.ndarray  # (M, 3) final landmark estimates, world
+    tie_links: list[tuple[int, int]]  # (track, site stop)
+    counters: dict  # what each kind did (kinds/*.counters)
+    interpolated: list[InterpolatedPose]
+    solver: str
+    metrics: TrajectoryMetrics | None  # against the reference; None without one
+    consistency: Consistency | None  # CRLB and NEES against truth; None without full truth
+    metrics_vs_gps: TrajectoryMetrics | None  # against the fixes in the graph
+    holdout: HoldoutScore | None = None  # against the held-out fixes
+
+    @property
+    def update_ms(self) -> np.ndarray:
+        """Wall time of each stop's iSAM2 update."""
+        return np.array([s.update_ms for s in self.steps])
+
+    @property
+    def landmarks(self) -> int:
+        return len(self.landmark_ids)
+
+    @property
+    def bridged_stops(self) -> int:
+        return int(self.counters.get("bridged_stops", 0))
+
+    @property
+    def gps_fixes_used(self) -> int:
+        return sum(s.gps_fixes for s in self.steps)
+
+    @property
+    def gps_outliers(self) -> int:
+        """Fixes failing the chi-square test at the estimate after their update."""
+        return sum(s.gps_outliers for s in self.steps)
+
+
+@dataclass(frozen=True)
+class RunResult:
+    source: SourceInfo
+    scenario: Scenario | None  # the simulated scenario, resolved; None for recorded sources
+    estimator: EstimatorConfig
+    options: RunOptions
+    seed: int
+    traverse: Traverse
+    truth: GroundTruth | None  # None when a recorded traverse comes without a reference
+    held_out_fixes: tuple[GpsFix, ...]
+    motions: list[Motion | None]
+    configurations: dict[str, ConfigurationResult]
+    skipped: dict[str, str]  # defined configurations the traverse cannot feed, with the reason
+    wall_s: float
+    vo_s: float
+
+    @property
+    def update_ms(self) -> np.ndarray:
+        return np.concatenate([c.update_ms for c in self.configurations.values()])
+
+    @property
+    def name(self) -> str:
+        return self.traverse.name
+
+    @property
+    def description(self) -> str:
+        if self.scenario is not None:
+            return self.scenario.description
+        return f"{self.source.kind} {self.source.path}"
+
+
+def percentiles(ms: np.ndarray) -> dict[str, float]:
+    if len(ms) == 0:
+        return {"median": 0.0, "p99": 0.0, "max": 0.0}
+    return {"median": float(np.median(ms)), "p99": float(np.percentile(ms, 99)), "max": float(ms.max())}
+
+
+def metrics_document(result: RunResult) -> dict:
+    """The content of metrics.json."""
+    vo_motions = [m for m in result.motions[1:] if m is not None]
+    configs = {}
+    for name, c in result.configurations.items():
+        entry: dict = {"kinds": list(c.kinds)}
+        entry.update(c.metrics.as_dict() if c.metrics is not None else {})
+        if c.consistency is not None:
+            entry.update(c.consistency.as_dict())
+        entry.update(
+            bridged_stops=c.bridged_stops,
+            landmarks=c.landmarks,
+            rejected_tie_points=int(c.counters.get("rejected_tie_points", 0)),
+            rejected_tie_views=int(c.counters.get("rejected_tie_views", 0)),
+            rejected_hrc_measurements=int(c.counters.get("rejected_hrc_measurements", 0)),
+            gps_fixes_used=c.gps_fixes_used,
+            gps_outliers=c.gps_outliers,
+            interpolated_poses=len(c.interpolated),
+            solver=c.solver,
+            isam2_update_ms=percentiles(c.update_ms),
+            vs_gps=c.metrics_vs_gps.as_dict() if c.metrics_vs_gps is not None else None,
+            vs_held_out_gps=c.holdout.as_dict() if c.holdout is not None else None,
+        )
+        for key, value in c.counters.items():
+            entry.setdefault(key, value)
+        configs[name] = entry
+    return {
+        "scenario": result.name,
+        "source": {"kind": result.source.kind, "path": result.source.path, "notes": list(result.source.notes),
+                   "options": result.source.options},
+        "seed": result.seed,
+        "rig": result.traverse.rig.name,
+        "stops": len(result.traverse.stops),
+        "sites": sum(s.is_site for s in result.traverse.stops),
+        "gps_fixes": len(result.traverse.gps_fixes),
+        "gps_fixes_held_out": len(result.held_out_fixes),
+        "reference": result.source.reference + " (configs.*), GPS fixes in the graph (configs.*.vs_gps)"
+                     + (", held-out GPS fixes (configs.*.vs_held_out_gps)" if result.held_out_fixes else ""),
+        "vo": {
+            "stops_bridged": sum(m.bridged for m in vo_motions),
+            "bridge_sources": sorted({m.source for m in vo_motions if m.bridged}),
+            "median_inliers": float(np.median([m.vo_inliers for m in vo_motions])) if vo_motions else 0.0,
+        },
+        "configs": configs,
+        "skipped_configs": result.skipped,
+        "timing": {
+            "isam2_update_ms": percentiles(result.update_ms),
+            "vo_s": result.vo_s,
+            "wall_s": result.wall_s,
+        },
+    }
+
+
+def reproduce_command(result: RunResult) -> str:
+    """The command line that reproduces this run (for a scenario: from the results folder, whose
+    scenario.toml holds the resolved scenario, seed included)."""
+    parts = ["pancam-graph", "run"]
+    if result.scenario is not None:
+        parts += ["scenario.toml", "--seed", str(result.seed)]
+    else:
+        parts.append(result.source.path)
+        flags = {"gps_topic": "--gps-topic", "odom_topic": "--odom-topic", "holdout_every": "--holdout-every",
+                 "geoid_height_m": "--geoid-height"}
+        for key, value in result.source.options.items():
+            if value is not None and key in flags:
+                parts += [flags[key], str(value)]
+    parts += ["--configs", ",".join(result.configurations)]
+    if result.options.batch:
+        parts.append("--batch")
+    return " ".join(parts)
+
+
+def _versions() -> dict[str, str]:
+    import platform
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {"python": platform.python_version()}
+    for package in ("pancam-graph", "gtsam", "numpy", "opencv-python-headless", "pyproj"):
+        try:
+            out[package] = version(package)
+        except PackageNotFoundError:
+            out[package] = "not installed"
+    return out
+
+
+def run_configuration(result: RunResult) -> dict:
+    """The complete resolved configuration of a run (run.toml): source, run options, the
+    configurations with their kinds, every estimator constant, the rig and versions."""
+    rig, cam = result.traverse.rig, result.traverse.rig.wac
+    return {
+        "source": {"kind": result.source.kind, "path": result.source.path, "reference": result.source.reference,
+                   "notes": list(result.source.notes),
+                   "options": {k: v for k, v in result.source.options.items() if v is not None}},
+        "run": {"seed": result.seed, "configs": list(result.configurations), "batch": result.options.batch,
+                "command": reproduce_command(result)},
+        "configurations": {name: list(c.kinds) for name, c in result.configurations.items()},
+        "skipped_configurations": result.skipped,
+        "estimator": result.estimator.model_dump(mode="json", exclude_none=True),
+        "rig": {"name": rig.name, "fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy, "width": cam.width,
+                "height": cam.height, "baseline_m": rig.baseline_m, "mast_height_m": rig.mast_height_m,
+                "body_T_nav_left": result.traverse.body_T_nav().matrix().tolist()},
+        "stops": {"departure_s": [s.departure_s for s in result.traverse.stops]},
+        "versions": _versions(),
+    }

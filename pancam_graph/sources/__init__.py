@@ -1,0 +1,68 @@
+"""Every input kind, one module each, found by one dispatcher: a scenario TOML (simulated), an
+observation folder, a ROS1/ROS2 bag, a KITTI raw drive. Each turns what the user has into a
+`SourceData` (traverse, optional truth, provenance) for the one run loop."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import ConfigError
+from . import observations, recorded, scenario
+from .base import SourceData
+
+
+@dataclass(frozen=True)
+class SourceOptions:
+    """Options that only some sources take; one given to a source that does not take it is an error."""
+
+    seed: int | None = None  # scenario
+    gps_topic: str | None = None  # rosbag
+    odom_topic: str | None = None  # rosbag
+    holdout_every: int | None = None  # rosbag, kitti_raw (default 5)
+    geoid_height_m: float | None = None  # kitti_raw
+
+    def check(self, kind: str, allowed: set[str]) -> None:
+        flags = {"seed": "--seed", "gps_topic": "--gps-topic", "odom_topic": "--odom-topic",
+                 "holdout_every": "--holdout-every", "geoid_height_m": "--geoid-height"}
+        for name, flag in flags.items():
+            if getattr(self, name) is not None and name not in allowed:
+                raise ConfigError(f"{flag} does not apply to a {kind} source")
+
+
+def source_kind(text: str) -> str:
+    path = Path(text)
+    if recorded.is_bag(path):
+        return "rosbag"
+    if recorded.is_kitti_drive(path):
+        return "kitti_raw"
+    if observations.matches(path):
+        return "observations"
+    if path.is_dir():
+        if any(recorded.is_kitti_drive(p) for p in path.iterdir() if p.is_dir()):
+            drives = sorted(p.name for p in path.iterdir() if recorded.is_kitti_drive(p))
+            raise ConfigError(f"{path}: a KITTI date folder; give one drive folder inside it ({', '.join(drives)})")
+        raise ConfigError(f"{path}: not a source: expected an observation folder (traverse.toml), a ROS2 bag "
+                          "folder (metadata.yaml) or a KITTI raw drive folder (oxts/)")
+    return "scenario"
+
+
+def open_source(text: str, options: SourceOptions = SourceOptions()) -> SourceData:
+    """The source named by `text`: a bundled scenario name or TOML file, an observation folder, a
+    ROS bag, or a KITTI raw drive folder."""
+    kind = source_kind(text)
+    if kind == "scenario":
+        options.check(kind, {"seed"})
+        return scenario.load(text, options.seed)
+    if kind == "observations":
+        options.check(kind, set())
+        return observations.load(Path(text))
+    holdout = 5 if options.holdout_every is None else options.holdout_every
+    if kind == "rosbag":
+        options.check(kind, {"gps_topic", "odom_topic", "holdout_every"})
+        return recorded.load_bag(Path(text), options.gps_topic, options.odom_topic, holdout)
+    options.check(kind, {"geoid_height_m", "holdout_every"})
+    return recorded.load_kitti_raw(Path(text), options.geoid_height_m or 0.0, holdout)
+
+
+__all__ = ["SourceData", "SourceOptions", "open_source", "source_kind"]

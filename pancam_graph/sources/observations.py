@@ -1,0 +1,20 @@
+"""An observation folder (docs/observation_format.md): what an external front-end hands the back-end."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..io.observations import is_observation_folder, read_observations
+from ..results import SourceInfo
+from .base import SourceData
+
+
+def matches(path: Path) -> bool:
+    return is_observation_folder(path)
+
+
+def load(path: Path) -> SourceData:
+    obs = read_observations(path)
+    reference = "truth.kitti of the observation folder" if obs.truth is not None else "none"
+    info = SourceInfo("observations", str(path), reference)
+    return SourceData(obs.traverse, obs.truth, obs.estimator, obs.seed, info)

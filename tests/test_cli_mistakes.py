@@ -1,0 +1,77 @@
+"""Every user mistake exits 2 with one line naming the argument, writes nothing and shows no
+traceback. Run as a real process (the installed console script), as a user would."""
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+REAL = Path(__file__).parent / "data" / "real"
+BAG = REAL / "robot_localization" / "test1.bag"
+DATE_FOLDER = REAL / "kitti_raw" / "2011_09_26"
+
+
+def _cli(*args: str, cwd: Path, env: dict | None = None) -> subprocess.CompletedProcess:
+    exe = Path(sys.executable).parent / "pancam-graph"
+    return subprocess.run([str(exe), *args], cwd=cwd, capture_output=True, text=True, timeout=60,
+                          env={**os.environ, **(env or {})})
+
+
+def _assert_usage_error(result: subprocess.CompletedProcess, *words: str) -> None:
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr + result.stdout
+    for word in words:
+        assert word in result.stderr, (word, result.stderr)
+
+
+@pytest.mark.parametrize("args,words", [
+    (["run", "short_trail", "--out", "a_file"], ["--out", "is a file"]),
+    (["run", "short_trail", "--seed", "-1"], ["Invalid value for '--seed'", "greater than or equal to 0"]),
+    (["run", str(DATE_FOLDER)], ["KITTI date folder", "2011_09_26_drive_0001_sync"]),
+    (["run", "short_trail", "--gps-topic", "/fix"], ["--gps-topic does not apply to a scenario"]),
+    (["run", str(BAG), "--seed", "3"], ["--seed does not apply to a rosbag"]),
+    (["run", "short_trail", "--configs", "vo+lidar"], ["--configs vo+lidar", "'lidar'"]),
+    (["run", "short_trail", "--configs", "hrc+vo"], ["'hrc' adds views of site landmarks"]),
+    (["run", "no_such_scenario"], ["unknown scenario 'no_such_scenario'"]),
+    (["run", "short_trail", "--rerun", "spawn"], ["--rerun spawn: no display"]),
+    (["analyze", "--out", "full_folder"], ["--out full_folder", "not empty"]),
+    (["simulate", "short_trail", "--out", "full_folder"], ["full_folder", "not empty"]),
+    (["run", "bracket[/x].toml"], ["bracket[/x].toml"]),
+])
+def test_mistake_exits_2_names_the_argument_and_writes_nothing(tmp_path, args, words):
+    (tmp_path / "a_file").write_text("not a folder")
+    (tmp_path / "full_folder").mkdir()
+    (tmp_path / "full_folder" / "keep.txt").write_text("mine")
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    result = _cli(*args, cwd=tmp_path, env={"DISPLAY": ""})
+    _assert_usage_error(result, *words)
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
+    assert len(result.stderr.strip().splitlines()) <= 4  # a short message (click adds usage lines), not a dump
+
+
+def test_view_without_a_display_fails_at_once(tmp_path):
+    start = time.perf_counter()
+    result = _cli("view", str(tmp_path), cwd=tmp_path, env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
+    assert time.perf_counter() - start < 5.0
+    _assert_usage_error(result, "no display", "--rerun save", "--rerun serve")
+
+
+def test_version_and_help(tmp_path):
+    result = _cli("--version", cwd=tmp_path)
+    assert result.returncode == 0 and result.stdout.startswith("pancam-graph ")
+    result = _cli("run", "--help", cwd=tmp_path)
+    assert result.returncode == 0 and "--configs" in result.stdout
+
+
+def test_show_config_prints_the_resolved_scenario(tmp_path):
+    import tomllib
+
+    result = _cli("show-config", "short_trail", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    resolved = tomllib.loads(result.stdout)
+    assert resolved["name"] == "short_trail"
+    assert resolved["estimator"]["configurations"]["full"] == ["vo", "sites", "hrc", "gps"]
+    assert resolved["estimator"]["site_memory"] == 3  # every constant, defaults included
