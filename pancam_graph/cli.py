@@ -346,18 +346,19 @@ def eval_command(
         raise _fail(exc, bad_input=True) from None
     m = result.metrics
     document = {**result.as_dict(), "configs": {estimate.stem: m.as_dict()}}
-    table = Table(title=f"{estimate.name} vs {reference.name} ({len(result.reference)} matched, "
-                        f"{result.association}, alignment {result.alignment})")
+    table = Table(title=escape(f"{estimate.name} vs {reference.name} ({len(result.reference)} matched, "
+                               f"{result.association}, alignment {result.alignment})"))
     cells = {
         "ATE RMSE m": m.ate_rmse_m, "avg err m": m.average_error_m, "closure m": m.closure_error_m,
         "rel. closure %": m.relative_closure_pct, "length ratio": m.length_ratio,
         f"RPE {rpe_delta:g} m trans. RMSE m": m.rpe_translation_rmse_m,
         f"RPE {rpe_delta:g} m rot. RMSE deg": m.rpe_rotation_rmse_deg, "drift %": m.drift_translation_pct,
     }
-    for col in cells:
-        table.add_column(col, justify="right")
-    table.add_row(*("-" if v is None else f"{v:.4f}" for v in cells.values()))
-    Console(width=170).print(table)
+    table.add_column("metric")  # one row per metric: fits an 80-column terminal
+    table.add_column("value", justify="right")
+    for name, value in cells.items():
+        table.add_row(name, "-" if value is None else f"{value:.4f}")
+    Console(width=80).print(table)
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         write_json(out / "metrics.json", document)

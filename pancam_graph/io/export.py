@@ -11,7 +11,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..geodesy import LocalFrame
-from .results import write_csv
+from .tables import write_csv
 
 KML_NS = "http://www.opengis.net/kml/2.2"
 

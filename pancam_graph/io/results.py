@@ -19,6 +19,8 @@ from ..errors import InputError, ResultsError
 from ..geodesy import LocalFrame
 from ..results import metrics_document, reproduce_command, run_configuration
 from ..rig import Camera, Rig
+from .export import write_trajectory_exports
+from .tables import write_csv, write_json
 
 if TYPE_CHECKING:
     from ..results import RunResult
@@ -42,10 +44,6 @@ def results_folder(out: Path) -> Iterator[Path]:
     if out.exists():
         out.rmdir()
     os.replace(staging, out)
-
-
-def write_json(path: Path, data: dict) -> None:
-    path.write_text(json.dumps(data, indent=2, allow_nan=True) + "\n", encoding="utf-8")
 
 
 LOCAL_FRAME_FILE = "local_frame.json"  # the ENU origin of every trajectory in a results folder
@@ -84,13 +82,6 @@ def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
     trajectory = read_tum_trajectory(path)
     return trajectory.times_s, trajectory.world_T_body
-
-
-def write_csv(path: Path, header: list[str], rows) -> None:
-    with path.open("w", encoding="utf-8", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(header)
-        writer.writerows(rows)
 
 
 # -- a run's results folder -----------------------------------------------------------------
@@ -149,8 +140,6 @@ def write_run(result: RunResult, folder: Path) -> None:
     write_json(folder / LOCAL_FRAME_FILE, local_frame_dict(result.traverse.origin))
     (folder / "reproduce.sh").write_text(f"#!/bin/sh\n# reproduces this run\n{reproduce_command(result)}\n",
                                          encoding="utf-8")
-    from .export import write_trajectory_exports  # export builds on this module's CSV writer
-
     for name, c in result.configurations.items():
         write_trajectory_exports(folder, f"trajectory_{name}", result.traverse.origin, times, c.world_T_body)
 
