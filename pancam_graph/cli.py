@@ -499,7 +499,9 @@ def analyze_command(
         raise typer.Exit(2) from None
     assumptions = Assumptions(sigma_px=sigma_px)
     start = time.perf_counter()
-    with Progress(console=console, transient=True) as bar:
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+               TextColumn("eta"), TimeRemainingColumn())
+    with Progress(*columns, console=console, transient=True) as bar:
         task = bar.add_task("analysing rigs", total=len(rigs))
         rows = analyze(rigs, assumptions, progress=lambda done, total: bar.update(task, completed=done))
     written = write_analysis(rows, assumptions, out)

@@ -1,19 +1,23 @@
 """Measurement kinds: each turns one kind of measurement into factors (see base.Kind). A
-configuration is a list of kind names (config.EstimatorConfig.configurations)."""
+configuration is a list of kind names (config.EstimatorConfig.configurations).
+
+Every module of this package is imported here, and every `Kind` subclass in it registers
+itself: a new kind is one module (plus its test), nothing else to edit.
+"""
 
 from __future__ import annotations
 
-from ..records import Traverse
-from .base import Kind
-from .dead_reckoning import DeadReckoningMotion
-from .gps import Gps
-from .hrc import Hrc
-from .sites import Sites
-from .vo import VisualOdometry
-from .wheel_slip import WheelSlip
+import importlib
+import pkgutil
 
-# In the order they are built and called (hrc hooks into sites).
-KINDS: dict[str, type[Kind]] = {k.name: k for k in (VisualOdometry, DeadReckoningMotion, WheelSlip, Sites, Hrc, Gps)}
+from ..records import Traverse
+from .base import Kind, registered
+
+for _module in pkgutil.iter_modules(__path__):
+    importlib.import_module(f"{__name__}.{_module.name}")
+
+# In the order they are built and called (a kind may hook into one built before it).
+KINDS: dict[str, type[Kind]] = registered()
 
 
 def unavailable(kinds: list[str], traverse: Traverse) -> str | None:

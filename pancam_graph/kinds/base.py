@@ -16,8 +16,23 @@ if TYPE_CHECKING:
     from ..localizer import Localizer, StepCounts
 
 
+_REGISTRY: dict[str, type[Kind]] = {}
+
+
+def registered() -> dict[str, type[Kind]]:
+    """Every kind by name, in build order."""
+    return dict(sorted(_REGISTRY.items(), key=lambda item: item[1].order))
+
+
 class Kind:
     name: ClassVar[str]
+    order: ClassVar[int]  # build and call order: a kind that hooks into another comes after it
+
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        if cls.name in _REGISTRY:
+            raise TypeError(f"two measurement kinds are named {cls.name!r}")
+        _REGISTRY[cls.name] = cls
 
     def __init__(self, localizer: Localizer):
         self.loc = localizer

@@ -8,6 +8,7 @@ from .base import Kind
 
 class DeadReckoningMotion(Kind):
     name = "dead_reckoning"
+    order = 1
 
     @staticmethod
     def unavailable(traverse: Traverse) -> str | None:

@@ -19,6 +19,7 @@ _REASONS_KEPT = 20
 
 class Gps(Kind):
     name = "gps"
+    order = 5
 
     @staticmethod
     def unavailable(traverse: Traverse) -> str | None:

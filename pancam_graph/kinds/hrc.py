@@ -16,6 +16,7 @@ from .sites import SiteObservations
 
 class Hrc(Kind):
     name = "hrc"
+    order = 4
 
     @staticmethod
     def unavailable(traverse: Traverse) -> str | None:

@@ -42,6 +42,7 @@ class LandmarkReference:
 
 class Sites(Kind):
     name = "sites"
+    order = 3
 
     @staticmethod
     def unavailable(traverse: Traverse) -> str | None:

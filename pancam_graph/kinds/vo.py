@@ -9,6 +9,7 @@ from .base import Kind
 
 class VisualOdometry(Kind):
     name = "vo"
+    order = 0
 
     @staticmethod
     def unavailable(traverse: Traverse) -> str | None:

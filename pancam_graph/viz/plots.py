@@ -45,7 +45,8 @@ def plot_trajectories(result: RunResult, path: Path) -> None:
                  f"held-out RMS {c.holdout.rms_2d_m:.2f} m" if c.holdout is not None else "")
         ax.plot(p[:, 0], p[:, 1], "-", lw=1.2, color=_COLOURS.get(name), zorder=3, label=f"{name} ({score})")
     sites = [s.index for s in result.traverse.stops if s.is_site]
-    ax.plot(truth[sites, 0], truth[sites, 1], "k^", ms=5, label="sites (panoramas)", zorder=4)
+    if sites:
+        ax.plot(truth[sites, 0], truth[sites, 1], "k^", ms=5, label="sites (panoramas)", zorder=4)
     ax.plot(*truth[0, :2], "go", ms=8, label="start")
     ax.set_aspect("equal", adjustable="datalim")
     _label(ax, "east (m)", "north (m)", f"{result.name}, seed {result.seed}: estimated trajectories")

@@ -34,7 +34,7 @@ def report_markdown(result: RunResult) -> str:
     tr = result.traverse
     stops = tr.stops
     length = plots.reference_distance(result)[-1]
-    where = "in this folder" if result.scenario is not None else ""
+    where = " in this folder" if result.scenario is not None else ""
     lines = [
         f"# {result.name}, seed {result.seed}",
         "",
@@ -46,7 +46,7 @@ def report_markdown(result: RunResult) -> str:
         f"- source: {result.source.kind} `{result.source.path}`; reference: {result.source.reference}; "
         f"wall time {result.wall_s:.1f} s (VO {result.vo_s:.1f} s)",
         *(f"- note: {note}" for note in result.source.notes),
-        f"- reproduce {where}: `{reproduce_command(result)}` (the whole configuration is in run.toml)",
+        f"- reproduce{where}: `{reproduce_command(result)}` (the whole configuration is in run.toml)",
         "",
         "## Metrics",
         "",
