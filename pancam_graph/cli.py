@@ -174,6 +174,7 @@ def run_command(
                                                   "(default 5; 0: use all)"),
     geoid_height: float | None = typer.Option(None, "--geoid-height", help="KITTI: geoid height (m) added to "
                                                                            "OXTS alt"),
+    detector: str | None = typer.Option(None, "--detector", help="image sources: gftt (default), orb or sift"),
 ) -> None:
     """Solve a traverse with iSAM2 and evaluate it: every source goes through the same back-end.
 
@@ -185,14 +186,14 @@ def run_command(
     """
     from .pipeline import select_configurations
     from .results import RunOptions
-    from .sources import SourceOptions, open_source
+    from .sources import SourceOptions
 
     try:
         options = RunOptions(seed=seed, configs=_parse_configs(configs), batch=batch)
         target = _rerun_target(rerun, viewer_memory) if rerun is not None else None
         _check_out(out)
-        with console.status(f"reading {escape(source)}"):
-            data = open_source(source, SourceOptions(seed, gps_topic, odom_topic, holdout_every, geoid_height))
+        data = _open_with_progress(source, SourceOptions(seed, gps_topic, odom_topic, holdout_every, geoid_height,
+                                                         _detector(detector)), quiet)
         select_configurations(data.estimator, data.traverse, options.configs)  # before anything is written
     except PancamGraphError as exc:
         raise _fail(exc, bad_input=True) from None
@@ -201,6 +202,20 @@ def run_command(
     if len(data.rejected) > 10:
         console.print(Text(f"... {len(data.rejected) - 10} more fixes left out", style="yellow"))
     _run_source(data, options, out, target, quiet)
+
+
+def _detector(text: str | None) -> str | None:
+    if text is not None and text not in ("gftt", "orb", "sift"):
+        raise ConfigError(f"--detector {text!r}: expected gftt, orb or sift")
+    return text
+
+
+def _open_with_progress(source: str, options, quiet: bool) -> SourceData:
+    """Read a source; an image source runs the front-end over every frame under a progress bar."""
+    from .sources import open_source
+
+    name = Path(source).name or source
+    return _with_progress(name, quiet, lambda report: open_source(source, options, report))
 
 
 def _check_out(out: Path | None) -> None:
@@ -258,6 +273,31 @@ def _run_source(data: SourceData, options: RunOptions, out: Path | None, target,
         console.print(f"rerun recording: {shown} (open with `rerun {shown}` or `pancam-graph view {out}`)")
     if recording is not None and recording.target.mode == "serve":
         _serve_until_interrupted(recording.served_url)
+
+
+@app.command("track")
+def track_command(
+    source: str = typer.Argument(..., help="stereo images: a KITTI odometry sequence folder"),
+    out: Path = typer.Option(..., "--out", help="observation folder to write (docs/observation_format.md)"),
+    detector: str | None = typer.Option(None, "--detector", help="gftt (default), orb or sift"),
+    quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
+) -> None:
+    """Run the image front-end and write what it found as an observation folder, so the back-end
+    can be run again (`pancam-graph run OUT`) without the images."""
+    from .io.observations import write_observations
+    from .sources import SourceOptions, source_kind
+
+    try:
+        _check_out(out)
+        if source_kind(source) != "kitti_odometry":
+            raise ConfigError(f"{source}: track needs stereo images (a KITTI odometry sequence folder)")
+        data = _open_with_progress(source, SourceOptions(detector=_detector(detector)), quiet)
+        write_observations(out, data.traverse, data.estimator, data.seed, data.truth)
+    except PancamGraphError as exc:
+        raise _fail(exc, bad_input=True) from None
+    frames = [len(s.stereo) for s in data.traverse.stops]
+    console.print(f"{len(frames)} frames, median {sorted(frames)[len(frames) // 2]} features per frame; "
+                  f"observations in {out}")
 
 
 @app.command("show-config")
@@ -372,7 +412,10 @@ def eval_command(
 
 @app.command("bench")
 def bench_command(
-    scenario: str = typer.Argument("denver_trail", help="bundled scenario name or path to a TOML file"),
+    scenario: str = typer.Argument("denver_trail", help="bundled scenario name or path to a TOML file, or "
+                                   "'frontend' to time the image front-end on SOURCE"),
+    source: str | None = typer.Argument(None, help="with 'frontend': stereo images (a KITTI odometry sequence)"),
+    detector: str | None = typer.Option(None, "--detector", help="with 'frontend': gftt, orb or sift"),
     seed: int | None = typer.Option(None, "--seed", help="first seed (default: the scenario's)"),
     seeds: int = typer.Option(1, "--seeds", min=1, help="run this many consecutive seeds and summarise"),
     rerun: bool = typer.Option(False, "--rerun", help="also time each run with `--rerun save` (alternating) "
@@ -380,12 +423,18 @@ def bench_command(
     monte_carlo: int = typer.Option(0, "--monte-carlo", min=0, help="run this many seeds and report each "
                                     "configuration's efficiency (RMSE / CRLB) and ANEES with its chi-square band"),
 ) -> None:
-    """Time full runs (all configurations) and print one JSON object."""
+    """Time full runs (all configurations) and print one JSON object; `bench frontend SOURCE`
+    times the image front-end per stage."""
     import numpy as np
 
     from .pipeline import run
     from .results import RunOptions, percentiles
 
+    if scenario == "frontend":
+        _bench_frontend(source, detector)
+        return
+    if source is not None or detector is not None:
+        raise _fail(ConfigError("SOURCE and --detector go with 'bench frontend' only"), bad_input=True)
     if monte_carlo:
         seeds = max(seeds, monte_carlo)
     try:
@@ -445,6 +494,50 @@ def bench_command(
                                  for n in results[0].configurations
                                  if all(r.configurations[n].consistency is not None for r in results)}
     print(json.dumps(report, indent=2))
+
+
+def _bench_frontend(source: str | None, detector: str | None) -> None:
+    import os
+
+    import numpy as np
+
+    from .config import FrontendConfig
+    from .frontend.tracker import StereoTracker
+    from .io.kitti import is_kitti_odometry, read_kitti_odometry
+
+    try:
+        if source is None or not is_kitti_odometry(Path(source)):
+            raise ConfigError(f"bench frontend {source or ''}: give stereo images (a KITTI odometry sequence folder, "
+                              "e.g. ../shared/data/real/kitti_odometry_51)")
+        config = FrontendConfig(detector=_detector(detector) or "gftt")
+        sequence = read_kitti_odometry(Path(source))
+        tracker = StereoTracker(config)
+        load_before = os.getloadavg()
+        features, read_ms = [], []
+        with Progress(TextColumn("front-end"), BarColumn(), MofNCompleteColumn(), TextColumn("eta"),
+                      TimeRemainingColumn(), console=console, transient=True) as bar:
+            task = bar.add_task("frames", total=len(sequence))
+            for k in range(len(sequence)):
+                start = time.perf_counter()
+                left, right = sequence.stereo_pair(k)
+                read_ms.append((time.perf_counter() - start) * 1e3)
+                features.append(len(tracker(left, right)))
+                bar.update(task, completed=k + 1)
+    except PancamGraphError as exc:
+        raise _fail(exc, bad_input=True) from None
+    frame = np.array(tracker.times.ms["frame"])
+    stages = tracker.times.summary()
+    stages.pop("frame")
+    print(json.dumps({
+        "source": source, "detector": config.detector, "frames": len(sequence),
+        "image_size": [sequence.stereo.camera.width, sequence.stereo.camera.height],
+        "frame_ms": {"median": float(np.median(frame)), "p95": float(np.percentile(frame, 95)),
+                     "mean": float(frame.mean())},
+        "stages_ms": stages, "image_read_ms_median": float(np.median(read_ms)),
+        "features_per_frame_median": float(np.median(features)),
+        "load_average_1min": {"before": load_before[0], "after": os.getloadavg()[0]},
+        "note": "frame_ms: images in memory -> observations (reading the PNGs not included)",
+    }, indent=2))
 
 
 def _time_recorded_run(scenario, seed: int) -> float:

@@ -128,6 +128,13 @@ class EstimatorConfig(_Strict):
     vo_max_step_m: float = Field(5.0, gt=0.0)
     vo_pnp_iterations: int = Field(200, ge=10, description="RANSAC iterations of the PnP initial pose")
     vo_pnp_confidence: float = Field(0.999, gt=0.0, lt=1.0)
+    vo_max_range_m: float = Field(1e9, gt=0.0, description="VO uses features nearer than this: a far "
+                                  "feature's range error (grows with range squared) biases the scale")
+    vo_translation_floor: float = Field(0.0, ge=0.0, lt=1.0, description="per-step translation error the pixel "
+                                        "noise does not explain, as a fraction of the step (real images)")
+    vo_rotation_floor_deg_per_m: float = Field(0.0, ge=0.0, lt=10.0, description="the same for rotation")
+    vo_scale_sigma: float = Field(0.01, gt=0.0, lt=0.5, description="vo_scale kind: 1-sigma scale error "
+                                  "shared by every VO step (the stereo baseline's calibration)")
     tie_points_per_site: int = Field(150, ge=3)
     site_memory: int = Field(3, ge=1, description="earlier sites searched for tie points")
     landmark_anchor_sigma_m: float = Field(3.0, gt=0.0, description="bearing-range anchor of a new "
@@ -175,6 +182,27 @@ def configuration_problem(kinds: list[str]) -> str | None:
     if len(set(kinds)) != len(kinds):
         return "a kind is listed twice"
     return None
+
+
+class FrontendConfig(_Strict):
+    """Images -> stereo observations (frontend/tracker.py). Pixels unless said otherwise."""
+
+    detector: Literal["gftt", "orb", "sift"] = "gftt"
+    max_features: int = Field(1500, ge=20, le=20000, description="features kept per frame")
+    min_distance_px: int = Field(8, ge=1, le=100, description="between corners")
+    gftt_quality: float = Field(0.001, gt=0.0, lt=1.0)
+    klt_window_px: int = Field(11, ge=5, le=101, description="11 px: more accurate and 2x faster than 21 "
+                               "on the real KITTI frames (docs/frontend.md)")
+    klt_levels: int = Field(3, ge=0, le=6)
+    mutual_max_px: float = Field(0.5, gt=0.0, description="forward-backward (and left-right-left) distance")
+    row_max_px: float = Field(1.0, gt=0.0, description="a stereo match's row difference (rectified)")
+    min_disparity_px: float = Field(0.5, ge=0.0)
+    max_disparity_px: float = Field(250.0, gt=0.0)
+    initial_disparity_px: float = Field(10.0, ge=0.0, description="where optical flow starts for a new feature")
+    smoothness_px: float = Field(3.0, gt=0.0, description="Delaunay disparity smoothness, absolute")
+    smoothness_fraction: float = Field(0.25, gt=0.0, description="... and relative to the neighbour's")
+    ratio: float = Field(0.8, gt=0.0, le=1.0, description="descriptor detectors: Lowe's ratio test")
+    max_motion_px: float = Field(150.0, gt=0.0, description="descriptor detectors: image motion between frames")
 
 
 class Scenario(_Strict):

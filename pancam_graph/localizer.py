@@ -82,8 +82,10 @@ class Localizer:
         self.bridged_stops = 0
         self.interpolated: list[InterpolatedPose] = []
         self._keys_at: dict[float, int] = {}  # this step's inserted poses by time
-        # How an odometry increment becomes a factor; the wheel-slip kind replaces it.
+        # How an odometry increment and a VO step become factors; the wheel-slip and VO-scale
+        # kinds replace them.
         self.odometry_factor = factors.between
+        self.vo_factor = factors.between
         self.kinds: dict[str, Kind] = {}
         for name in KINDS:  # registry order: a kind may hook into one built before it
             if name in self.kind_names:
@@ -144,7 +146,8 @@ class Localizer:
         use_odometry = motion.odometry is not None and self.odometry_factor is not factors.between
         step = gtsam.Pose3(motion.odometry.prev_T_curr) if use_odometry else motion.prev_T_curr
         covariance = motion.odometry.covariance if use_odometry else motion.covariance
-        build = self.odometry_factor if use_odometry else factors.between
+        build = (self.odometry_factor if use_odometry else self.vo_factor if motion.source == "vo"
+                 else factors.between)
         start = self.smoother.pose(keys[0])
         if len(keys) == 2:
             self.smoother.add(build(keys[0], keys[1], step, covariance))

@@ -155,11 +155,14 @@ def test_kitti_odometry_bad_inputs_are_named(tmp_path):
         read_kitti_odometry(_odometry_layout(tmp_path / "a", calib=calib))
     sequence = _odometry_layout(tmp_path / "b")
     (sequence / "image_1" / "000001.png").unlink()
-    with pytest.raises(InputError, match=r"image_1: 1 images but 2 lines in times.txt"):
+    with pytest.raises(InputError, match=r"image_0 and image_1 differ: 000001.png is in only one of them"):
+        read_kitti_odometry(sequence)
+    (sequence / "image_0" / "000001.png").unlink()
+    with pytest.raises(InputError, match=r"image_0: 1 images but 2 lines in times.txt"):
         read_kitti_odometry(sequence)
     sequence = _odometry_layout(tmp_path / "c")
     (tmp_path / "c" / "poses" / "00.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n")
-    with pytest.raises(InputError, match=r"00\.txt: 1 poses but 2 lines"):
+    with pytest.raises(InputError, match=r"00\.txt: 1 poses but 2 frames"):
         read_kitti_odometry(sequence)
     with pytest.raises(InputError, match="not a KITTI odometry sequence"):
         read_kitti_odometry(tmp_path)

@@ -40,7 +40,8 @@ class VoResult:
 class StereoVO:
     def __init__(self, rig: Rig, body_T_left: gtsam.Pose3, pixel_sigma: float, min_inliers: int = 12,
                  ransac_px: float = 1.5, max_step_m: float = 5.0, pnp_iterations: int = 200,
-                 pnp_confidence: float = 0.999):
+                 pnp_confidence: float = 0.999, max_range_m: float = np.inf, translation_floor: float = 0.0,
+                 rotation_floor_rad_per_m: float = 0.0):
         self.rig = rig
         self.body_T_left = body_T_left
         self.left_T_body = body_T_left.inverse()
@@ -53,6 +54,9 @@ class StereoVO:
         self.max_step_m = max_step_m
         self.pnp_iterations = pnp_iterations
         self.pnp_confidence = pnp_confidence
+        self.max_range_m = max_range_m
+        self.translation_floor = translation_floor
+        self.rotation_floor_rad_per_m = rotation_floor_rad_per_m
 
     @classmethod
     def for_traverse(cls, traverse: Traverse, estimator: EstimatorConfig | None = None) -> StereoVO:
@@ -62,6 +66,8 @@ class StereoVO:
             traverse.rig, traverse.body_T_nav(), traverse.image_noise_px,
             min_inliers=est.vo_min_inliers, ransac_px=est.vo_ransac_px, max_step_m=est.vo_max_step_m,
             pnp_iterations=est.vo_pnp_iterations, pnp_confidence=est.vo_pnp_confidence,
+            max_range_m=est.vo_max_range_m, translation_floor=est.vo_translation_floor,
+            rotation_floor_rad_per_m=np.deg2rad(est.vo_rotation_floor_deg_per_m),
         )
 
     def estimate(self, prev: StereoObservations, curr: StereoObservations) -> VoResult:
@@ -71,7 +77,8 @@ class StereoVO:
             return VoResult(False, None, None, matches, 0, f"{matches} matches < {self.min_inliers}")
         a, b = prev.uvv[ip], curr.uvv[ic]
         p_prev = triangulate_rectified(a[:, 0], a[:, 1], a[:, 2], self.rig.wac, self.rig.baseline_m)
-        usable = np.isfinite(p_prev[:, 2]) & (p_prev[:, 2] > 0.5) & (b[:, 0] > b[:, 1])
+        usable = np.isfinite(p_prev[:, 2]) & (p_prev[:, 2] > 0.5) & (p_prev[:, 2] < self.max_range_m)
+        usable &= b[:, 0] > b[:, 1]
         a, b, p_prev = a[usable], b[usable], p_prev[usable]
         if len(a) < self.min_inliers:
             return VoResult(False, None, None, matches, 0, "too few matches with positive disparity")
@@ -105,7 +112,17 @@ class StereoVO:
         step = float(np.linalg.norm(pose.translation()))
         if step > self.max_step_m:
             return VoResult(False, None, None, matches, int(keep.sum()), f"implausible step {step:.1f} m")
-        return VoResult(True, pose, cov, matches, int(keep.sum()))
+        return VoResult(True, pose, self._with_floor(cov, step), matches, int(keep.sum()))
+
+    def _with_floor(self, cov: np.ndarray, step_m: float) -> np.ndarray:
+        """The two-stop adjustment's covariance plus what white pixel noise does not explain on
+        real images (calibration residuals, errors correlated along a track): independent
+        rotation and translation errors in proportion to the step (EstimatorConfig's
+        vo_rotation_floor_deg_per_m and vo_translation_floor; zero in simulation)."""
+        if self.translation_floor == 0.0 and self.rotation_floor_rad_per_m == 0.0:
+            return cov
+        floor = np.r_[np.full(3, self.rotation_floor_rad_per_m * step_m), np.full(3, self.translation_floor * step_m)]
+        return cov + np.diag(floor**2)
 
     def _consistent(self, a, b, p_prev_cam, pose: gtsam.Pose3) -> np.ndarray:
         """Matches whose current triangulation, moved into the previous camera frame by `pose`,

@@ -167,32 +167,49 @@ class KittiOdometrySequence:
         return _grayscale(self.left_images[i]), _grayscale(self.right_images[i])
 
 
-def read_kitti_odometry(sequence: Path, poses: Path | None = None) -> KittiOdometrySequence:
-    """A `sequences/<NN>` folder. Poses come from `poses` or, when not given, from
-    `<root>/poses/<NN>.txt` if it exists; the image size from the first left image."""
+def is_kitti_odometry(folder: Path) -> bool:
+    folder = Path(folder)
+    return (folder / "calib.txt").is_file() and any((folder / d).is_dir() for d in ("image_0", "image_l"))
+
+
+def read_kitti_odometry(sequence: Path, poses: Path | None = None, frame_period_s: float = 0.1
+                        ) -> KittiOdometrySequence:
+    """A KITTI odometry sequence folder: `image_0/` + `image_1/` (the benchmark's layout) or
+    `image_l/` + `image_r/`, `calib.txt` with P0 and P1 (`P0: ...` lines, or the first two
+    lines as bare numbers), optional `times.txt` (else one frame every `frame_period_s`), poses
+    from `poses`, `poses.txt` in the folder or `<root>/poses/<NN>.txt`. The image size comes
+    from the first left image."""
     sequence = Path(sequence)
     if not (sequence / "calib.txt").is_file():
         raise InputError(f"{sequence}: not a KITTI odometry sequence (no calib.txt)")
     calib = _CalibFile(sequence / "calib.txt")
-    times = _read_seconds(sequence / "times.txt")
-    left = sorted((sequence / "image_0").glob("*.png"))
-    right = sorted((sequence / "image_1").glob("*.png"))
-    for name, images in (("image_0", left), ("image_1", right)):
-        if len(images) != len(times):
-            raise InputError(f"{sequence / name}: {len(images)} images but {len(times)} lines in times.txt")
+    names = ("image_0", "image_1") if (sequence / "image_0").is_dir() else ("image_l", "image_r")
+    left = sorted((sequence / names[0]).glob("*.png"))
+    right = sorted((sequence / names[1]).glob("*.png"))
     if not left:
-        raise InputError(f"{sequence}: no images in image_0")
+        raise InputError(f"{sequence / names[0]}: no PNG images")
+    if [p.name for p in left] != [p.name for p in right]:
+        missing = sorted({p.name for p in left} ^ {p.name for p in right})
+        raise InputError(f"{sequence}: {names[0]} and {names[1]} differ: {missing[0]} is in only one of them")
+    if (sequence / "times.txt").is_file():
+        times = _read_seconds(sequence / "times.txt")
+    else:
+        times = frame_period_s * np.arange(len(left))
+    if len(left) != len(times):
+        raise InputError(f"{sequence / names[0]}: {len(left)} images but {len(times)} lines in times.txt")
     first = _grayscale(left[0])
     stereo = rectified_from_projections(calib.numbers("P0", 12).reshape(3, 4), calib.numbers("P1", 12).reshape(3, 4),
                                         (first.shape[1], first.shape[0]), f"{sequence / 'calib.txt'}: P1")
-    if poses is None and (sequence.parent.parent / "poses" / f"{sequence.name}.txt").is_file():
-        poses = sequence.parent.parent / "poses" / f"{sequence.name}.txt"
+    if poses is None:
+        for candidate in (sequence / "poses.txt", sequence.parent.parent / "poses" / f"{sequence.name}.txt"):
+            if candidate.is_file():
+                poses = candidate
+                break
     world_T_camera = None
     if poses is not None:
         world_T_camera = read_kitti_poses(poses).world_T_body
         if len(world_T_camera) != len(times):
-            raise InputError(f"{poses}: {len(world_T_camera)} poses but {len(times)} lines in "
-                             f"{sequence / 'times.txt'}")
+            raise InputError(f"{poses}: {len(world_T_camera)} poses but {len(times)} frames")
     return KittiOdometrySequence(sequence, stereo, times, left, right, world_T_camera)
 
 
@@ -205,7 +222,9 @@ class _CalibFile:
             raise InputError(f"{self.path}: missing")
         self.entries = {}
         for line, text in enumerate(self.path.read_text(encoding="utf-8").splitlines(), start=1):
-            key, _, value = text.partition(":")
+            key, colon, value = text.partition(":")
+            if not colon and text.strip():  # bare rows of numbers: P0, P1, P2, P3 in order
+                key, value = f"P{len(self.entries)}", text
             self.entries[key.strip()] = (line, value)
 
     def numbers(self, key: str, count: int) -> np.ndarray:

@@ -104,12 +104,19 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
     """A traverse as an observation folder (the format an external front-end writes)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
+    from ..rig import RIG_PRESETS
+
+    preset = rig_preset_name or traverse.rig.name
+    rig_source = RigSource(preset=preset, mast_height_m=traverse.rig.mast_height_m,
+                           body_T_left=None if traverse.body_T_nav_left is None else traverse.body_T_nav_left.tolist())
+    if preset not in RIG_PRESETS:  # a calibrated rig: its rectified model as OpenCV YAML
+        _write_rectified_yaml(folder / "calibration.yaml", traverse.rig)
+        rig_source = rig_source.model_copy(update={"preset": None, "calibration": "calibration.yaml"})
     manifest = Manifest(
         name=traverse.name, seed=seed,
         origin=OriginConfig(lat_deg=traverse.origin.lat0_deg, lon_deg=traverse.origin.lon0_deg,
                             h_m=traverse.origin.h0_m),
-        rig=RigSource(preset=rig_preset_name or traverse.rig.name, mast_height_m=traverse.rig.mast_height_m,
-                      body_T_left=None if traverse.body_T_nav_left is None else traverse.body_T_nav_left.tolist()),
+        rig=rig_source,
         image_noise_px=traverse.image_noise_px, traverse_tilt_rad=traverse.traverse_tilt_rad,
         gps_lever_arm_m=tuple(float(v) for v in traverse.gps_lever_arm_m),
         start_world_T_body=traverse.start_world_T_body.tolist(),
@@ -153,6 +160,21 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
                    [(t, *(r(v) for v in truth.landmarks[t])) for t in seen])
         if truth.wheel_slip is not None:
             (folder / "truth.toml").write_text(tomli_w.dumps({"wheel_slip": truth.wheel_slip}), encoding="utf-8")
+
+
+def _write_rectified_yaml(path: Path, rig: Rig) -> None:
+    """A rectified pair as OpenCV FileStorage YAML (K1 D1 K2 D2 R T, image size): identical
+    cameras, no distortion, the right one `baseline` along x."""
+    import cv2
+
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    k = rig.wac.matrix()
+    for name, value in (("K1", k), ("D1", np.zeros((1, 5))), ("K2", k), ("D2", np.zeros((1, 5))), ("R", np.eye(3)),
+                        ("T", np.array([[-rig.baseline_m], [0.0], [0.0]]))):
+        fs.write(name, value)
+    fs.write("image_width", rig.wac.width)
+    fs.write("image_height", rig.wac.height)
+    fs.release()
 
 
 def _write_csv(path: Path, header: list[str], rows: list) -> None:

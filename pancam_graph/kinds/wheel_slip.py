@@ -44,15 +44,17 @@ def slip_odometry_error(odom_T: gtsam.Pose3, world_T_a: gtsam.Pose3, world_T_b: 
     return error
 
 
-def slip_odometry_factor(key_a: int, key_b: int, odom_T: gtsam.Pose3, covariance: np.ndarray) -> gtsam.CustomFactor:
+def slip_odometry_factor(key_a: int, key_b: int, odom_T: gtsam.Pose3, covariance: np.ndarray,
+                         scale_key: int = SLIP) -> gtsam.CustomFactor:
     """An odometry increment between poses key_a and key_b whose distance is scaled by the
-    traverse's slip S(0); `covariance` is the step's own noise ([rotation, translation])."""
+    traverse's slip (the variable `scale_key`, S(0)); `covariance` is the step's own noise
+    ([rotation, translation])."""
 
     def error(factor: gtsam.CustomFactor, values: gtsam.Values, jacobians: list | None) -> np.ndarray:
-        a, b = factor.keys()[0], factor.keys()[1]
-        return slip_odometry_error(odom_T, values.atPose3(a), values.atPose3(b), values.atDouble(SLIP), jacobians)
+        a, b, s = factor.keys()
+        return slip_odometry_error(odom_T, values.atPose3(a), values.atPose3(b), values.atDouble(s), jacobians)
 
-    return gtsam.CustomFactor(noise.pose_covariance(covariance), [key_a, key_b, SLIP], error)
+    return gtsam.CustomFactor(noise.pose_covariance(covariance), [key_a, key_b, scale_key], error)
 
 
 class WheelSlip(Kind):

@@ -1,14 +1,17 @@
 """Every input kind, one module each, found by one dispatcher: a scenario TOML (simulated), an
 observation folder, a ROS1/ROS2 bag, a KITTI raw drive. Each turns what the user has into a
-`SourceData` (traverse, optional truth, provenance) for the one run loop."""
+`SourceData` (traverse, optional truth, provenance) for the one run loop. A KITTI odometry
+sequence (stereo images) runs the image front-end first."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..config import FrontendConfig
 from ..errors import ConfigError
-from . import observations, recorded, scenario
+from . import kitti_odometry, observations, recorded, scenario
 from .base import SourceData
 
 
@@ -21,10 +24,11 @@ class SourceOptions:
     odom_topic: str | None = None  # rosbag
     holdout_every: int | None = None  # rosbag, kitti_raw (default 5)
     geoid_height_m: float | None = None  # kitti_raw
+    detector: str | None = None  # image sources: gftt, orb, sift
 
     def check(self, kind: str, allowed: set[str]) -> None:
         flags = {"seed": "--seed", "gps_topic": "--gps-topic", "odom_topic": "--odom-topic",
-                 "holdout_every": "--holdout-every", "geoid_height_m": "--geoid-height"}
+                 "holdout_every": "--holdout-every", "geoid_height_m": "--geoid-height", "detector": "--detector"}
         for name, flag in flags.items():
             if getattr(self, name) is not None and name not in allowed:
                 raise ConfigError(f"{flag} does not apply to a {kind} source")
@@ -38,18 +42,23 @@ def source_kind(text: str) -> str:
         return "kitti_raw"
     if observations.matches(path):
         return "observations"
+    if kitti_odometry.matches(path):
+        return "kitti_odometry"
     if path.is_dir():
         if any(recorded.is_kitti_drive(p) for p in path.iterdir() if p.is_dir()):
             drives = sorted(p.name for p in path.iterdir() if recorded.is_kitti_drive(p))
             raise ConfigError(f"{path}: a KITTI date folder; give one drive folder inside it ({', '.join(drives)})")
         raise ConfigError(f"{path}: not a source: expected an observation folder (traverse.toml), a ROS2 bag "
-                          "folder (metadata.yaml) or a KITTI raw drive folder (oxts/)")
+                          "folder (metadata.yaml), a KITTI raw drive folder (oxts/) or a KITTI odometry "
+                          "sequence (calib.txt with image_0/image_1 or image_l/image_r)")
     return "scenario"
 
 
-def open_source(text: str, options: SourceOptions = SourceOptions()) -> SourceData:
+def open_source(text: str, options: SourceOptions = SourceOptions(),
+                progress: Callable[[str, int, int], None] | None = None) -> SourceData:
     """The source named by `text`: a bundled scenario name or TOML file, an observation folder, a
-    ROS bag, or a KITTI raw drive folder."""
+    ROS bag, a KITTI raw drive folder or a KITTI odometry sequence folder (images: the front-end
+    runs over every frame, reporting to `progress`)."""
     kind = source_kind(text)
     if kind == "scenario":
         options.check(kind, {"seed"})
@@ -57,6 +66,10 @@ def open_source(text: str, options: SourceOptions = SourceOptions()) -> SourceDa
     if kind == "observations":
         options.check(kind, set())
         return observations.load(Path(text))
+    if kind == "kitti_odometry":
+        options.check(kind, {"detector"})
+        frontend = FrontendConfig(detector=options.detector) if options.detector else None
+        return kitti_odometry.load(Path(text), frontend, progress)
     holdout = 5 if options.holdout_every is None else options.holdout_every
     if kind == "rosbag":
         options.check(kind, {"gps_topic", "odom_topic", "holdout_every"})

@@ -1,0 +1,237 @@
+"""Images in, stereo observations out: features on the left image, matched into the right image
+along the same row (rectified pair), tracked from frame to frame with persistent track ids.
+
+The seed's constraints on stereo matches (Chapter 4.2): the same row after rectification,
+mutual consistency (left -> right -> left lands where it started), positive disparity within
+range, and disparity smoothness over the Delaunay triangulation of the left points (a match
+whose disparity disagrees with all its neighbours' is a mismatch, not a depth edge, when it
+disagrees by more than `smoothness_px` and `smoothness_fraction`). Matches are sub-pixel
+(pyramidal Lucas-Kanade).
+
+Three detectors (`FrontendConfig.detector`):
+- `gftt`: Shi-Tomasi corners, stereo and temporal matching by Lucas-Kanade optical flow with a
+  forward-backward check (the default: see docs/frontend.md for the comparison);
+- `orb`, `sift`: keypoints and descriptors, stereo matching by descriptor along the row,
+  temporal matching by descriptor near the previous position, both mutual; the disparity is
+  then refined to sub-pixel by Lucas-Kanade.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy.spatial import Delaunay
+
+from ..config import FrontendConfig
+from ..errors import FrontendError
+from ..records import StereoObservations
+
+
+@dataclass
+class StageTimes:
+    """Wall time of each stage for every frame, ms."""
+
+    ms: dict[str, list[float]] = field(default_factory=dict)
+
+    def add(self, stage: str, start: float) -> float:
+        now = time.perf_counter()
+        self.ms.setdefault(stage, []).append((now - start) * 1e3)
+        return now
+
+    def summary(self) -> dict[str, dict[str, float]]:
+        return {stage: {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "mean": float(np.mean(v))}
+                for stage, v in self.ms.items()}
+
+
+@dataclass
+class _Tracks:
+    """The features of the last frame: left pixel positions, track ids, disparities and (for
+    descriptor detectors) descriptors."""
+
+    uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
+    ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    disparity: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    descriptors: np.ndarray | None = None
+
+
+class StereoTracker:
+    """Feed it rectified stereo pairs in order; each call returns that frame's observations."""
+
+    def __init__(self, config: FrontendConfig | None = None):
+        self.config = config or FrontendConfig()
+        self.times = StageTimes()
+        self._last = _Tracks()
+        self._previous_left: np.ndarray | None = None
+        self._next_id = 0
+        c = self.config
+        self._lk = dict(winSize=(c.klt_window_px, c.klt_window_px), maxLevel=c.klt_levels,
+                        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+        if c.detector == "orb":
+            self._features = cv2.ORB_create(nfeatures=c.max_features, scaleFactor=1.2, nlevels=8, fastThreshold=10)
+            self._norm = cv2.NORM_HAMMING
+        elif c.detector == "sift":
+            self._features = cv2.SIFT_create(nfeatures=c.max_features)
+            self._norm = cv2.NORM_L2
+
+    def __call__(self, left: np.ndarray, right: np.ndarray) -> StereoObservations:
+        if left.shape != right.shape or left.ndim != 2:
+            raise FrontendError(f"stereo pair: left {left.shape} and right {right.shape} must be equal grayscale "
+                                "images")
+        start = time.perf_counter()
+        if self.config.detector == "gftt":
+            uv, ids, disparity = self._klt_frame(left, right, start)
+        else:
+            uv, ids, disparity = self._descriptor_frame(left, right, start)
+        t = time.perf_counter()
+        keep = self._smooth(uv, disparity)
+        uv, ids, disparity = uv[keep], ids[keep], disparity[keep]
+        if self._last.descriptors is not None:
+            self._last.descriptors = self._last.descriptors[keep]
+        self._last.uv, self._last.ids, self._last.disparity = uv, ids, disparity
+        self._previous_left = left
+        self.times.add("smoothness", t)
+        self.times.ms.setdefault("frame", []).append((time.perf_counter() - start) * 1e3)
+        uvv = np.column_stack([uv[:, 0], uv[:, 0] - disparity, uv[:, 1]]).astype(float)
+        return StereoObservations(ids.astype(np.int64), uvv)
+
+    # -- corners and optical flow --------------------------------------------------------------
+
+    def _klt_frame(self, left, right, t):
+        c = self.config
+        uv, ids, disparity = self._last.uv, self._last.ids, self._last.disparity
+        if self._previous_left is not None and len(uv):
+            moved, ok = self._flow(self._previous_left, left, uv, uv)
+            uv, ids, disparity = moved[ok], ids[ok], disparity[ok]
+        t = self.times.add("temporal", t)
+        fresh = self._corners(left, uv, c.max_features - len(uv))
+        uv = np.vstack([uv, fresh]).astype(np.float32)
+        ids = np.concatenate([ids, self._new_ids(len(fresh))])
+        disparity = np.concatenate([disparity, np.full(len(fresh), np.nan, np.float32)])
+        t = self.times.add("detect", t)
+        ok, disparity = self._stereo_flow(left, right, uv, disparity)
+        self.times.add("stereo", t)
+        return uv[ok], ids[ok], disparity[ok]
+
+    def _corners(self, image, existing: np.ndarray, count: int) -> np.ndarray:
+        if count <= 0:
+            return np.zeros((0, 2), np.float32)
+        c = self.config
+        mask = np.full(image.shape, 255, np.uint8)
+        for u, v in existing.astype(int):
+            cv2.circle(mask, (int(u), int(v)), c.min_distance_px, 0, -1)
+        found = cv2.goodFeaturesToTrack(image, count, c.gftt_quality, c.min_distance_px, mask=mask, blockSize=7)
+        if found is None:
+            return np.zeros((0, 2), np.float32)
+        return cv2.cornerSubPix(image, found, (5, 5), (-1, -1),
+                                (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01)).reshape(-1, 2)
+
+    def _flow(self, a, b, points, guess, levels: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Lucas-Kanade from image a to b with a forward-backward check; (positions in b, ok)."""
+        lk = dict(self._lk)
+        if levels is not None:
+            lk["maxLevel"] = levels
+        p0 = points.reshape(-1, 1, 2).astype(np.float32)
+        p1, st1, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, guess.reshape(-1, 1, 2).astype(np.float32).copy(),
+                                              flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
+        back, st2, _ = cv2.calcOpticalFlowPyrLK(b, a, p1, p0.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
+        h, w = a.shape
+        p1 = p1.reshape(-1, 2)
+        ok = (st1.ravel() == 1) & (st2.ravel() == 1)
+        ok &= np.linalg.norm(back.reshape(-1, 2) - points, axis=1) < self.config.mutual_max_px
+        ok &= (p1[:, 0] >= 0) & (p1[:, 0] <= w - 1) & (p1[:, 1] >= 0) & (p1[:, 1] <= h - 1)
+        return p1, ok
+
+    def _stereo_flow(self, left, right, uv, disparity) -> tuple[np.ndarray, np.ndarray]:
+        """Right-image positions by optical flow from the left, started at the last disparity
+        (or at zero for new features); kept when on the same row, mutually consistent and with
+        a disparity in range."""
+        c = self.config
+        start = np.where(np.isfinite(disparity), disparity, c.initial_disparity_px)
+        guess = uv - np.column_stack([start, np.zeros(len(uv))]).astype(np.float32)
+        matched, ok = self._flow(left, right, uv, guess)
+        d = uv[:, 0] - matched[:, 0]
+        ok &= np.abs(matched[:, 1] - uv[:, 1]) <= c.row_max_px
+        ok &= (d > c.min_disparity_px) & (d < c.max_disparity_px)
+        return ok, d.astype(np.float32)
+
+    # -- keypoints and descriptors --------------------------------------------------------------
+
+    def _descriptor_frame(self, left, right, t):
+        c = self.config
+        kl, dl = self._features.detectAndCompute(left, None)
+        kr, dr = self._features.detectAndCompute(right, None)
+        t = self.times.add("detect", t)
+        if dl is None or dr is None or not len(kl) or not len(kr):
+            self._last.descriptors = np.zeros((0, 1), np.uint8)
+            return np.zeros((0, 2), np.float32), np.zeros(0, np.int64), np.zeros(0, np.float32)
+        pl = np.array([k.pt for k in kl], np.float32)
+        pr = np.array([k.pt for k in kr], np.float32)
+        dy = np.abs(pl[:, None, 1] - pr[None, :, 1])
+        dx = pl[:, None, 0] - pr[None, :, 0]
+        allowed = (dy <= c.row_max_px + 1.0) & (dx > c.min_disparity_px) & (dx < c.max_disparity_px)
+        i, j = self._mutual(dl, dr, allowed)
+        uv, desc = pl[i], dl[i]
+        # sub-pixel disparity: optical flow from the matched position, on the full image
+        matched, ok = self._flow(left, right, uv, pr[j], levels=1)
+        d = uv[:, 0] - matched[:, 0]
+        ok &= np.abs(matched[:, 1] - uv[:, 1]) <= c.row_max_px
+        ok &= (d > c.min_disparity_px) & (d < c.max_disparity_px)
+        uv, desc, d = uv[ok], desc[ok], d[ok]
+        t = self.times.add("stereo", t)
+        ids = self._new_ids(len(uv))
+        last = self._last
+        if last.descriptors is not None and len(last.uv) and len(uv):
+            near = np.linalg.norm(uv[:, None, :] - last.uv[None, :, :], axis=2) < c.max_motion_px
+            a, b = self._mutual(desc, last.descriptors, near)
+            ids[a] = last.ids[b]  # the fresh ids of re-found tracks are never used again
+        self.times.add("temporal", t)
+        self._last.descriptors = desc
+        return uv, ids, d.astype(np.float32)
+
+    def _mutual(self, a: np.ndarray, b: np.ndarray, allowed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Index pairs (i, j): j is i's best allowed match and i is j's, with Lowe's ratio test."""
+        if not len(a) or not len(b):
+            return np.zeros(0, int), np.zeros(0, int)
+        if self._norm == cv2.NORM_HAMMING:
+            bits = np.unpackbits(a[:, None, :] ^ b[None, :, :], axis=2)
+            dist = bits.sum(axis=2).astype(np.float32)
+        else:
+            dist = np.sqrt(np.maximum((a**2).sum(1)[:, None] + (b**2).sum(1)[None, :] - 2 * a @ b.T, 0.0))
+        dist = np.where(allowed, dist, np.inf)
+        best = np.argmin(dist, axis=1)
+        rows = np.arange(len(a))
+        first = dist[rows, best]
+        second = np.partition(dist, 1, axis=1)[:, 1] if dist.shape[1] > 1 else np.full(len(a), np.inf)
+        back = np.argmin(dist, axis=0)
+        ok = np.isfinite(first) & (back[best] == rows) & (first < self.config.ratio * second)
+        return rows[ok], best[ok]
+
+    # -- shared ----------------------------------------------------------------------------------
+
+    def _new_ids(self, n: int) -> np.ndarray:
+        ids = np.arange(self._next_id, self._next_id + n, dtype=np.int64)
+        self._next_id += n
+        return ids
+
+    def _smooth(self, uv: np.ndarray, disparity: np.ndarray) -> np.ndarray:
+        """Disparity smoothness over the Delaunay triangulation of the left points: a match that
+        disagrees with every neighbour is a mismatch."""
+        keep = np.ones(len(uv), dtype=bool)
+        if len(uv) < 4:
+            return keep
+        c = self.config
+        try:
+            tri = Delaunay(uv.astype(float))
+        except Exception:  # scipy's QhullError for degenerate layouts (all points on a line)
+            return keep
+        indptr, neighbours = tri.vertex_neighbor_vertices
+        for i in range(len(uv)):
+            near = disparity[neighbours[indptr[i]:indptr[i + 1]]]
+            if len(near) == 0:
+                continue
+            tolerance = np.maximum(c.smoothness_px, c.smoothness_fraction * near)
+            keep[i] = bool(np.any(np.abs(near - disparity[i]) <= tolerance))
+        return keep
