@@ -175,6 +175,9 @@ def run_command(
     geoid_height: float | None = typer.Option(None, "--geoid-height", help="KITTI: geoid height (m) added to "
                                                                            "OXTS alt"),
     detector: str | None = typer.Option(None, "--detector", help="image sources: gftt (default), orb or sift"),
+    skip_bad_frames: bool = typer.Option(False, "--skip-bad-frames", help="image folder: a missing, truncated "
+                                         "or wrong-sized image leaves its stop to the VO bridge (default: stop "
+                                         "with a message naming the file)"),
 ) -> None:
     """Solve a traverse with iSAM2 and evaluate it: every source goes through the same back-end.
 
@@ -193,7 +196,7 @@ def run_command(
         target = _rerun_target(rerun, viewer_memory) if rerun is not None else None
         _check_out(out)
         data = _open_with_progress(source, SourceOptions(seed, gps_topic, odom_topic, holdout_every, geoid_height,
-                                                         _detector(detector)), quiet)
+                                                         _detector(detector), skip_bad_frames or None), quiet)
         select_configurations(data.estimator, data.traverse, options.configs)  # before anything is written
     except PancamGraphError as exc:
         raise _fail(exc, bad_input=True) from None
@@ -289,8 +292,9 @@ def track_command(
 
     try:
         _check_out(out)
-        if source_kind(source) != "kitti_odometry":
-            raise ConfigError(f"{source}: track needs stereo images (a KITTI odometry sequence folder)")
+        if source_kind(source) not in ("kitti_odometry", "image_folder"):
+            raise ConfigError(f"{source}: track needs stereo images (an image folder or a KITTI odometry "
+                              "sequence folder)")
         data = _open_with_progress(source, SourceOptions(detector=_detector(detector)), quiet)
         write_observations(out, data.traverse, data.estimator, data.seed, data.truth)
     except PancamGraphError as exc:
@@ -298,6 +302,28 @@ def track_command(
     frames = [len(s.stereo) for s in data.traverse.stops]
     console.print(f"{len(frames)} frames, median {sorted(frames)[len(frames) // 2]} features per frame; "
                   f"observations in {out}")
+
+
+@app.command("render")
+def render_command(
+    scenario: str = typer.Argument("denver_trail", help="bundled scenario name or a scenario TOML file"),
+    out: Path = typer.Option(..., "--out", help="image folder to write (keep it out of git)"),
+    seed: int | None = typer.Option(None, "--seed", min=0, help="override the scenario's seed"),
+    quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
+) -> None:
+    """Render a scenario's navigation stereo pairs (terrain with relief and texture, shading, the
+    rig's intrinsics, sensor noise) into an image folder that `run` and `track` read; the truth
+    goes in its own files. Needs the [render] extra (moderngl on EGL)."""
+    from .render.images import render_scenario
+
+    try:
+        _check_out(out)
+        sc = _load(scenario)
+        start = time.perf_counter()
+        n = _with_progress(sc.name, quiet, lambda report: render_scenario(sc, out, seed, report))
+    except PancamGraphError as exc:
+        raise _fail(exc, bad_input=True) from None
+    console.print(f"{n} stereo pairs rendered into {out} in {time.perf_counter() - start:.0f} s")
 
 
 @app.command("show-config")

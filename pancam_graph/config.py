@@ -128,7 +128,7 @@ class EstimatorConfig(_Strict):
     vo_max_step_m: float = Field(5.0, gt=0.0)
     vo_pnp_iterations: int = Field(200, ge=10, description="RANSAC iterations of the PnP initial pose")
     vo_pnp_confidence: float = Field(0.999, gt=0.0, lt=1.0)
-    vo_max_range_m: float = Field(1e9, gt=0.0, description="VO uses features nearer than this: a far "
+    vo_max_range_m: float = Field(40.0, gt=0.0, description="VO uses features nearer than this: a far "
                                   "feature's range error (grows with range squared) biases the scale")
     vo_translation_floor: float = Field(0.0, ge=0.0, lt=1.0, description="per-step translation error the pixel "
                                         "noise does not explain, as a fraction of the step (real images)")

@@ -47,6 +47,8 @@ from ..records import (
 from ..rig import Rig, rig_preset
 
 MANIFEST = "traverse.toml"
+FRAMES = "frames.csv"  # an image folder: the navigation stereo pair's images per stop
+FRAME_COLUMNS = ["stop", "time_s", "dwell_s", "left", "right"]
 STEREO_COLUMNS = ["stop", "time_s", "track", "u_left", "u_right", "v"]
 PANORAMA_COLUMNS = ["stop", "site", "pan_rad", "tilt_rad", "track", "u_left", "u_right", "v"]
 HRC_COLUMNS = ["stop", "pan_rad", "tilt_rad", "track", "u", "v"]
@@ -95,13 +97,17 @@ class ObservationSet:
     estimator: EstimatorConfig
     seed: int
     source: Path
+    frames: list[tuple[Path, Path]] | None = None  # an image folder: left and right image per stop
 
 
 # -- writing -------------------------------------------------------------------------------------
 
 def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorConfig, seed: int,
-                       truth: GroundTruth | None = None, rig_preset_name: str | None = None) -> None:
-    """A traverse as an observation folder (the format an external front-end writes)."""
+                       truth: GroundTruth | None = None, rig_preset_name: str | None = None,
+                       frames: list[tuple[str, str]] | None = None) -> None:
+    """A traverse as an observation folder (the format an external front-end writes); with
+    `frames` (left and right image paths per stop, relative to the folder) an image folder:
+    frames.csv instead of the observations, the rest the same."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     from ..rig import RIG_PRESETS
@@ -146,15 +152,22 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
                              *(r(v) for v in cov[_UPPER])))
     gps = [(r(g.time_s), r(g.lat_deg), r(g.lon_deg), r(g.h_m), r(g.sigma_horizontal_m), r(g.sigma_vertical_m))
            for g in traverse.gps_fixes]
-    _write_csv(folder / "stereo.csv", STEREO_COLUMNS[:2] + ["dwell_s"] + STEREO_COLUMNS[2:], stereo)
-    for name, columns, rows in (("panorama.csv", PANORAMA_COLUMNS, panorama), ("hrc.csv", HRC_COLUMNS, hrc),
-                                ("gps.csv", GPS_COLUMNS, gps), ("odometry.csv", ODOMETRY_COLUMNS, odometry)):
+    if frames is None:
+        _write_csv(folder / "stereo.csv", STEREO_COLUMNS[:2] + ["dwell_s"] + STEREO_COLUMNS[2:], stereo)
+    else:
+        _write_csv(folder / FRAMES, FRAME_COLUMNS, [(s.index, r(s.time_s), r(s.dwell_s), left, right)
+                                                   for s, (left, right) in zip(traverse.stops, frames, strict=True)])
+    tables = [("gps.csv", GPS_COLUMNS, gps), ("odometry.csv", ODOMETRY_COLUMNS, odometry)]
+    if frames is None:  # an image folder's panoramas are images (not written yet: issue 14)
+        tables += [("panorama.csv", PANORAMA_COLUMNS, panorama), ("hrc.csv", HRC_COLUMNS, hrc)]
+    for name, columns, rows in tables:
         if rows:
             _write_csv(folder / name, columns, rows)
     if truth is not None:
         np.savetxt(folder / "truth.kitti", truth.world_T_body[:, :3, :].reshape(-1, 12), fmt="%.17g")
         # what the bound (CRLB) of a configuration with landmarks or a slip variable needs
-        seen = sorted({int(t) for s in traverse.stops for f in s.panorama for t in f.observations.track_ids})
+        seen = [] if frames is not None else sorted({int(t) for s in traverse.stops for f in s.panorama
+                                                     for t in f.observations.track_ids})
         seen = [t for t in seen if t < len(truth.landmarks)]
         _write_csv(folder / "truth_landmarks.csv", ["track", "x_m", "y_m", "z_m"],
                    [(t, *(r(v) for v in truth.landmarks[t])) for t in seen])
@@ -187,7 +200,12 @@ def _write_csv(path: Path, header: list[str], rows: list) -> None:
 # -- reading -------------------------------------------------------------------------------------
 
 def is_observation_folder(path: Path) -> bool:
-    return (Path(path) / MANIFEST).is_file()
+    return (Path(path) / MANIFEST).is_file() and not is_image_folder(path)
+
+
+def is_image_folder(path: Path) -> bool:
+    """An observation folder whose navigation stereo pairs are images (frames.csv)."""
+    return (Path(path) / MANIFEST).is_file() and (Path(path) / FRAMES).is_file()
 
 
 def read_observations(folder: Path) -> ObservationSet:
@@ -195,7 +213,12 @@ def read_observations(folder: Path) -> ObservationSet:
     folder = Path(folder)
     manifest = _manifest(folder / MANIFEST)
     rig = _rig(folder, manifest.rig)
-    times, dwells, stereo = _read_stereo(folder / "stereo.csv")
+    frames = None
+    if (folder / FRAMES).is_file() and not (folder / "stereo.csv").is_file():
+        times, dwells, frames = _read_frames_csv(folder / FRAMES)
+        stereo = [StereoObservations.empty()] * len(times)  # the image front-end fills them in
+    else:
+        times, dwells, stereo = _read_stereo(folder / "stereo.csv")
     n = len(times)
     panoramas, sites = _read_panorama(folder / "panorama.csv", n)
     hrc = _read_hrc(folder / "hrc.csv", n)
@@ -222,7 +245,7 @@ def read_observations(folder: Path) -> ObservationSet:
     if (folder / "truth.kitti").is_file():
         landmarks = _read_truth_landmarks(folder / "truth_landmarks.csv")
         truth = GroundTruth(_read_truth(folder / "truth.kitti", n), landmarks, _read_truth_slip(folder / "truth.toml"))
-    return ObservationSet(traverse, truth, manifest.estimator, manifest.seed, folder)
+    return ObservationSet(traverse, truth, manifest.estimator, manifest.seed, folder, frames)
 
 
 def _manifest(path: Path) -> Manifest:
@@ -338,6 +361,26 @@ def _read_stereo(path: Path) -> tuple[list[float], list[float], list[StereoObser
         raise InputError(f"{path}: stop {k + 1} (t = {ordered[k + 1]} s) comes before stop {k} ends "
                          f"(t = {ordered[k]} s + dwell {dwells[k]} s): stop times must increase")
     return ordered, [dwells[k] for k in range(n)], observations
+
+
+def _read_frames_csv(path: Path) -> tuple[list[float], list[float], list[tuple[Path, Path]]]:
+    """An image folder's frames.csv: per stop (0..N-1 in order) its time, dwell and images."""
+    table = _Table(path, FRAME_COLUMNS)
+    times, dwells, frames = [], [], []
+    for line, row in table.rows:
+        stop, time_s, dwell_s, left, right = table.values(line, row)
+        k = int(table.number(line, "stop", stop, integer=True))
+        if k != len(times):
+            raise InputError(f"{path}: line {line}: stop {k}, expected {len(times)} (stops numbered 0..N-1 in order)")
+        t, dwell = table.number(line, "time_s", time_s), table.number(line, "dwell_s", dwell_s)
+        if times and t < times[-1] + dwells[-1]:
+            raise InputError(f"{path}: line {line}: time_s {t} comes before the previous stop ends")
+        times.append(t)
+        dwells.append(dwell)
+        frames.append((path.parent / left, path.parent / right))
+    if not times:
+        raise InputError(f"{path}: no frames")
+    return times, dwells, frames
 
 
 def _read_frames(table: _Table, n: int, measured: list[str]) -> dict[int, dict[tuple[float, float], tuple]]:

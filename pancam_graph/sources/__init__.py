@@ -11,7 +11,7 @@ from pathlib import Path
 
 from ..config import FrontendConfig
 from ..errors import ConfigError
-from . import kitti_odometry, observations, recorded, scenario
+from . import image_folder, kitti_odometry, observations, recorded, scenario
 from .base import SourceData
 
 
@@ -25,10 +25,12 @@ class SourceOptions:
     holdout_every: int | None = None  # rosbag, kitti_raw (default 5)
     geoid_height_m: float | None = None  # kitti_raw
     detector: str | None = None  # image sources: gftt, orb, sift
+    skip_bad_frames: bool | None = None  # image folder: skip a bad image's stop instead of stopping
 
     def check(self, kind: str, allowed: set[str]) -> None:
         flags = {"seed": "--seed", "gps_topic": "--gps-topic", "odom_topic": "--odom-topic",
-                 "holdout_every": "--holdout-every", "geoid_height_m": "--geoid-height", "detector": "--detector"}
+                 "holdout_every": "--holdout-every", "geoid_height_m": "--geoid-height", "detector": "--detector",
+                 "skip_bad_frames": "--skip-bad-frames"}
         for name, flag in flags.items():
             if getattr(self, name) is not None and name not in allowed:
                 raise ConfigError(f"{flag} does not apply to a {kind} source")
@@ -40,6 +42,8 @@ def source_kind(text: str) -> str:
         return "rosbag"
     if recorded.is_kitti_drive(path):
         return "kitti_raw"
+    if image_folder.matches(path):
+        return "image_folder"
     if observations.matches(path):
         return "observations"
     if kitti_odometry.matches(path):
@@ -70,6 +74,10 @@ def open_source(text: str, options: SourceOptions = SourceOptions(),
         options.check(kind, {"detector"})
         frontend = FrontendConfig(detector=options.detector) if options.detector else None
         return kitti_odometry.load(Path(text), frontend, progress)
+    if kind == "image_folder":
+        options.check(kind, {"detector", "skip_bad_frames"})
+        frontend = FrontendConfig(detector=options.detector) if options.detector else None
+        return image_folder.load(Path(text), frontend, progress, bool(options.skip_bad_frames))
     holdout = 5 if options.holdout_every is None else options.holdout_every
     if kind == "rosbag":
         options.check(kind, {"gps_topic", "odom_topic", "holdout_every"})
