@@ -1,8 +1,6 @@
 """The renderer (the [render] extra): exact intrinsics, an image folder that the image front-end
 and the back-end run on, and bad frames named."""
 
-import json
-from pathlib import Path
 
 import numpy as np
 import pytest
