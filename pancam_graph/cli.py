@@ -529,23 +529,24 @@ def _bench_frontend(source: str | None, detector: str | None) -> None:
 
     from .config import FrontendConfig
     from .frontend.tracker import StereoTracker
-    from .io.kitti import is_kitti_odometry, read_kitti_odometry
+    from .sources import source_kind
 
     try:
-        if source is None or not is_kitti_odometry(Path(source)):
-            raise ConfigError(f"bench frontend {source or ''}: give stereo images (a KITTI odometry sequence folder, "
-                              "e.g. ../shared/data/real/kitti_odometry_51)")
+        kind = source_kind(source) if source is not None else None
+        if kind not in ("kitti_odometry", "image_folder"):
+            raise ConfigError(f"bench frontend {source or ''}: give stereo images (an image folder or a KITTI "
+                              "odometry sequence folder, e.g. ../shared/data/real/kitti_odometry_51)")
         config = FrontendConfig(detector=_detector(detector) or "gftt")
-        sequence = read_kitti_odometry(Path(source))
+        frames, size = _stereo_frames(Path(source), kind)
         tracker = StereoTracker(config)
         load_before = os.getloadavg()
         features, read_ms = [], []
         with Progress(TextColumn("front-end"), BarColumn(), MofNCompleteColumn(), TextColumn("eta"),
                       TimeRemainingColumn(), console=console, transient=True) as bar:
-            task = bar.add_task("frames", total=len(sequence))
-            for k in range(len(sequence)):
+            task = bar.add_task("frames", total=len(frames))
+            for k, read in enumerate(frames):
                 start = time.perf_counter()
-                left, right = sequence.stereo_pair(k)
+                left, right = read()
                 read_ms.append((time.perf_counter() - start) * 1e3)
                 features.append(len(tracker(left, right)))
                 bar.update(task, completed=k + 1)
@@ -555,15 +556,30 @@ def _bench_frontend(source: str | None, detector: str | None) -> None:
     stages = tracker.times.summary()
     stages.pop("frame")
     print(json.dumps({
-        "source": source, "detector": config.detector, "frames": len(sequence),
-        "image_size": [sequence.stereo.camera.width, sequence.stereo.camera.height],
+        "source": source, "detector": config.detector, "frames": len(frames), "image_size": [size[1], size[0]],
         "frame_ms": {"median": float(np.median(frame)), "p95": float(np.percentile(frame, 95)),
                      "mean": float(frame.mean())},
         "stages_ms": stages, "image_read_ms_median": float(np.median(read_ms)),
         "features_per_frame_median": float(np.median(features)),
         "load_average_1min": {"before": load_before[0], "after": os.getloadavg()[0]},
-        "note": "frame_ms: images in memory -> observations (reading the PNGs not included)",
+        "note": "frame_ms: images in memory -> observations (reading the images not included)",
     }, indent=2))
+
+
+def _stereo_frames(folder: Path, kind: str):
+    """(one reader per stereo pair, (height, width)) of an image source."""
+    if kind == "kitti_odometry":
+        from .io.kitti import read_kitti_odometry
+
+        sequence = read_kitti_odometry(folder)
+        cam = sequence.stereo.camera
+        return [lambda k=k: sequence.stereo_pair(k) for k in range(len(sequence))], (cam.height, cam.width)
+    from .io.observations import read_observations
+    from .sources.image_folder import read_gray
+
+    obs = read_observations(folder)
+    size = (obs.traverse.rig.wac.height, obs.traverse.rig.wac.width)
+    return [lambda a=a, b=b: (read_gray(a, size), read_gray(b, size)) for a, b in obs.frames], size
 
 
 def _time_recorded_run(scenario, seed: int) -> float:

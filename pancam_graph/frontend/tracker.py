@@ -228,10 +228,10 @@ class StereoTracker:
         except Exception:  # scipy's QhullError for degenerate layouts (all points on a line)
             return keep
         indptr, neighbours = tri.vertex_neighbor_vertices
-        for i in range(len(uv)):
-            near = disparity[neighbours[indptr[i]:indptr[i + 1]]]
-            if len(near) == 0:
-                continue
-            tolerance = np.maximum(c.smoothness_px, c.smoothness_fraction * near)
-            keep[i] = bool(np.any(np.abs(near - disparity[i]) <= tolerance))
+        owner = np.repeat(np.arange(len(uv)), np.diff(indptr))  # the point each neighbour entry belongs to
+        near = disparity[neighbours]
+        agrees = np.abs(near - disparity[owner]) <= np.maximum(c.smoothness_px, c.smoothness_fraction * near)
+        has_neighbour = np.diff(indptr) > 0
+        keep = ~has_neighbour
+        np.logical_or.at(keep, owner, agrees)
         return keep
