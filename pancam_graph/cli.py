@@ -175,6 +175,8 @@ def run_command(
     geoid_height: float | None = typer.Option(None, "--geoid-height", help="KITTI: geoid height (m) added to "
                                                                            "OXTS alt"),
     detector: str | None = typer.Option(None, "--detector", help="image sources: gftt (default), orb or sift"),
+    stereo_topics: str | None = typer.Option(None, "--stereo-topics", help="bag: LEFT,RIGHT rectified image "
+                                             "topics for stereo VO (CameraInfo beside each: .../camera_info)"),
     skip_bad_frames: bool = typer.Option(False, "--skip-bad-frames", help="image folder: a missing, truncated "
                                          "or wrong-sized image leaves its stop to the VO bridge (default: stop "
                                          "with a message naming the file)"),
@@ -196,7 +198,8 @@ def run_command(
         target = _rerun_target(rerun, viewer_memory) if rerun is not None else None
         _check_out(out)
         data = _open_with_progress(source, SourceOptions(seed, gps_topic, odom_topic, holdout_every, geoid_height,
-                                                         _detector(detector), skip_bad_frames or None), quiet)
+                                                         _detector(detector), skip_bad_frames or None,
+                                                         _topics(stereo_topics)), quiet)
         select_configurations(data.estimator, data.traverse, options.configs)  # before anything is written
     except PancamGraphError as exc:
         raise _fail(exc, bad_input=True) from None
@@ -205,6 +208,15 @@ def run_command(
     if len(data.rejected) > 10:
         console.print(Text(f"... {len(data.rejected) - 10} more fixes left out", style="yellow"))
     _run_source(data, options, out, target, quiet)
+
+
+def _topics(text: str | None) -> tuple[str, str] | None:
+    if text is None:
+        return None
+    topics = [t.strip() for t in text.split(",") if t.strip()]
+    if len(topics) != 2:
+        raise ConfigError(f"--stereo-topics {text!r}: expected LEFT,RIGHT (two image topics)")
+    return topics[0], topics[1]
 
 
 def _detector(text: str | None) -> str | None:

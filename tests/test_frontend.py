@@ -111,3 +111,66 @@ def test_an_image_of_the_wrong_size_names_its_file(tmp_path):
     (folder / "image_r" / "000002.png").unlink()
     with pytest.raises(InputError, match="000002.png is in only one of them"):
         kitti_odometry.load(folder)
+
+
+def _stereo_bag(path: Path, frames: int) -> None:
+    """A ROS2 bag of the first real KITTI frames: left as Image, right as CompressedImage (PNG),
+    and both CameraInfos from calib.txt."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    types = store.types
+    rows = [np.array(line.split(), float) for line in (SEQUENCE / "calib.txt").read_text().splitlines()[:2]]
+
+    def header(t):
+        return types["std_msgs/msg/Header"](stamp=types["builtin_interfaces/msg/Time"](
+            sec=int(t), nanosec=int(round((t % 1) * 1e9))), frame_id="cam")
+
+    def info(t, p):
+        roi = types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+        return types["sensor_msgs/msg/CameraInfo"](
+            header=header(t), height=370, width=1226, distortion_model="plumb_bob", d=np.zeros(5),
+            k=p.reshape(3, 4)[:, :3].ravel(), r=np.eye(3).ravel(), p=p, binning_x=0, binning_y=0, roi=roi)
+
+    with Writer(path, version=8) as writer:
+        topics = {name: writer.add_connection(name, kind, typestore=store) for name, kind in (
+            ("/stereo/left/image_rect", "sensor_msgs/msg/Image"),
+            ("/stereo/right/image_rect/compressed", "sensor_msgs/msg/CompressedImage"),
+            ("/stereo/left/camera_info", "sensor_msgs/msg/CameraInfo"),
+            ("/stereo/right/camera_info", "sensor_msgs/msg/CameraInfo"))}
+        for k in range(frames):
+            t = 50.0 + 0.1 * k
+            left = cv2.imread(str(SEQUENCE / "image_l" / f"{k:06d}.png"), cv2.IMREAD_GRAYSCALE)
+            right = cv2.imread(str(SEQUENCE / "image_r" / f"{k:06d}.png"), cv2.IMREAD_GRAYSCALE)
+            messages = {
+                "/stereo/left/image_rect": types["sensor_msgs/msg/Image"](
+                    header=header(t), height=370, width=1226, encoding="mono8", is_bigendian=0, step=1226,
+                    data=left.ravel()),
+                "/stereo/right/image_rect/compressed": types["sensor_msgs/msg/CompressedImage"](
+                    header=header(t), format="png", data=np.frombuffer(cv2.imencode(".png", right)[1], np.uint8)),
+                "/stereo/left/camera_info": info(t, rows[0]), "/stereo/right/camera_info": info(t, rows[1]),
+            }
+            for name, message in messages.items():
+                writer.write(topics[name], int(t * 1e9), store.serialize_cdr(message, message.__msgtype__))
+
+
+def test_stereo_images_from_a_ros_bag_run_the_same_front_end_and_vo(tmp_path):
+    from pancam_graph.sources import SourceOptions, open_source
+
+    bag = tmp_path / "stereo_bag"
+    _stereo_bag(bag, 12)
+    data = open_source(str(bag), SourceOptions(stereo_topics=("/stereo/left/image_rect",
+                                                              "/stereo/right/image_rect/compressed")))
+    assert len(data.traverse.stops) == 12 and data.traverse.rig.baseline_m == pytest.approx(0.53715, abs=1e-4)
+    result = run_traverse(data.traverse, data.truth, data.estimator, 0, RunOptions(), source=data.info)
+    vo = result.configurations["vo"]
+    assert vo.bridged_stops == 0
+    # the KITTI truth of those frames (camera poses -> body poses)
+    from pancam_graph.io.kitti import read_kitti_odometry
+
+    poses = read_kitti_odometry(SEQUENCE).world_T_camera
+    true_end = (kitti_odometry.BODY_T_CAMERA @ poses[11] @ np.linalg.inv(kitti_odometry.BODY_T_CAMERA))[:3, 3]
+    travelled = np.linalg.norm(true_end)
+    assert travelled > 10.0
+    assert np.linalg.norm(vo.world_T_body[-1, :3, 3] - true_end) < 0.02 * travelled

@@ -26,11 +26,12 @@ class SourceOptions:
     geoid_height_m: float | None = None  # kitti_raw
     detector: str | None = None  # image sources: gftt, orb, sift
     skip_bad_frames: bool | None = None  # image folder: skip a bad image's stop instead of stopping
+    stereo_topics: tuple[str, str] | None = None  # rosbag: left and right image topics (stereo VO)
 
     def check(self, kind: str, allowed: set[str]) -> None:
         flags = {"seed": "--seed", "gps_topic": "--gps-topic", "odom_topic": "--odom-topic",
                  "holdout_every": "--holdout-every", "geoid_height_m": "--geoid-height", "detector": "--detector",
-                 "skip_bad_frames": "--skip-bad-frames"}
+                 "skip_bad_frames": "--skip-bad-frames", "stereo_topics": "--stereo-topics"}
         for name, flag in flags.items():
             if getattr(self, name) is not None and name not in allowed:
                 raise ConfigError(f"{flag} does not apply to a {kind} source")
@@ -79,11 +80,23 @@ def open_source(text: str, options: SourceOptions = SourceOptions(),
         frontend = FrontendConfig(detector=options.detector) if options.detector else None
         return image_folder.load(Path(text), frontend, progress, bool(options.skip_bad_frames))
     holdout = 5 if options.holdout_every is None else options.holdout_every
+    if kind == "rosbag" and options.stereo_topics is not None:
+        options.check(kind, {"stereo_topics", "detector"})
+        left, right = options.stereo_topics
+        frontend = FrontendConfig(detector=options.detector) if options.detector else None
+        return recorded.load_stereo_bag(Path(text), left, right, _info_topic(left), _info_topic(right), frontend,
+                                        progress)
     if kind == "rosbag":
         options.check(kind, {"gps_topic", "odom_topic", "holdout_every"})
         return recorded.load_bag(Path(text), options.gps_topic, options.odom_topic, holdout)
     options.check(kind, {"geoid_height_m", "holdout_every"})
     return recorded.load_kitti_raw(Path(text), options.geoid_height_m or 0.0, holdout)
+
+
+def _info_topic(image_topic: str) -> str:
+    """The CameraInfo topic beside an image topic: /left/image_rect[/compressed] -> /left/camera_info."""
+    parts = [p for p in image_topic.split("/") if p and p != "compressed"]
+    return "/" + "/".join(parts[:-1] + ["camera_info"])
 
 
 __all__ = ["SourceData", "SourceOptions", "open_source", "source_kind"]

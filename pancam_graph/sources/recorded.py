@@ -5,7 +5,7 @@ fix kept out of the graph to score the result against measurements it never saw.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import gtsam
@@ -158,3 +158,81 @@ def load_kitti_raw(folder: Path, geoid_height_m: float = 0.0, holdout_every: int
         "sigma = pos_accuracy horizontally, twice that vertically"),
         options={"geoid_height_m": geoid_height_m, "holdout_every": holdout_every})
     return SourceData(traverse, truth, EstimatorConfig(), 0, info, held_out=held_out)
+
+
+_PAIR_TOLERANCE_S = 0.005  # a left and a right image this close in time are one stereo pair
+
+
+def load_stereo_bag(path: Path, left_topic: str, right_topic: str, left_info: str, right_info: str,
+                    frontend=None, progress=None) -> SourceData:
+    """A bag with a rectified stereo pair (Image or CompressedImage) and its two CameraInfo
+    topics: one stop per stereo pair, the image front-end over every pair, a body-fixed camera
+    (left camera at the body origin looking forward). GPS fixes and wheel odometry, when the
+    bag has them, come along: fixes at their own times, odometry interpolated to the pairs."""
+    from ..frontend.tracker import StereoTracker
+    from ..io.rosbag import read_images, read_navsatfix, read_odometry, read_stereo_camera_info
+    from ..rig import HEAD_R_CAM, Rig
+
+    stereo = read_stereo_camera_info(path, left_info, right_info)
+    cam = stereo.camera
+    rights = [(m.time_s, m.image) for m in read_images(path, right_topic)]
+    right_times = np.array([t for t, _ in rights])
+    tracker = StereoTracker(frontend)
+    stops: list[Stop] = []
+    unpaired = 0
+    for message in read_images(path, left_topic):
+        j = int(np.argmin(np.abs(right_times - message.time_s))) if len(right_times) else -1
+        if j < 0 or abs(right_times[j] - message.time_s) > _PAIR_TOLERANCE_S:
+            unpaired += 1
+            continue
+        left, right = (_gray(message.image), _gray(rights[j][1]))
+        for topic, image in ((left_topic, left), (right_topic, right)):
+            if image.shape != (cam.height, cam.width):
+                raise InputError(f"{path}: {topic} at t = {message.time_s:.3f} s: {image.shape[1]} x "
+                                 f"{image.shape[0]} px, but the camera_info says {cam.width} x {cam.height}")
+        stops.append(Stop(len(stops), message.time_s, tracker(left, right)))
+        if progress is not None:
+            progress("front-end", len(stops), 0)
+    if len(stops) < 2:
+        raise InputError(f"{path}: {len(stops)} stereo pairs on {left_topic} + {right_topic} (within "
+                         f"{_PAIR_TOLERANCE_S * 1e3:.0f} ms; {unpaired} left images without a right one)")
+    fixes, odometry = [], None
+    try:
+        fixes, _ = read_navsatfix(path, None)
+    except InputError:
+        pass  # no (single) NavSatFix topic: a VO-only bag
+    try:
+        odometry = read_odometry(path, None)
+    except InputError:
+        pass
+    if odometry is not None:
+        times = np.array([s.time_s for s in stops])
+        odom = odometry_at(odometry, times)
+        stops = [stop if k == 0 else replace(stop, dead_reckoning=DeadReckoning(
+            odom[k - 1].between(odom[k]).matrix(), OdometryNoise().covariance(odom[k - 1].between(odom[k]))))
+            for k, stop in enumerate(stops)]
+    body_T_camera = np.eye(4)
+    body_T_camera[:3, :3] = HEAD_R_CAM
+    origin = LocalFrame(fixes[0].lat_deg, fixes[0].lon_deg, fixes[0].h_m) if fixes else LocalFrame(0.0, 0.0, 0.0)
+    traverse = Traverse(
+        name=Path(path).stem, rig=Rig(Path(path).stem, cam, stereo.baseline_m, mast_height_m=1.0), origin=origin,
+        stops=tuple(stops), traverse_tilt_rad=0.0, image_noise_px=0.5, gps_lever_arm_m=np.zeros(3),
+        start_world_T_body=np.eye(4), start_sigmas=np.array([1e-4] * 3 + [1e-3] * 3),
+        gps_fixes=tuple(sorted(fixes, key=lambda f: f.time_s)), body_T_nav_left=body_T_camera)
+    from .kitti_odometry import REAL_IMAGE_ESTIMATOR
+
+    info = SourceInfo("rosbag", str(path), "none", notes=(
+        f"stereo pairs from {left_topic} + {right_topic} ({unpaired} unpaired left images)",
+        "the start pose is the local frame's origin (the bag gives no surveyed start)"),
+        options={"left_topic": left_topic, "right_topic": right_topic})
+    return SourceData(traverse, None, REAL_IMAGE_ESTIMATOR, 0, info)
+
+
+def _gray(image: np.ndarray) -> np.ndarray:
+    import cv2
+
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    if image.dtype != np.uint8:
+        image = cv2.convertScaleAbs(image, alpha=255.0 / max(float(image.max()), 1.0))
+    return image
