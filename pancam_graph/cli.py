@@ -25,7 +25,7 @@ from rich.progress import (
 from rich.table import Table
 from rich.text import Text
 
-from .errors import ConfigError, InputError, PancamGraphError
+from .errors import ConfigError, FolderInUse, InputError, PancamGraphError, ViewerUnavailable
 
 if TYPE_CHECKING:  # the heavy imports wait until a command needs them: --help stays fast
     from .results import RunOptions, RunResult
@@ -38,7 +38,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=N
 console = Console(stderr=True)
 EXIT_USAGE = 2  # bad input: a file, a folder, an option
 EXIT_FAILURE = 1  # the run itself failed
-_USAGE_ERRORS = (ConfigError, InputError)
+_USAGE_ERRORS = (ConfigError, InputError, FolderInUse)
 
 
 def _version(value: bool) -> None:
@@ -262,8 +262,11 @@ def _run_source(data: SourceData, options: RunOptions, out: Path | None, target,
 
                 if target.mode == "save" and target.path is None:
                     target = replace(target, path=folder / "recording.rrd")
-                recording = open_recording(target, f"{data.traverse.name} seed {data.seed}")
-                listener = RerunRecorder(recording.stream)
+                try:
+                    recording = open_recording(target, f"{data.traverse.name} seed {data.seed}")
+                    listener = RerunRecorder(recording.stream)
+                except ViewerUnavailable as exc:  # the results are the product, the viewer is not
+                    console.print(Text("warning: ", style="bold yellow") + Text(f"{exc}; running without it"))
             try:
                 result = _with_progress(data.traverse.name, quiet, lambda report: run_traverse(
                     data.traverse, data.truth, data.estimator, data.seed, options, report, listener,

@@ -35,3 +35,11 @@ class EvaluationError(PancamGraphError):
 
 class ResultsError(PancamGraphError):
     """A results folder cannot be written or read."""
+
+
+class FolderInUse(ResultsError):
+    """Another run owns the results folder (a usage error: choose another --out)."""
+
+
+class ViewerUnavailable(ResultsError):
+    """A rerun viewer to connect to does not answer; the run goes on without it."""

@@ -75,3 +75,45 @@ def test_show_config_prints_the_resolved_scenario(tmp_path):
     assert resolved["name"] == "short_trail"
     assert resolved["estimator"]["configurations"]["full"] == ["vo", "sites", "hrc", "gps"]
     assert resolved["estimator"]["site_memory"] == 3  # every constant, defaults included
+
+
+def test_two_runs_on_one_out_exactly_one_wins_and_nothing_is_lost(tmp_path):
+    exe = Path(sys.executable).parent / "pancam-graph"
+    first = subprocess.Popen([str(exe), "run", "short_trail", "--out", "res", "--quiet"], cwd=tmp_path,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 60
+    while not (tmp_path / "res.partial" / ".lock").exists() and first.poll() is None and time.time() < deadline:
+        time.sleep(0.05)
+    start = time.perf_counter()
+    second = _cli("run", "short_trail", "--out", "res", "--quiet", cwd=tmp_path)
+    assert time.perf_counter() - start < 10.0  # at once, not after the first run
+    _assert_usage_error(second, "in use by run", "choose another --out")
+    out, err = first.communicate(timeout=120)
+    assert first.returncode == 0, err
+    assert (tmp_path / "res" / "metrics.json").is_file() and (tmp_path / "res" / "report.md").is_file()
+    assert not (tmp_path / "res.partial").exists()
+
+
+def test_a_dead_runs_partial_folder_is_kept(tmp_path):
+    dead = tmp_path / "res.partial"
+    dead.mkdir()
+    (dead / ".lock").write_text("999999999\n")  # no such process
+    (dead / "steps.csv").write_text("what the dead run computed\n")
+    result = _cli("run", "short_trail", "--out", "res", "--quiet", "--configs", "vo", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "res.partial.1" / "steps.csv").read_text() == "what the dead run computed\n"
+    assert (tmp_path / "res" / "metrics.json").is_file()
+
+
+def test_a_viewer_that_does_not_answer_is_a_warning_not_a_hang(tmp_path):
+    import socket
+
+    with socket.socket() as probe:  # a port nothing listens on
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    start = time.perf_counter()
+    result = _cli("run", "short_trail", "--out", "res", "--quiet", "--configs", "vo",
+                  "--rerun", f"connect:rerun+http://127.0.0.1:{port}/proxy", cwd=tmp_path)
+    assert time.perf_counter() - start < 30.0
+    assert result.returncode == 0, result.stderr
+    assert "no viewer answers" in result.stderr and (tmp_path / "res" / "metrics.json").is_file()

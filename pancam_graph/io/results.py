@@ -6,7 +6,6 @@ import contextlib
 import csv
 import json
 import os
-import shutil
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,7 +14,7 @@ from typing import TYPE_CHECKING
 import gtsam
 import numpy as np
 
-from ..errors import InputError, ResultsError
+from ..errors import FolderInUse, InputError, ResultsError
 from ..geodesy import LocalFrame
 from ..results import metrics_document, reproduce_command, run_configuration
 from ..rig import Camera, Rig
@@ -26,24 +25,67 @@ if TYPE_CHECKING:
     from ..results import RunResult
 
 
+LOCK_FILE = ".lock"  # in a staging folder: the PID of the run that owns it
+
+
 @contextlib.contextmanager
 def results_folder(out: Path) -> Iterator[Path]:
-    """Yield a staging folder; on success it becomes `out`, on failure it is kept beside it
-    as `<out>.partial` so nothing computed is lost."""
+    """Yield a staging folder that this run owns exclusively; on success it becomes `out`, on
+    failure it is kept beside it as `<out>.partial` so nothing computed is lost.
+
+    The staging folder is created atomically (mkdir), so of two runs started on one `--out`
+    exactly one gets it; the other fails at once with FolderInUse. A `.partial` left by an
+    earlier run that died is kept, renamed `<out>.partial.<n>`."""
     out = Path(out)
-    if out.exists() and any(out.iterdir()):
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise ResultsError(f"{out}: results folder exists and is not empty; choose another --out")
     staging = out.with_name(out.name + ".partial")
-    if staging.exists():
-        shutil.rmtree(staging)
+    _set_aside_dead_partial(staging)
     try:
-        staging.mkdir(parents=True)
+        staging.parent.mkdir(parents=True, exist_ok=True)
+        staging.mkdir()
+    except FileExistsError:
+        raise FolderInUse(f"{out}: in use by another run ({staging} exists); choose another --out") from None
     except OSError as exc:
         raise ResultsError(f"{staging}: cannot create results folder: {exc.strerror}") from None
+    (staging / LOCK_FILE).write_text(f"{os.getpid()}\n", encoding="utf-8")
     yield staging
-    if out.exists():
-        out.rmdir()
-    os.replace(staging, out)
+    (staging / LOCK_FILE).unlink(missing_ok=True)
+    try:
+        if out.exists():
+            out.rmdir()  # empty (checked above): the rename below takes its place
+        os.replace(staging, out)
+    except OSError as exc:
+        raise ResultsError(f"{out}: cannot move the finished results into place ({exc.strerror}); "
+                           f"they are complete in {staging}") from None
+
+
+def _set_aside_dead_partial(staging: Path) -> None:
+    """A staging folder whose owner is alive means the folder is in use; one whose owner died is
+    renamed out of the way, never deleted."""
+    if not staging.exists():
+        return
+    lock = staging / LOCK_FILE
+    try:
+        pid = int(lock.read_text(encoding="utf-8").strip())
+    except (OSError, ValueError):
+        pid = None
+    if pid is not None and _alive(pid):
+        raise FolderInUse(f"{staging.with_suffix('')}: in use by run {pid} ({staging}); choose another --out")
+    n = 1
+    while staging.with_name(f"{staging.name}.{n}").exists():
+        n += 1
+    staging.rename(staging.with_name(f"{staging.name}.{n}"))
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 LOCAL_FRAME_FILE = "local_frame.json"  # the ENU origin of every trajectory in a results folder

@@ -10,7 +10,7 @@ from typing import Literal
 
 import rerun as rr
 
-from ..errors import ResultsError
+from ..errors import ResultsError, ViewerUnavailable
 from .rerun_scene import APP_ID
 
 DEFAULT_VIEWER_MEMORY = "25%"  # of system RAM; the viewer drops the oldest data beyond it
@@ -51,11 +51,30 @@ def open_recording(target: RerunTarget, name: str) -> OpenRecording:
         elif target.mode == "serve":
             served = stream.serve_grpc(server_memory_limit=target.memory_limit)
         else:
+            _check_listening(target.url)
             stream.connect_grpc(target.url)
     except (OSError, RuntimeError) as exc:
         where = target.path or target.url or target.mode
         raise ResultsError(f"rerun: cannot open the recording ({where}): {exc}") from None
     return OpenRecording(stream, target, served)
+
+
+CONNECT_TIMEOUT_S = 3.0
+_DEFAULT_URL = "rerun+http://127.0.0.1:9876/proxy"
+
+
+def _check_listening(url: str | None) -> None:
+    """A viewer that does not listen would make every flush wait forever: find out first."""
+    import socket
+    from urllib.parse import urlparse
+
+    parsed = urlparse((url or _DEFAULT_URL).replace("rerun+", "", 1))
+    host, port = parsed.hostname or "127.0.0.1", parsed.port or 9876
+    try:
+        with socket.create_connection((host, port), timeout=CONNECT_TIMEOUT_S):
+            pass
+    except OSError as exc:
+        raise ViewerUnavailable(f"rerun: no viewer answers at {host}:{port} ({exc.strerror or exc})") from None
 
 
 def _viewer_executable() -> str | None:
