@@ -27,5 +27,7 @@ def test_failed_run_keeps_partial_folder_and_never_overwrites(tmp_path):
     with results_folder(out) as staging:
         (staging / "a.txt").write_text("done")
     assert (out / "a.txt").read_text() == "done"
+    # the failed run's folder was set aside, not deleted
+    assert (tmp_path / "res.partial.1" / "metrics.json").exists()
     with pytest.raises(ResultsError, match="not empty"), results_folder(out):
         pass

@@ -49,8 +49,10 @@ def results_folder(out: Path) -> Iterator[Path]:
     except OSError as exc:
         raise ResultsError(f"{staging}: cannot create results folder: {exc.strerror}") from None
     (staging / LOCK_FILE).write_text(f"{os.getpid()}\n", encoding="utf-8")
-    yield staging
-    (staging / LOCK_FILE).unlink(missing_ok=True)
+    try:
+        yield staging
+    finally:  # done or failed, this run no longer owns it (a failed run's folder stays as .partial)
+        (staging / LOCK_FILE).unlink(missing_ok=True)
     try:
         if out.exists():
             out.rmdir()  # empty (checked above): the rename below takes its place
