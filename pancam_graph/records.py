@@ -90,6 +90,13 @@ class DeadReckoning:
     prev_T_curr: np.ndarray
     covariance: np.ndarray
 
+    def __post_init__(self) -> None:
+        # One memory layout whatever made them (gtsam hands out column-major matrices): numpy's
+        # products sum in layout-dependent order, so a traverse read back from files would
+        # otherwise differ from the simulated one in the last bits.
+        object.__setattr__(self, "prev_T_curr", np.ascontiguousarray(self.prev_T_curr, dtype=float))
+        object.__setattr__(self, "covariance", np.ascontiguousarray(self.covariance, dtype=float))
+
 
 @dataclass(frozen=True)
 class SlipPrior:
