@@ -70,11 +70,15 @@ def _load(scenario: str):
 ProgressCallback = Callable[[str, int, int], None]
 
 
+def _progress_bar(quiet: bool = False) -> Progress:
+    """Every long step's bar: what, how far, time so far and the time left."""
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    TextColumn("eta"), TimeRemainingColumn(), console=console, transient=True, disable=quiet)
+
+
 def _with_progress(name: str, quiet: bool, work: Callable[[ProgressCallback], RunResult]) -> RunResult:
     """Run `work(progress)` under a progress bar labelled `name`."""
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-               TextColumn("eta"), TimeRemainingColumn())
-    with Progress(*columns, console=console, transient=True, disable=quiet) as bar:
+    with _progress_bar(quiet) as bar:
         task = bar.add_task(f"{escape(name)}: stops", total=None)
 
         def report(stage: str, done: int, total: int) -> None:
@@ -556,9 +560,8 @@ def _bench_frontend(source: str | None, detector: str | None) -> None:
         tracker = StereoTracker(config)
         load_before = os.getloadavg()
         features, read_ms = [], []
-        with Progress(TextColumn("front-end"), BarColumn(), MofNCompleteColumn(), TextColumn("eta"),
-                      TimeRemainingColumn(), console=console, transient=True) as bar:
-            task = bar.add_task("frames", total=len(frames))
+        with _progress_bar() as bar:
+            task = bar.add_task("front-end", total=len(frames))
             for k, read in enumerate(frames):
                 start = time.perf_counter()
                 left, right = read()
@@ -637,21 +640,17 @@ def analyze_command(
         raise _fail(exc) from None
     custom = [baseline, focal_px, fov_deg]
     if any(v is not None for v in custom) and not all(v is not None for v in custom):
-        console.print("[red]error:[/] a custom rig needs --baseline, --focal-px and --fov together")
-        raise typer.Exit(2)
+        raise _fail(ConfigError("a custom rig needs --baseline, --focal-px and --fov together"))
     try:
         if all(v is not None for v in custom):
             rigs = [AnalysisRig("custom", baseline, focal_px, fov_deg)]
         else:
             rigs = [AnalysisRig.preset(name) for name in (rig or list(RIG_PRESETS))]
     except ValueError as exc:
-        console.print(f"[red]error:[/] {exc}")
-        raise typer.Exit(2) from None
+        raise _fail(ConfigError(f"--rig: {exc}")) from None
     assumptions = Assumptions(sigma_px=sigma_px)
     start = time.perf_counter()
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-               TextColumn("eta"), TimeRemainingColumn())
-    with Progress(*columns, console=console, transient=True) as bar:
+    with _progress_bar() as bar:
         task = bar.add_task("analysing rigs", total=len(rigs))
         rows = analyze(rigs, assumptions, progress=lambda done, total: bar.update(task, completed=done))
     written = write_analysis(rows, assumptions, out)
@@ -671,7 +670,7 @@ def analyze_command(
 def simulate_command(
     scenario: str = typer.Argument("denver_trail", help="bundled scenario name or path to a TOML file"),
     out: Path = typer.Option(..., "--out", help="observation folder to write"),
-    seed: int | None = typer.Option(None, "--seed", help="override the scenario's seed"),
+    seed: int | None = typer.Option(None, "--seed", min=0, help="override the scenario's seed"),
     no_truth: bool = typer.Option(False, "--no-truth", help="leave the reference poses (truth.kitti) out"),
 ) -> None:
     """Write a scenario's simulated observations as an observation folder (docs/observation_format.md),
@@ -681,8 +680,7 @@ def simulate_command(
 
     try:
         sc = _load(scenario)
-        if out.exists() and any(out.iterdir()):
-            raise ConfigError(f"{out}: folder exists and is not empty; choose another --out")
+        _check_out(out)
         seed_used = sc.seed if seed is None else seed
         with console.status(f"simulating {escape(sc.name)} (seed {seed_used})"):
             traverse, truth = simulate(sc, seed_used)

@@ -158,6 +158,10 @@ class EstimatorConfig(_Strict):
     configurations: dict[str, list[str]] = Field(default_factory=lambda: dict(DEFAULT_CONFIGURATIONS),
                                                  description="name -> measurement kinds (pancam_graph/kinds/)")
 
+    def kernel_k(self, kernel: str) -> float | None:
+        """The threshold (sigmas) of a robust kernel named in this configuration."""
+        return {"huber": self.huber_k, "cauchy": self.cauchy_k}.get(kernel)
+
     @model_validator(mode="after")
     def _check_configurations(self) -> EstimatorConfig:
         for name, kinds in self.configurations.items():

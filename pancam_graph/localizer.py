@@ -3,6 +3,7 @@ one iSAM2 update out."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import gtsam
@@ -13,9 +14,12 @@ from .errors import ConfigError
 from .frontend.motion import Motion
 from .graph import factors
 from .graph.keys import T, X
-from .graph.smoother import Smoother
+from .graph.smoother import Smoother, poses_array
 from .kinds import KINDS, Kind
-from .records import Stop, Traverse
+from .records import GroundTruth, Stop, Traverse
+
+# (key_a, key_b, a_T_b, covariance) -> factor
+MotionFactor = Callable[[int, int, gtsam.Pose3, np.ndarray], gtsam.NonlinearFactor]
 
 
 @dataclass
@@ -82,10 +86,10 @@ class Localizer:
         self.bridged_stops = 0
         self.interpolated: list[InterpolatedPose] = []
         self._keys_at: dict[float, int] = {}  # this step's inserted poses by time
-        # How an odometry increment and a VO step become factors; the wheel-slip and VO-scale
-        # kinds replace them.
-        self.odometry_factor = factors.between
-        self.vo_factor = factors.between
+        # How a raw odometry increment or a VO step becomes a factor when a kind models its error
+        # (wheel slip, VO scale); None: the motion's own between factor.
+        self.odometry_factor: MotionFactor | None = None
+        self.vo_factor: MotionFactor | None = None
         self.kinds: dict[str, Kind] = {}
         for name in KINDS:  # registry order: a kind may hook into one built before it
             if name in self.kind_names:
@@ -143,11 +147,12 @@ class Localizer:
             keys.append(key)
         keys.append(X(stop.index))
 
-        use_odometry = motion.odometry is not None and self.odometry_factor is not factors.between
-        step = gtsam.Pose3(motion.odometry.prev_T_curr) if use_odometry else motion.prev_T_curr
-        covariance = motion.odometry.covariance if use_odometry else motion.covariance
-        build = (self.odometry_factor if use_odometry else self.vo_factor if motion.source == "vo"
-                 else factors.between)
+        step, covariance, build = motion.prev_T_curr, motion.covariance, factors.between
+        if motion.odometry is not None and self.odometry_factor is not None:
+            step, covariance = gtsam.Pose3(motion.odometry.prev_T_curr), motion.odometry.covariance
+            build = self.odometry_factor
+        elif motion.source == "vo" and self.vo_factor is not None:
+            build = self.vo_factor
         start = self.smoother.pose(keys[0])
         if len(keys) == 2:
             self.smoother.add(build(keys[0], keys[1], step, covariance))
@@ -190,6 +195,19 @@ class Localizer:
         sites = self.kinds.get("sites")
         return sites.tie_links() if sites is not None else []
 
+    def true_values(self, truth: GroundTruth) -> gtsam.Values | None:
+        """True values of the variables that are not stop poses or landmarks (for the CRLB): the
+        poses inserted between stops, interpolated the same way; each kind's own (its
+        `true_values`). None when one is unknown."""
+        values = gtsam.Values()
+        for p in self.interpolated:
+            a, b = gtsam.Pose3(truth.world_T_body[p.prev_stop]), gtsam.Pose3(truth.world_T_body[p.stop])
+            values.insert(p.key, a.slerp(p.fraction, b))
+        for kind in self.kinds.values():
+            if not kind.true_values(truth, values):
+                return None
+        return values
+
     def counters(self) -> dict:
         out: dict = {}
         for kind in self.kinds.values():
@@ -201,7 +219,7 @@ class Localizer:
         return self._snapshot_of(self.smoother.estimate())
 
     def _snapshot_of(self, values: gtsam.Values) -> Snapshot:
-        poses = np.stack([values.atPose3(X(k)).matrix() for k in self.stops])
+        poses = poses_array(values, [X(k) for k in self.stops])  # not the poses inserted between stops
         ids = np.array(sorted(self.landmarks), dtype=np.int64)
         points = gtsam.utilities.extractPoint3(values) if len(ids) else np.zeros((0, 3))
         return Snapshot(np.asarray(self.stops), poses, ids, points)

@@ -7,7 +7,6 @@ import time
 from collections.abc import Callable
 from typing import Protocol
 
-import gtsam
 import numpy as np
 
 from .config import EstimatorConfig, Scenario, configuration_problem
@@ -17,8 +16,7 @@ from .evaluation.metrics import GPS_REFERENCE_STEP_M, TrajectoryMetrics, compare
 from .evaluation.timed import poses_at_times
 from .frontend.motion import Motion, dead_reckoning_motion, motion_between
 from .frontend.stereo_vo import StereoVO
-from .graph.keys import S
-from .kinds import KINDS, unavailable
+from .kinds import unavailable
 from .localizer import Localizer, StepResult
 from .records import GpsFix, GroundTruth, Stop, Traverse
 from .results import ConfigurationResult, HoldoutScore, RunOptions, RunResult, SourceInfo
@@ -77,13 +75,9 @@ def select_configurations(estimator: EstimatorConfig, traverse: Traverse, reques
     chosen = {}
     for name in requested:
         kinds = list(defined[name]) if name in defined else name.split("+")
-        unknown = [k for k in kinds if k not in KINDS]
-        if unknown:
-            raise ConfigError(f"--configs {name}: {unknown[0]!r} is neither a configuration "
-                              f"({', '.join(defined)}) nor a kind ({', '.join(KINDS)})")
         problem = configuration_problem(kinds)
         if problem:
-            raise ConfigError(f"--configs {name}: {problem}")
+            raise ConfigError(f"--configs {name}: {problem}; defined configurations: {', '.join(defined)}")
         reason = unavailable(kinds, traverse)
         if reason:
             raise ConfigError(f"--configs {name}: this traverse cannot feed it ({reason})")
@@ -131,12 +125,19 @@ def run(scenario: Scenario, options: RunOptions = RunOptions(), progress: Progre
         listener: RunListener | None = None) -> RunResult:
     """Simulate the scenario and run every configuration on it."""
     start = time.perf_counter()
-    seed = scenario.seed if options.seed is None else options.seed
+    traverse, truth, resolved, info = simulated(scenario, options.seed)
+    return run_traverse(traverse, truth, scenario.estimator, resolved.seed, options, progress, listener,
+                        source=info, scenario=resolved, started=start)
+
+
+def simulated(scenario: Scenario, seed: int | None = None, name: str | None = None
+              ) -> tuple[Traverse, GroundTruth, Scenario, SourceInfo]:
+    """The scenario's traverse and truth for `seed` (default: its own), the scenario resolved
+    with that seed (its scenario.toml reproduces the run) and the source's provenance."""
+    seed = scenario.seed if seed is None else seed
     traverse, truth = simulate(scenario, seed)
-    resolved = scenario.model_copy(update={"seed": seed})  # its scenario.toml reproduces this run
-    return run_traverse(traverse, truth, scenario.estimator, seed, options, progress, listener,
-                        source=SourceInfo("scenario", scenario.name, "simulation ground truth"), scenario=resolved,
-                        started=start)
+    info = SourceInfo("scenario", name or scenario.name, "simulation ground truth")
+    return traverse, truth, scenario.model_copy(update={"seed": seed}), info
 
 
 def run_traverse(
@@ -200,7 +201,7 @@ def run_traverse(
         covariance = np.stack([localizer.position_covariance(k) for k in localizer.stops])
         if truth is not None:
             metrics = compare(poses[:, :3, 3], truth.positions, alignment, poses, truth.world_T_body)
-            extra = _truth_of_extra_variables(localizer, truth)
+            extra = localizer.true_values(truth)
             # the bound needs the truth of every variable (an observation folder may have poses only)
             if extra is not None and all(j < len(truth.landmarks) and np.all(np.isfinite(truth.landmarks[j]))
                                          for j in localizer.landmarks):
@@ -230,21 +231,3 @@ def run_traverse(
                        results, skipped, time.perf_counter() - start, vo_s)
     listener.finish(result)
     return result
-
-
-def _truth_of_extra_variables(localizer: Localizer, truth: GroundTruth) -> gtsam.Values | None:
-    """True values of the variables that are not stop poses or landmarks (poses inserted between
-    stops: the true poses interpolated the same way; the wheel slip), or None when unknown."""
-    extra = gtsam.Values()
-    for p in localizer.interpolated:
-        a, b = gtsam.Pose3(truth.world_T_body[p.prev_stop]), gtsam.Pose3(truth.world_T_body[p.stop])
-        extra.insert(p.key, a.slerp(p.fraction, b))
-    if "wheel_slip" in localizer.kinds:
-        if truth.wheel_slip is None:
-            return None
-        extra.insert(S(0), float(truth.wheel_slip))
-    if "vo_scale" in localizer.kinds:
-        # the calibration's scale error: zero in simulation, unknown on real data, where the bound
-        # is linearized at its prior mean (the factor is nearly linear in it)
-        extra.insert(S(1), 0.0)
-    return extra

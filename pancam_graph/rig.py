@@ -17,6 +17,11 @@ import numpy as np
 # head frame (x forward, y left, z up).
 HEAD_R_CAM = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
+# A camera fixed at the body origin looking forward (a car's or a rover's navigation pair when
+# the body frame is put at the left camera): body_T_camera.
+BODY_T_FORWARD_CAMERA = np.eye(4)
+BODY_T_FORWARD_CAMERA[:3, :3] = HEAD_R_CAM
+
 
 @dataclass(frozen=True)
 class Camera:

@@ -15,6 +15,7 @@ from pancam_graph.evaluation.consistency import nees
 from pancam_graph.frontend.tracker import StereoTracker
 from pancam_graph.pipeline import run_traverse
 from pancam_graph.results import RunOptions
+from pancam_graph.rig import BODY_T_FORWARD_CAMERA
 from pancam_graph.sources import kitti_odometry
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
@@ -170,7 +171,7 @@ def test_stereo_images_from_a_ros_bag_run_the_same_front_end_and_vo(tmp_path):
     from pancam_graph.io.kitti import read_kitti_odometry
 
     poses = read_kitti_odometry(SEQUENCE).world_T_camera
-    true_end = (kitti_odometry.BODY_T_CAMERA @ poses[11] @ np.linalg.inv(kitti_odometry.BODY_T_CAMERA))[:3, 3]
+    true_end = (BODY_T_FORWARD_CAMERA @ poses[11] @ np.linalg.inv(BODY_T_FORWARD_CAMERA))[:3, 3]
     travelled = np.linalg.norm(true_end)
     assert travelled > 10.0
     assert np.linalg.norm(vo.world_T_body[-1, :3, 3] - true_end) < 0.02 * travelled

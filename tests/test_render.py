@@ -16,7 +16,6 @@ from pancam_graph.sim import simulate
 from pancam_graph.sim.world import dense_path
 from pancam_graph.sources import image_folder
 
-pytest.importorskip("moderngl", reason="the [render] extra is part of ./dev.sh test's install")
 
 SCENARIO = Scenario.model_validate({
     "name": "render_strip", "description": "40 m for the renderer tests",
@@ -69,7 +68,7 @@ def test_vo_from_rendered_images(rendered):
     # Lucas-Kanade loses (or mis-locks on the repetitive texture) most tracks over a 2 m step at
     # a few stops: measured 3 VO failures here, bridged by dead reckoning. Tracking aided by the
     # predicted motion is the next step (see the notes of issue 13).
-    assert vo.bridged_stops <= 4
+    assert vo.bridged_stops <= 3
     assert vo.metrics.relative_closure_pct < 1.0
     assert vo.consistency.anees < 3.0
 

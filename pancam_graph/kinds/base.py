@@ -10,7 +10,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, ClassVar
 
-from ..records import Stop, Traverse
+import gtsam
+
+from ..records import GroundTruth, Stop, Traverse
 
 if TYPE_CHECKING:
     from ..localizer import Localizer, StepCounts
@@ -51,6 +53,10 @@ class Kind:
 
     def after_update(self, stop: Stop, counts: StepCounts) -> None:
         """Checks against the updated estimate."""
+
+    def true_values(self, truth: GroundTruth, values: gtsam.Values) -> bool:
+        """Insert the true values of this kind's own variables (for the CRLB); False when unknown."""
+        return True
 
     def finish(self) -> None:
         """The traverse is over: anything left to account for."""

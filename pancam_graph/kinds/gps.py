@@ -34,8 +34,13 @@ class Gps(Kind):
         self.refused: list[str] = []
         self.refused_count = 0
         self._pending: list[tuple[int, GpsFix, np.ndarray]] = []  # this stop's (key, fix, ENU)
+        fixes = localizer.traverse.gps_fixes
+        enu = localizer.traverse.origin.to_enu([f.lat_deg for f in fixes], [f.lon_deg for f in fixes],
+                                               [f.h_m for f in fixes])
+        self._enu = dict(zip((f.time_s for f in fixes), enu, strict=True))  # converted once, by time
+        self._kernel = est.gps_kernel, est.kernel_k(est.gps_kernel)
         first = localizer.traverse.stops[0].time_s
-        for fix in localizer.traverse.gps_fixes:
+        for fix in fixes:
             if fix.time_s < first - TIME_TOLERANCE_S:
                 self._refuse(fix, f"before the first stop (t = {first:.3f} s): no motion estimate reaches it")
 
@@ -74,15 +79,14 @@ class Gps(Kind):
 
     def add(self, stop: Stop, counts) -> None:
         prev = self.loc.previous_stop
-        est = self.loc.estimator
         lever = self.loc.traverse.gps_lever_arm_m
         for fix in self._window(prev, stop):
             key = self._key(prev, stop, fix)
             if key is None:
                 continue
-            enu = self.loc.traverse.origin.to_enu(fix.lat_deg, fix.lon_deg, fix.h_m)[0]
-            k = est.huber_k if est.gps_kernel == "huber" else est.cauchy_k
-            model = noise.robust(est.gps_kernel, noise.gps_position(fix.sigma_horizontal_m, fix.sigma_vertical_m), k)
+            enu = self._enu[fix.time_s]
+            model = noise.robust(self._kernel[0], noise.gps_position(fix.sigma_horizontal_m, fix.sigma_vertical_m),
+                                 self._kernel[1])
             self.loc.smoother.add(factors.gps_at(key, enu, lever, model))
             self._pending.append((key, fix, enu))
 

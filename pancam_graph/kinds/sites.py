@@ -56,8 +56,7 @@ class Sites(Kind):
         self.memory = est.site_memory
         self.anchor_sigma_m = est.landmark_anchor_sigma_m
         self.tie_points_per_site = est.tie_points_per_site
-        k = est.huber_k if est.tie_kernel == "huber" else est.cauchy_k
-        self.tie_noise = noise.robust(est.tie_kernel, noise.stereo_pixels(self.sigma_px), k)
+        self.tie_noise = noise.robust(est.tie_kernel, noise.stereo_pixels(self.sigma_px), est.kernel_k(est.tie_kernel))
         self.stereo_calibration = self.rig.stereo_calibration()
         self.sites: list[SiteObservations] = []
         self.landmarks: set[int] = set()

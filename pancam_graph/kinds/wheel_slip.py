@@ -70,6 +70,12 @@ class WheelSlip(Kind):
         localizer.smoother.insert(SLIP, prior.mean)
         localizer.odometry_factor = slip_odometry_factor  # every odometry step, bridges of VO included
 
+    def true_values(self, truth, values: gtsam.Values) -> bool:
+        if truth.wheel_slip is None:
+            return False
+        values.insert(SLIP, float(truth.wheel_slip))
+        return True
+
     def counters(self) -> dict:
         slip = self.loc.smoother.estimate_double(SLIP)
         sigma = float(np.sqrt(self.loc.smoother.marginal_covariance(SLIP)[0, 0]))

@@ -16,12 +16,8 @@ from ..frontend.tracker import StageTimes, StereoTracker
 from ..geodesy import LocalFrame
 from ..records import GroundTruth, SlipPrior, Stop, Traverse
 from ..results import SourceInfo
-from ..rig import HEAD_R_CAM, Rig
+from ..rig import BODY_T_FORWARD_CAMERA, Rig
 from .base import SourceData
-
-# The body frame (x forward, y left, z up) with the left camera at its origin.
-BODY_T_CAMERA = np.eye(4)
-BODY_T_CAMERA[:3, :3] = HEAD_R_CAM
 
 # Matching and localisation error of the front-end's features (1 sigma).
 PIXEL_SIGMA_PX = 0.5
@@ -72,13 +68,14 @@ def traverse_from_sequence(sequence, stops: list[Stop], times: StageTimes, front
     rig = Rig(f"kitti {sequence.folder.name}", cam, sequence.stereo.baseline_m, mast_height_m=1.65)
     truth = None
     if sequence.world_T_camera is not None:  # camera poses in the first camera's frame
-        truth = GroundTruth(BODY_T_CAMERA @ sequence.world_T_camera @ np.linalg.inv(BODY_T_CAMERA), np.zeros((0, 3)))
+        body = BODY_T_FORWARD_CAMERA
+        truth = GroundTruth(body @ sequence.world_T_camera @ np.linalg.inv(body), np.zeros((0, 3)))
     start = np.eye(4) if truth is None else truth.world_T_body[0]
     traverse = Traverse(
         name=sequence.folder.name, rig=rig, origin=LocalFrame(0.0, 0.0, 0.0), stops=tuple(stops),
         traverse_tilt_rad=0.0, image_noise_px=PIXEL_SIGMA_PX, gps_lever_arm_m=np.zeros(3),
         start_world_T_body=start, start_sigmas=np.array([1e-4] * 3 + [1e-3] * 3),
-        wheel_slip=SlipPrior(), body_T_nav_left=BODY_T_CAMERA,
+        wheel_slip=SlipPrior(), body_T_nav_left=BODY_T_FORWARD_CAMERA,
     )
     info = SourceInfo("kitti_odometry", str(sequence.folder), "poses.txt (KITTI ground truth)" if truth else "none",
                       notes=("no geodetic origin: the local frame is the first camera's, WGS84 exports are "

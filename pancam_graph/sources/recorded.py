@@ -171,7 +171,7 @@ def load_stereo_bag(path: Path, left_topic: str, right_topic: str, left_info: st
     bag has them, come along: fixes at their own times, odometry interpolated to the pairs."""
     from ..frontend.tracker import StereoTracker
     from ..io.rosbag import read_images, read_navsatfix, read_odometry, read_stereo_camera_info
-    from ..rig import HEAD_R_CAM, Rig
+    from ..rig import BODY_T_FORWARD_CAMERA, Rig
 
     stereo = read_stereo_camera_info(path, left_info, right_info)
     cam = stereo.camera
@@ -211,14 +211,12 @@ def load_stereo_bag(path: Path, left_topic: str, right_topic: str, left_info: st
         stops = [stop if k == 0 else replace(stop, dead_reckoning=DeadReckoning(
             odom[k - 1].between(odom[k]).matrix(), OdometryNoise().covariance(odom[k - 1].between(odom[k]))))
             for k, stop in enumerate(stops)]
-    body_T_camera = np.eye(4)
-    body_T_camera[:3, :3] = HEAD_R_CAM
     origin = LocalFrame(fixes[0].lat_deg, fixes[0].lon_deg, fixes[0].h_m) if fixes else LocalFrame(0.0, 0.0, 0.0)
     traverse = Traverse(
         name=Path(path).stem, rig=Rig(Path(path).stem, cam, stereo.baseline_m, mast_height_m=1.0), origin=origin,
         stops=tuple(stops), traverse_tilt_rad=0.0, image_noise_px=0.5, gps_lever_arm_m=np.zeros(3),
         start_world_T_body=np.eye(4), start_sigmas=np.array([1e-4] * 3 + [1e-3] * 3),
-        gps_fixes=tuple(sorted(fixes, key=lambda f: f.time_s)), body_T_nav_left=body_T_camera)
+        gps_fixes=tuple(sorted(fixes, key=lambda f: f.time_s)), body_T_nav_left=BODY_T_FORWARD_CAMERA)
     from .kitti_odometry import REAL_IMAGE_ESTIMATOR
 
     info = SourceInfo("rosbag", str(path), "none", notes=(
