@@ -16,7 +16,6 @@ from pancam_graph.sim import simulate
 from pancam_graph.sim.world import dense_path
 from pancam_graph.sources import image_folder
 
-
 SCENARIO = Scenario.model_validate({
     "name": "render_strip", "description": "40 m for the renderer tests",
     "origin": {"lat_deg": 39.7392, "lon_deg": -105.145, "h_m": 1705.0},
