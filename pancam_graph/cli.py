@@ -25,7 +25,7 @@ from rich.progress import (
 from rich.table import Table
 from rich.text import Text
 
-from .errors import ConfigError, FolderInUse, InputError, PancamGraphError, ViewerUnavailable
+from .errors import ConfigError, FolderInUse, FrameError, InputError, PancamGraphError, ViewerUnavailable
 
 if TYPE_CHECKING:  # the heavy imports wait until a command needs them: --help stays fast
     from .results import RunOptions, RunResult
@@ -205,6 +205,8 @@ def run_command(
                                                          _detector(detector), skip_bad_frames or None,
                                                          _topics(stereo_topics)), quiet)
         select_configurations(data.estimator, data.traverse, options.configs)  # before anything is written
+    except FrameError as exc:
+        raise _keep_frontend_work(exc, out) from None
     except PancamGraphError as exc:
         raise _fail(exc, bad_input=True) from None
     for reason in data.rejected[:10]:
@@ -235,6 +237,33 @@ def _open_with_progress(source: str, options, quiet: bool) -> SourceData:
 
     name = Path(source).name or source
     return _with_progress(name, quiet, lambda report: open_source(source, options, report))
+
+
+def _keep_frontend_work(exc: FrameError, out: Path | None) -> typer.Exit:
+    """A bad frame stopped the front-end: what it tracked before is written as an observation
+    folder (in <out>.partial, like any failed run's work) so it is not lost."""
+    from .io.observations import write_observations
+    from .io.results import results_folder
+
+    data = exc.partial
+    if data is None:
+        return _fail(exc, bad_input=True)
+    out = out or Path("results") / f"{data.traverse.name}-{datetime.now():%Y%m%d-%H%M%S}"
+    kept = out.with_name(out.name + ".partial") / "observations"
+    try:
+        with results_folder(out) as folder:
+            write_observations(folder / "observations", data.traverse, data.estimator, data.seed, data.truth)
+            raise exc
+    except FrameError:
+        pass
+    except PancamGraphError as write_error:
+        console.print(Text("error: ", style="bold red") + Text(f"cannot keep the front-end's work: {write_error}"))
+        return _fail(exc, bad_input=True)
+    n = len(data.traverse.stops)
+    console.print(Text("error: ", style="bold red") + Text(
+        f"{exc}\nthe front-end's observations of stops 0-{n - 1} are kept in {kept} (`pancam-graph run {kept}` "
+        "runs the back-end on them); --skip-bad-frames leaves a bad stop to the VO bridge instead"), soft_wrap=True)
+    return typer.Exit(EXIT_USAGE)
 
 
 def _check_out(out: Path | None) -> None:
@@ -302,6 +331,9 @@ def track_command(
     source: str = typer.Argument(..., help="stereo images: a KITTI odometry sequence folder"),
     out: Path = typer.Option(..., "--out", help="observation folder to write (docs/observation_format.md)"),
     detector: str | None = typer.Option(None, "--detector", help="gftt (default), orb or sift"),
+    skip_bad_frames: bool = typer.Option(False, "--skip-bad-frames", help="a missing, truncated or wrong-sized "
+                                         "image leaves its stop without observations (default: stop with a "
+                                         "message naming the file)"),
     quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
 ) -> None:
     """Run the image front-end and write what it found as an observation folder, so the back-end
@@ -314,8 +346,11 @@ def track_command(
         if source_kind(source) not in ("kitti_odometry", "image_folder"):
             raise ConfigError(f"{source}: track needs stereo images (an image folder or a KITTI odometry "
                               "sequence folder)")
-        data = _open_with_progress(source, SourceOptions(detector=_detector(detector)), quiet)
+        data = _open_with_progress(source, SourceOptions(detector=_detector(detector),
+                                                         skip_bad_frames=skip_bad_frames or None), quiet)
         write_observations(out, data.traverse, data.estimator, data.seed, data.truth)
+    except FrameError as exc:
+        raise _keep_frontend_work(exc, out) from None
     except PancamGraphError as exc:
         raise _fail(exc, bad_input=True) from None
     frames = [len(s.stereo) for s in data.traverse.stops]
@@ -330,9 +365,11 @@ def render_command(
     seed: int | None = typer.Option(None, "--seed", min=0, help="override the scenario's seed"),
     quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
 ) -> None:
-    """Render a scenario's navigation stereo pairs (terrain with relief and texture, shading, the
-    rig's intrinsics, sensor noise) into an image folder that `run` and `track` read; the truth
-    goes in its own files. Needs the [render] extra (moderngl on EGL)."""
+    """Render a scenario's navigation stereo pairs and site panoramas (terrain with relief, rocks,
+    texture at several scales, shading; the rig's intrinsics through a distorting lens on a
+    slightly misaligned pair, with its calibration; sensor noise) into an image folder that `run`
+    and `track` read; the truth goes in its own files. The scenario's [render] table sets the
+    lens, the pair's errors, rocks and panoramas. Needs the [render] extra (moderngl on EGL)."""
     from .render.images import render_scenario
 
     try:
@@ -342,7 +379,7 @@ def render_command(
         n = _with_progress(sc.name, quiet, lambda report: render_scenario(sc, out, seed, report))
     except PancamGraphError as exc:
         raise _fail(exc, bad_input=True) from None
-    console.print(f"{n} stereo pairs rendered into {out} in {time.perf_counter() - start:.0f} s")
+    console.print(f"{n} images rendered into {out} in {time.perf_counter() - start:.0f} s")
 
 
 @app.command("show-config")
@@ -556,21 +593,26 @@ def _bench_frontend(source: str | None, detector: str | None) -> None:
             raise ConfigError(f"bench frontend {source or ''}: give stereo images (an image folder or a KITTI "
                               "odometry sequence folder, e.g. ../shared/data/real/kitti_odometry_51)")
         config = FrontendConfig(detector=_detector(detector) or "gftt")
-        frames, size = _stereo_frames(Path(source), kind)
+        frames, size, rectify = _stereo_frames(Path(source), kind)
         tracker = StereoTracker(config)
         load_before = os.getloadavg()
-        features, read_ms = [], []
+        features, read_ms, frame = [], [], []
         with _progress_bar() as bar:
             task = bar.add_task("front-end", total=len(frames))
             for k, read in enumerate(frames):
                 start = time.perf_counter()
                 left, right = read()
                 read_ms.append((time.perf_counter() - start) * 1e3)
+                start = time.perf_counter()
+                if rectify is not None:
+                    left, right = rectify(left, right)
+                    tracker.times.add("rectify", start)
                 features.append(len(tracker(left, right)))
+                frame.append((time.perf_counter() - start) * 1e3)
                 bar.update(task, completed=k + 1)
     except PancamGraphError as exc:
         raise _fail(exc, bad_input=True) from None
-    frame = np.array(tracker.times.ms["frame"])
+    frame = np.array(frame)
     stages = tracker.times.summary()
     stages.pop("frame")
     print(json.dumps({
@@ -580,24 +622,25 @@ def _bench_frontend(source: str | None, detector: str | None) -> None:
         "stages_ms": stages, "image_read_ms_median": float(np.median(read_ms)),
         "features_per_frame_median": float(np.median(features)),
         "load_average_1min": {"before": load_before[0], "after": os.getloadavg()[0]},
-        "note": "frame_ms: images in memory -> observations (reading the images not included)",
+        "note": "frame_ms: images in memory -> rectified (raw images) -> observations (reading the images "
+                "not included)",
     }, indent=2))
 
 
 def _stereo_frames(folder: Path, kind: str):
-    """(one reader per stereo pair, (height, width)) of an image source."""
+    """(one reader of the raw pair per stereo frame, (height, width), the rectification or None)
+    of an image source."""
     if kind == "kitti_odometry":
         from .io.kitti import read_kitti_odometry
 
         sequence = read_kitti_odometry(folder)
         cam = sequence.stereo.camera
-        return [lambda k=k: sequence.stereo_pair(k) for k in range(len(sequence))], (cam.height, cam.width)
+        return [lambda k=k: sequence.stereo_pair(k) for k in range(len(sequence))], (cam.height, cam.width), None
     from .io.observations import read_observations
-    from .sources.image_folder import read_gray
+    from .sources.image_folder import FramePairs
 
-    obs = read_observations(folder)
-    size = (obs.traverse.rig.wac.height, obs.traverse.rig.wac.width)
-    return [lambda a=a, b=b: (read_gray(a, size), read_gray(b, size)) for a, b in obs.frames], size
+    pairs = FramePairs(read_observations(folder))
+    return [lambda k=k: pairs.read(k) for k in range(len(pairs))], pairs.size, pairs.rectify
 
 
 def _time_recorded_run(scenario, seed: int) -> float:

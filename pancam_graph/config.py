@@ -126,7 +126,8 @@ class EstimatorConfig(_Strict):
     vo_min_inliers: int = Field(12, ge=6)
     vo_ransac_px: float = Field(1.5, gt=0.0)
     vo_max_step_m: float = Field(5.0, gt=0.0)
-    vo_pnp_iterations: int = Field(200, ge=10, description="RANSAC iterations of the PnP initial pose")
+    vo_pnp_iterations: int = Field(1000, ge=10, description="RANSAC iterations (at most) of the PnP initial "
+                                   "pose: 200 left bad steps where few tracks survive (rendered denver_trail)")
     vo_pnp_confidence: float = Field(0.999, gt=0.0, lt=1.0)
     vo_max_range_m: float = Field(40.0, gt=0.0, description="VO uses features nearer than this: a far "
                                   "feature's range error (grows with range squared) biases the scale")
@@ -209,6 +210,22 @@ class FrontendConfig(_Strict):
     max_motion_px: float = Field(150.0, gt=0.0, description="descriptor detectors: image motion between frames")
 
 
+class RenderConfig(_Strict):
+    """How `pancam-graph render` images a scenario: a real lens, a real misaligned stereo pair,
+    rocks, and the site panoramas. The defaults are the ExoMars PanCam emulator's measured radial
+    distortion (ESA Katwijk data set, shared/data/real/katwijk_pancam_calib)."""
+
+    distortion: tuple[float, float, float, float] = Field(
+        (-0.2645, 0.2626, 0.0, 0.0), description="k1, k2, p1, p2 of both WACs (OpenCV order); zeros: a pinhole")
+    right_rotation_deg: tuple[float, float, float] = Field(
+        (0.05, -0.08, 0.06), description="the right WAC's misalignment about its x, y, z axes")
+    right_focal_scale: float = Field(1.002, gt=0.9, lt=1.1, description="right WAC focal length / left's")
+    right_principal_offset_px: tuple[float, float] = (2.5, -1.5)
+    sensor_noise_dn: float = Field(1.5, ge=0.0, le=50.0, description="read noise, 8-bit DN (1 sigma)")
+    rocks_per_100m2: float = Field(2.0, ge=0.0, le=50.0, description="rocks 0.15-1 m across, off the path")
+    panoramas: bool = Field(True, description="render the site panoramas (WAC pairs and HRC frames)")
+
+
 class Scenario(_Strict):
     name: str
     description: str = ""
@@ -222,6 +239,7 @@ class Scenario(_Strict):
     gps: GpsConfig = GpsConfig()
     dead_reckoning: DeadReckoningConfig = DeadReckoningConfig()
     estimator: EstimatorConfig = EstimatorConfig()
+    render: RenderConfig = RenderConfig()
 
 
 def _describe(err: dict) -> str:

@@ -17,6 +17,16 @@ class InputError(PancamGraphError):
     truncated; the message names the file and the line, record or field."""
 
 
+class FrameError(InputError):
+    """An image of one stop could not be used and the run stops there; `partial` keeps what the
+    front-end did before it (the source's data for the stops before, or None)."""
+
+    def __init__(self, message: str, stop: int, partial: object | None = None):
+        super().__init__(message)
+        self.stop = stop
+        self.partial = partial
+
+
 class GeodesyError(PancamGraphError):
     """A coordinate conversion got invalid input (non-finite, out of range)."""
 

@@ -104,10 +104,18 @@ class Rig:
     hrc: Camera | None = None
     hrc_offset_m: float = 0.0
     head_forward_offset_m: float = 0.0  # optical centres ahead of the tilt axis
+    # A calibrated pair: the rectified left camera's axes in the raw left camera's frame, row by
+    # row (rectification turns the camera a little); None: the pair is rectified as mounted.
+    raw_R_rectified: tuple[float, ...] | None = None
 
     def head_T_left(self) -> gtsam.Pose3:
+        """The (rectified) left camera in the head frame."""
         t = np.array([self.head_forward_offset_m, self.baseline_m / 2.0, 0.0])
-        return gtsam.Pose3(gtsam.Rot3(HEAD_R_CAM), t)
+        return gtsam.Pose3(gtsam.Rot3(HEAD_R_CAM @ self.rectification()), t)
+
+    def rectification(self) -> np.ndarray:
+        """raw_R_rectified as a 3x3 matrix (identity when the pair is rectified as mounted)."""
+        return np.eye(3) if self.raw_R_rectified is None else np.array(self.raw_R_rectified).reshape(3, 3)
 
     def head_T_hrc(self) -> gtsam.Pose3:
         if self.hrc is None:

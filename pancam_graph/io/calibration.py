@@ -6,7 +6,7 @@ Every reader names the file and the field it could not find or understand.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -22,10 +22,25 @@ ROS_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "")
 
 @dataclass(frozen=True)
 class RectifiedStereo:
-    """A rectified stereo pair: the left camera's pinhole model and the baseline (m)."""
+    """A rectified stereo pair: the left camera's pinhole model and the baseline (m), and the
+    rectified left camera's axes in the calibrated (raw) left camera's frame (rectification turns
+    the camera a little; identity when the pair came rectified)."""
 
     camera: Camera
     baseline_m: float
+    raw_R_rectified: np.ndarray = field(default_factory=lambda: np.eye(3), compare=False)
+
+
+@dataclass(frozen=True)
+class RectificationMaps:
+    """Pixel maps taking raw (distorted, unaligned) images to the rectified pair (cv2.remap)."""
+
+    left: tuple[np.ndarray, np.ndarray]
+    right: tuple[np.ndarray, np.ndarray]
+
+    def __call__(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return (cv2.remap(left, *self.left, cv2.INTER_LINEAR),
+                cv2.remap(right, *self.right, cv2.INTER_LINEAR))
 
 
 @dataclass(frozen=True)
@@ -47,15 +62,36 @@ class StereoCalibration:
     def baseline_m(self) -> float:
         return float(np.linalg.norm(self.translation))
 
+    @property
+    def is_rectified(self) -> bool:
+        """Images already rectified: no distortion, identical cameras side by side."""
+        t = self.translation / self.baseline_m
+        return (not np.any(self.d_left) and not np.any(self.d_right) and np.allclose(self.k_left, self.k_right)
+                and np.allclose(self.rotation, np.eye(3), atol=1e-9) and abs(abs(t[0]) - 1.0) < 1e-9)
+
+    def _stereo_rectify(self):
+        return cv2.stereoRectify(self.k_left, self.d_left, self.k_right, self.d_right, self.size, self.rotation,
+                                 self.translation.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0.0)
+
     def rectified(self) -> RectifiedStereo:
-        """The pair after rectification (OpenCV stereoRectify, zero disparity at infinity)."""
-        _, _, p1, p2, _, _, _ = cv2.stereoRectify(
-            self.k_left, self.d_left, self.k_right, self.d_right, self.size, self.rotation,
-            self.translation.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0.0)
+        """The pair after rectification (OpenCV stereoRectify, zero disparity at infinity, only
+        valid pixels: alpha 0)."""
+        r1, _, p1, p2, _, _, _ = self._stereo_rectify()
         w, h = self.size
         camera = Camera(fx=float(p1[0, 0]), fy=float(p1[1, 1]), cx=float(p1[0, 2]), cy=float(p1[1, 2]), width=w,
                         height=h)
-        return RectifiedStereo(camera, float(-p2[0, 3] / p2[0, 0]))
+        if not np.all(np.isfinite(p1)) or camera.fx <= 0 or camera.fy <= 0:
+            raise InputError(f"{self.source}: the calibration gives no usable rectification (focal length "
+                             f"{camera.fx:.4g} x {camera.fy:.4g} px after stereoRectify)")
+        # stereoRectify's R1 takes raw left-camera vectors into the rectified frame
+        return RectifiedStereo(camera, float(-p2[0, 3] / p2[0, 0]), np.asarray(r1, dtype=float).T)
+
+    def rectification_maps(self) -> RectificationMaps:
+        """The maps `rectified()`'s pair is made with (fixed-point, for a fast remap)."""
+        r1, r2, p1, p2, _, _, _ = self._stereo_rectify()
+        maps = [cv2.initUndistortRectifyMap(k, d, r, p, self.size, cv2.CV_16SC2)
+                for k, d, r, p in ((self.k_left, self.d_left, r1, p1), (self.k_right, self.d_right, r2, p2))]
+        return RectificationMaps(*maps)
 
 
 # -- OpenCV YAML (FileStorage) -------------------------------------------------------------------
@@ -96,6 +132,21 @@ def read_opencv_yaml(path: Path) -> StereoCalibration:
     finally:
         fs.release()
     return _checked(StereoCalibration(str(path), k1, d1, k2, d2, size, rotation, translation))
+
+
+def write_opencv_yaml(path: Path, calibration: StereoCalibration) -> None:
+    """A stereo calibration as OpenCV FileStorage YAML (K1 D1 K2 D2 R T, image size), the
+    layout `read_opencv_yaml` reads."""
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    if not fs.isOpened():
+        raise InputError(f"{path}: cannot write the calibration")
+    c = calibration
+    for name, value in (("K1", c.k_left), ("D1", c.d_left.reshape(1, -1)), ("K2", c.k_right),
+                        ("D2", c.d_right.reshape(1, -1)), ("R", c.rotation), ("T", c.translation.reshape(3, 1))):
+        fs.write(name, np.asarray(value, dtype=float))
+    fs.write("image_width", int(c.size[0]))
+    fs.write("image_height", int(c.size[1]))
+    fs.release()
 
 
 def _distortion(path: Path, name: str, node) -> np.ndarray:
@@ -171,15 +222,22 @@ def _camera_info(path: Path) -> tuple[np.ndarray, tuple[int, int]]:
 
 def read_stereo_calibration(path: Path, right: Path | None = None) -> RectifiedStereo:
     """Any supported calibration, told apart by content: a Kalibr camchain (cam0/cam1), a pair
-    of camera_info files (`right` given), or OpenCV FileStorage YAML/XML."""
+    of camera_info files (`right` given), or OpenCV FileStorage YAML/XML; as the rectified pair."""
+    raw = read_raw_calibration(path, right)
+    return read_camera_info_pair(Path(path), Path(right)) if raw is None else raw.rectified()
+
+
+def read_raw_calibration(path: Path, right: Path | None = None) -> StereoCalibration | None:
+    """The calibration as calibrated (what raw images are rectified with); None for a
+    camera_info pair, whose projection matrices describe images that come rectified."""
     path = Path(path)
     if right is not None:
-        return read_camera_info_pair(path, Path(right))
+        return None
     text = _read_text(path)
     if text.lstrip().startswith("%YAML") or text.lstrip().startswith("<?xml"):
-        return read_opencv_yaml(path).rectified()
+        return read_opencv_yaml(path)
     if "cam0" in text:
-        return read_kalibr_camchain(path).rectified()
+        return read_kalibr_camchain(path)
     raise InputError(f"{path}: not a calibration this reader knows (OpenCV FileStorage with a %YAML:1.0 header, "
                      "Kalibr camchain with cam0/cam1, or a camera_info pair)")
 

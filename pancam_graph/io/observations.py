@@ -25,6 +25,7 @@ from collections import defaultdict
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import tomli_w
@@ -46,9 +47,14 @@ from ..records import (
 )
 from ..rig import Rig, rig_preset
 
+if TYPE_CHECKING:
+    from .calibration import StereoCalibration
+
 MANIFEST = "traverse.toml"
 FRAMES = "frames.csv"  # an image folder: the navigation stereo pair's images per stop
 FRAME_COLUMNS = ["stop", "time_s", "dwell_s", "left", "right"]
+PANORAMA_FRAMES = "panorama_frames.csv"  # an image folder: site panorama and HRC images
+PANORAMA_FRAME_COLUMNS = ["stop", "site", "camera", "pan_rad", "tilt_rad", "left", "right"]
 STEREO_COLUMNS = ["stop", "time_s", "track", "u_left", "u_right", "v"]
 PANORAMA_COLUMNS = ["stop", "site", "pan_rad", "tilt_rad", "track", "u_left", "u_right", "v"]
 HRC_COLUMNS = ["stop", "pan_rad", "tilt_rad", "track", "u", "v"]
@@ -63,7 +69,8 @@ class _Strict(BaseModel):
 
 
 class RigSource(_Strict):
-    """A rig preset, or a stereo calibration file on a mast of the given height."""
+    """A rig preset, or a stereo calibration file on a mast of the given height, or both: the
+    preset's mast and HRC with the calibrated navigation pair."""
 
     preset: str | None = None
     calibration: str | None = Field(None, description="OpenCV YAML, Kalibr camchain or left camera_info")
@@ -72,6 +79,9 @@ class RigSource(_Strict):
     body_T_left: list[list[float]] | None = Field(
         None, description="4x4: the navigation pair's left camera in the body frame, for a body-fixed pair "
         "(default: on the mast at pan 0 and traverse_tilt_rad)")
+    rectification: list[list[float]] | None = Field(
+        None, description="3x3: a rectified calibration's left camera axes in the camera as mounted (the "
+        "transpose of stereoRectify's R1), when the images were rectified before the calibration was written")
 
 
 class Manifest(_Strict):
@@ -91,6 +101,19 @@ class Manifest(_Strict):
 
 
 @dataclass(frozen=True)
+class PanoramaImage:
+    """One image frame of a site panorama (a WAC stereo pair) or an HRC frame, at mast angles."""
+
+    stop: int
+    site: int
+    camera: str  # "wac" (left and right) or "hrc" (left only)
+    pan_rad: float
+    tilt_rad: float
+    left: Path
+    right: Path | None = None
+
+
+@dataclass(frozen=True)
 class ObservationSet:
     traverse: Traverse
     truth: GroundTruth | None
@@ -98,26 +121,46 @@ class ObservationSet:
     seed: int
     source: Path
     frames: list[tuple[Path, Path]] | None = None  # an image folder: left and right image per stop
+    panorama_frames: tuple[PanoramaImage, ...] = ()  # an image folder: site panorama and HRC images
+    # the rig's calibration as calibrated, when it is a file whose images need rectifying
+    calibration: StereoCalibration | None = None
 
 
 # -- writing -------------------------------------------------------------------------------------
 
 def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorConfig, seed: int,
                        truth: GroundTruth | None = None, rig_preset_name: str | None = None,
-                       frames: list[tuple[str, str]] | None = None) -> None:
+                       frames: list[tuple[str, str]] | None = None,
+                       panorama_frames: list[PanoramaImage] = (), calibration: StereoCalibration | None = None
+                       ) -> None:
     """A traverse as an observation folder (the format an external front-end writes); with
     `frames` (left and right image paths per stop, relative to the folder) an image folder:
-    frames.csv instead of the observations, the rest the same."""
+    frames.csv instead of the observations, panorama_frames.csv for the site images, and
+    `calibration` (the navigation pair as calibrated, raw images) beside the rig preset."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     from ..rig import RIG_PRESETS
 
-    preset = rig_preset_name or traverse.rig.name
-    rig_source = RigSource(preset=preset, mast_height_m=traverse.rig.mast_height_m,
-                           body_T_left=None if traverse.body_T_nav_left is None else traverse.body_T_nav_left.tolist())
-    if preset not in RIG_PRESETS:  # a calibrated rig: its rectified model as OpenCV YAML
-        _write_rectified_yaml(folder / "calibration.yaml", traverse.rig)
-        rig_source = rig_source.model_copy(update={"preset": None, "calibration": "calibration.yaml"})
+    rig = traverse.rig
+    preset = rig_preset_name or rig.name
+    body_T_left = None
+    if traverse.body_T_nav_left is not None:  # the manifest holds the camera as mounted
+        body_T_left = traverse.body_T_nav_left.copy()
+        body_T_left[:3, :3] = body_T_left[:3, :3] @ rig.rectification().T
+    rig_source = RigSource(preset=preset, mast_height_m=rig.mast_height_m,
+                           body_T_left=None if body_T_left is None else body_T_left.tolist())
+    if calibration is not None:  # raw images: the preset's mast with the pair as calibrated
+        from .calibration import write_opencv_yaml
+
+        write_opencv_yaml(folder / "calibration.yaml", calibration)
+        rig_source = rig_source.model_copy(update={"calibration": "calibration.yaml"})
+    elif preset not in RIG_PRESETS or rig != rig_preset(preset):
+        # a calibrated pair (alone, or on a preset's mast): its rectified model as OpenCV YAML,
+        # and the turn rectification gave the left camera
+        _write_rectified_yaml(folder / "calibration.yaml", rig)
+        rotation = None if rig.raw_R_rectified is None else rig.rectification().tolist()
+        rig_source = rig_source.model_copy(update={"preset": preset if preset in RIG_PRESETS else None,
+                                                   "calibration": "calibration.yaml", "rectification": rotation})
     manifest = Manifest(
         name=traverse.name, seed=seed,
         origin=OriginConfig(lat_deg=traverse.origin.lat0_deg, lon_deg=traverse.origin.lon0_deg,
@@ -157,8 +200,11 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
     else:
         _write_csv(folder / FRAMES, FRAME_COLUMNS, [(s.index, r(s.time_s), r(s.dwell_s), left, right)
                                                    for s, (left, right) in zip(traverse.stops, frames, strict=True)])
-    tables = [("gps.csv", GPS_COLUMNS, gps), ("odometry.csv", ODOMETRY_COLUMNS, odometry)]
-    if frames is None:  # an image folder's panoramas are images (not written yet: issue 14)
+    tables = [("gps.csv", GPS_COLUMNS, gps), ("odometry.csv", ODOMETRY_COLUMNS, odometry),
+              (PANORAMA_FRAMES, PANORAMA_FRAME_COLUMNS,
+               [(f.stop, f.site, f.camera, r(f.pan_rad), r(f.tilt_rad), f.left, f.right or "")
+                for f in panorama_frames])]
+    if frames is None:  # an image folder's panoramas are images (panorama_frames.csv)
         tables += [("panorama.csv", PANORAMA_COLUMNS, panorama), ("hrc.csv", HRC_COLUMNS, hrc)]
     for name, columns, rows in tables:
         if rows:
@@ -176,18 +222,14 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
 
 
 def _write_rectified_yaml(path: Path, rig: Rig) -> None:
-    """A rectified pair as OpenCV FileStorage YAML (K1 D1 K2 D2 R T, image size): identical
-    cameras, no distortion, the right one `baseline` along x."""
-    import cv2
+    """A rectified pair as OpenCV FileStorage YAML: identical cameras, no distortion, the right
+    one `baseline` along x."""
+    from .calibration import StereoCalibration, write_opencv_yaml
 
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
     k = rig.wac.matrix()
-    for name, value in (("K1", k), ("D1", np.zeros((1, 5))), ("K2", k), ("D2", np.zeros((1, 5))), ("R", np.eye(3)),
-                        ("T", np.array([[-rig.baseline_m], [0.0], [0.0]]))):
-        fs.write(name, value)
-    fs.write("image_width", rig.wac.width)
-    fs.write("image_height", rig.wac.height)
-    fs.release()
+    size = (rig.wac.width, rig.wac.height)
+    write_opencv_yaml(path, StereoCalibration(str(path), k, np.zeros(5), k, np.zeros(5), size, np.eye(3),
+                                              np.array([-rig.baseline_m, 0.0, 0.0])))
 
 
 def _write_csv(path: Path, header: list[str], rows: list) -> None:
@@ -212,11 +254,13 @@ def read_observations(folder: Path) -> ObservationSet:
     """An observation folder as a traverse (and its reference, when truth.kitti is there)."""
     folder = Path(folder)
     manifest = _manifest(folder / MANIFEST)
-    rig = _rig(folder, manifest.rig)
+    rig, calibration = _rig(folder, manifest.rig)
     frames = None
+    panorama_frames: tuple[PanoramaImage, ...] = ()
     if (folder / FRAMES).is_file() and not (folder / "stereo.csv").is_file():
         times, dwells, frames = _read_frames_csv(folder / FRAMES)
         stereo = [StereoObservations.empty()] * len(times)  # the image front-end fills them in
+        panorama_frames = _read_panorama_frames(folder / PANORAMA_FRAMES, len(times))
     else:
         times, dwells, stereo = _read_stereo(folder / "stereo.csv")
     n = len(times)
@@ -236,6 +280,7 @@ def read_observations(folder: Path) -> ObservationSet:
         if body_T_left.shape != (4, 4) or not np.allclose(body_T_left[:3, :3] @ body_T_left[:3, :3].T, np.eye(3),
                                                            atol=1e-6):
             raise InputError(f"{folder / MANIFEST}: [rig] body_T_left: expected a 4x4 rigid transform")
+        body_T_left[:3, :3] = body_T_left[:3, :3] @ rig.rectification()  # body_T_left is the raw camera's
     traverse = Traverse(manifest.name, rig, LocalFrame(o.lat_deg, o.lon_deg, o.h_m), stops,
                         manifest.traverse_tilt_rad, manifest.image_noise_px,
                         np.array(manifest.gps_lever_arm_m, dtype=float), start, np.array(manifest.start_sigmas),
@@ -245,26 +290,44 @@ def read_observations(folder: Path) -> ObservationSet:
     if (folder / "truth.kitti").is_file():
         landmarks = _read_truth_landmarks(folder / "truth_landmarks.csv")
         truth = GroundTruth(_read_truth(folder / "truth.kitti", n), landmarks, _read_truth_slip(folder / "truth.toml"))
-    return ObservationSet(traverse, truth, manifest.estimator, manifest.seed, folder, frames)
+    return ObservationSet(traverse, truth, manifest.estimator, manifest.seed, folder, frames, panorama_frames,
+                          None if calibration is None or calibration.is_rectified else calibration)
 
 
 def _manifest(path: Path) -> Manifest:
     return load_toml_model(path, Manifest, "observation manifest", InputError)
 
 
-def _rig(folder: Path, source: RigSource) -> Rig:
-    if (source.preset is None) == (source.calibration is None):
-        raise InputError(f"{folder / MANIFEST}: [rig] needs exactly one of 'preset' and 'calibration'")
+def _rig(folder: Path, source: RigSource) -> tuple[Rig, StereoCalibration | None]:
+    """The rig, and its calibration as calibrated when it is a calibration file."""
+    if source.preset is None and source.calibration is None:
+        raise InputError(f"{folder / MANIFEST}: [rig] needs a 'preset', a 'calibration' or both")
+    preset = None
     if source.preset is not None:
         try:
-            return rig_preset(source.preset)
+            preset = rig_preset(source.preset)
         except ValueError as exc:
             raise InputError(f"{folder / MANIFEST}: [rig] preset: {exc}") from None
-    from .calibration import read_stereo_calibration
+        if source.calibration is None:
+            return preset, None
+    from dataclasses import replace
+
+    from .calibration import read_camera_info_pair, read_raw_calibration
 
     right = folder / source.calibration_right if source.calibration_right else None
-    stereo = read_stereo_calibration(folder / source.calibration, right)
-    return Rig(source.calibration, stereo.camera, stereo.baseline_m, source.mast_height_m)
+    raw = read_raw_calibration(folder / source.calibration, right)
+    stereo = read_camera_info_pair(folder / source.calibration, right) if raw is None else raw.rectified()
+    rotation = None if raw is None or raw.is_rectified else tuple(stereo.raw_R_rectified.ravel().tolist())
+    if source.rectification is not None:
+        given = np.array(source.rectification, dtype=float)
+        if rotation is not None or given.shape != (3, 3) or not np.allclose(given @ given.T, np.eye(3), atol=1e-6):
+            raise InputError(f"{folder / MANIFEST}: [rig] rectification: expected a 3x3 rotation, with a "
+                             "calibration that is already rectified")
+        rotation = tuple(given.ravel().tolist())
+    if preset is not None:
+        return replace(preset, wac=stereo.camera, baseline_m=stereo.baseline_m, raw_R_rectified=rotation), raw
+    return Rig(source.calibration, stereo.camera, stereo.baseline_m, source.mast_height_m,
+               raw_R_rectified=rotation), raw
 
 
 class _Table:
@@ -381,6 +444,25 @@ def _read_frames_csv(path: Path) -> tuple[list[float], list[float], list[tuple[P
     if not times:
         raise InputError(f"{path}: no frames")
     return times, dwells, frames
+
+
+def _read_panorama_frames(path: Path, n: int) -> tuple[PanoramaImage, ...]:
+    """An image folder's panorama_frames.csv (optional): WAC pairs and HRC frames at sites."""
+    if not path.is_file():
+        return ()
+    table = _Table(path, PANORAMA_FRAME_COLUMNS)
+    images = []
+    for line, row in table.rows:
+        stop, site, camera, pan, tilt, left, right = table.values(line, row)
+        if camera not in ("wac", "hrc"):
+            raise InputError(f"{path}: line {line}: column 'camera': expected wac or hrc, got {camera!r}")
+        if not left or (camera == "wac") != bool(right):
+            raise InputError(f"{path}: line {line}: a wac frame needs left and right images, an hrc frame "
+                             "a left one only")
+        images.append(PanoramaImage(table.stop(line, stop, n), int(table.number(line, "site", site, integer=True)),
+                                    camera, table.number(line, "pan_rad", pan), table.number(line, "tilt_rad", tilt),
+                                    path.parent / left, path.parent / right if right else None))
+    return tuple(images)
 
 
 def _read_frames(table: _Table, n: int, measured: list[str]) -> dict[int, dict[tuple[float, float], tuple]]:

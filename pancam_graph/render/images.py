@@ -1,45 +1,105 @@
-"""A scenario rendered as an image folder: the navigation stereo pair at every stop as PNG
-images, with the traverse's timing, GPS, odometry and (in its own files) the truth."""
+"""A scenario rendered as an image folder: the navigation stereo pair at every stop and the
+site panoramas (WAC pairs, HRC frames) as PNG images, taken through a real lens by a real,
+slightly misaligned stereo pair whose calibration goes with them; the traverse's timing, GPS
+and odometry beside them and, in their own files, the truth."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 
-from ..config import Scenario
-from ..io.observations import write_observations
+from ..config import RenderConfig, Scenario
+from ..errors import ResultsError
+from ..io.calibration import StereoCalibration
+from ..io.observations import PanoramaImage, write_observations
+from ..records import Traverse
+from ..rig import Camera
 from ..sim import simulate
 from ..sim.world import dense_path
 from .renderer import TerrainRenderer, sensor_image
 from .terrain import terrain_tiles
 
 
+def raw_stereo_pair(camera: Camera, baseline_m: float, config: RenderConfig) -> StereoCalibration:
+    """The navigation pair as built: the rig's intrinsics through a distorting lens, and a right
+    camera with its own small focal, principal point and pointing errors."""
+    left = replace(camera, k1=config.distortion[0], k2=config.distortion[1], p1=config.distortion[2],
+                   p2=config.distortion[3])
+    dx, dy = config.right_principal_offset_px
+    right = replace(left, fx=left.fx * config.right_focal_scale, fy=left.fy * config.right_focal_scale,
+                    cx=left.cx + dx, cy=left.cy + dy)
+    right_R_left = cv2.Rodrigues(np.deg2rad(np.array(config.right_rotation_deg, dtype=float)))[0]
+    translation = -right_R_left @ np.array([baseline_m, 0.0, 0.0])  # right centre at +baseline along x
+    return StereoCalibration("calibration.yaml", left.matrix(), left.distortion(), right.matrix(),
+                             right.distortion(), (camera.width, camera.height), right_R_left, translation)
+
+
+def _camera(k: np.ndarray, d: np.ndarray, size: tuple[int, int]) -> Camera:
+    return Camera(fx=float(k[0, 0]), fy=float(k[1, 1]), cx=float(k[0, 2]), cy=float(k[1, 2]), width=size[0],
+                  height=size[1], k1=float(d[0]), k2=float(d[1]), p1=float(d[2]), p2=float(d[3]))
+
+
 def render_scenario(scenario: Scenario, folder: Path, seed: int | None = None,
                     progress: Callable[[str, int, int], None] | None = None) -> int:
-    """Write the image folder; returns the number of stops."""
-    import cv2
-
+    """Write the image folder; returns the number of images."""
     seed = scenario.seed if seed is None else seed
+    config = scenario.render
     traverse, truth = simulate(scenario, seed)
     if progress is not None:
         progress("terrain", 0, 1)
-    renderer = TerrainRenderer(terrain_tiles(scenario, dense_path(scenario.path), seed), traverse.rig.wac, seed=seed)
-    body_T_left = traverse.body_T_nav().matrix()
-    left_T_right = np.eye(4)
-    left_T_right[0, 3] = traverse.rig.baseline_m
+    renderer = TerrainRenderer(terrain_tiles(scenario, dense_path(scenario.path), seed), seed=seed)
+    rig = traverse.rig
+    calibration = raw_stereo_pair(rig.wac, rig.baseline_m, config)
+    left_camera = _camera(calibration.k_left, calibration.d_left, calibration.size)
+    right_camera = _camera(calibration.k_right, calibration.d_right, calibration.size)
+    left_T_right = np.linalg.inv(np.vstack([np.column_stack([calibration.rotation, calibration.translation]),
+                                            [0.0, 0.0, 0.0, 1.0]]))
     rng = np.random.default_rng([seed, 3])
     folder = Path(folder)
     (folder / "images").mkdir(parents=True, exist_ok=True)
-    frames = []
-    for k, world_T_body in enumerate(truth.world_T_body):
-        world_T_left = world_T_body @ body_T_left
-        names = (f"images/{k:06d}_left.png", f"images/{k:06d}_right.png")
-        for name, pose in zip(names, (world_T_left, world_T_left @ left_T_right), strict=True):
-            cv2.imwrite(str(folder / name), sensor_image(renderer.render(pose), rng))
-        frames.append(names)
+
+    def shoot(name: str, world_T_camera: np.ndarray, camera: Camera) -> str:
+        image = sensor_image(renderer.render(world_T_camera, camera), rng, config.sensor_noise_dn)
+        if not cv2.imwrite(str(folder / name), image):
+            raise ResultsError(f"{folder / name}: cannot write the image (disk full or no permission?)")
+        return name
+
+    def stereo(prefix: str, world_T_left: np.ndarray) -> tuple[str, str]:
+        return (shoot(f"{prefix}_left.png", world_T_left, left_camera),
+                shoot(f"{prefix}_right.png", world_T_left @ left_T_right, right_camera))
+
+    total = len(traverse.stops) + (_panorama_count(traverse) if config.panoramas else 0)
+    done = 0
+    frames, panorama = [], []
+    for stop, world_T_body in zip(traverse.stops, truth.world_T_body, strict=True):
+        k = stop.index
+        frames.append(stereo(f"images/{k:06d}", world_T_body @ traverse.body_T_nav().matrix()))
+        done += 1
+        if config.panoramas:
+            for f in stop.panorama:
+                world_T_left = world_T_body @ rig.body_T_left(f.pan_rad, f.tilt_rad).matrix()
+                left, right = stereo(_frame_name(stop.site_id, "wac", f.pan_rad, f.tilt_rad), world_T_left)
+                panorama.append(PanoramaImage(k, stop.site_id, "wac", f.pan_rad, f.tilt_rad, left, right))
+                done += 1
+            for f in stop.hrc:
+                name = _frame_name(stop.site_id, "hrc", f.pan_rad, f.tilt_rad) + ".png"
+                shoot(name, world_T_body @ rig.body_T_hrc(f.pan_rad, f.tilt_rad).matrix(), rig.hrc)
+                panorama.append(PanoramaImage(k, stop.site_id, "hrc", f.pan_rad, f.tilt_rad, name))
+                done += 1
         if progress is not None:
-            progress("rendering", k + 1, len(truth.world_T_body))
-    write_observations(folder, traverse, scenario.estimator, seed, truth, scenario.rig, frames=frames)
-    return len(frames)
+            progress("rendering", done, total)
+    write_observations(folder, traverse, scenario.estimator, seed, truth, scenario.rig, frames=frames,
+                       panorama_frames=panorama, calibration=calibration)
+    return 2 * len(frames) + sum(2 if p.camera == "wac" else 1 for p in panorama)
+
+
+def _frame_name(site: int, camera: str, pan_rad: float, tilt_rad: float) -> str:
+    return f"images/site{site:03d}_{camera}_pan{np.rad2deg(pan_rad):+07.1f}_tilt{np.rad2deg(tilt_rad):+05.1f}"
+
+
+def _panorama_count(traverse: Traverse) -> int:
+    return sum(len(s.panorama) + len(s.hrc) for s in traverse.stops)

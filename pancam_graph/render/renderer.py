@@ -1,7 +1,7 @@
 """Headless OpenGL (moderngl on EGL; Mesa's llvmpipe renders on the CPU) images of the terrain
-through a pinhole camera with the rig's exact intrinsics.
+through a camera with exact intrinsics and, when it has one, a distorting lens.
 
-The ground's albedo is procedural noise of the world position at several scales (5 cm to 8 m),
+The ground's albedo is procedural noise of the world position at several scales (6 mm to 6 m),
 each octave faded out where it is finer than the pixel footprint (no aliasing, so a point
 looks the same from every frame); Lambertian shading from the sun, a little ambient light, a
 grey sky. Sensor noise is added after reading the image back.
@@ -50,15 +50,23 @@ float value_noise(vec2 p) {
 }
 
 void main() {
+    vec3 normal = normalize(cross(dFdx(world), dFdy(world)));
+    if (normal.z < 0.0) normal = -normal;
+    // rocks (contrast above 1.5) are textured on the plane their face is closest to, the ground
+    // on the horizontal one: no texture stretched down a steep face
+    bool rock = contrast > 1.5;
+    vec3 n = abs(normal);
     vec2 p = world.xy;
-    float footprint = max(length(fwidth(p)), 1e-4);   // metres per pixel here
+    if (rock && n.x > n.z && n.x >= n.y) p = world.yz + 31.0;
+    else if (rock && n.y > n.z && n.y > n.x) p = world.xz + 57.0;
+    float footprint = max(length(fwidth(p)), 1e-5);   // metres per pixel here
     float texture = 0.0;
     float total = 0.0;
-    float scale = 0.05;                                 // finest octave: 5 cm
-    for (int octave = 0; octave < 8; ++octave) {
+    float scale = 0.00625;                              // finest octave: 6 mm (what the HRC resolves)
+    for (int octave = 0; octave < 11; ++octave) {
         // fade an octave out as it approaches the pixel footprint (2 px per period at least)
         float keep = clamp((scale / footprint - 2.0) / 2.0, 0.0, 1.0);
-        texture += keep * (value_noise(p / scale) - 0.5);
+        if (keep > 0.0) texture += keep * (value_noise(p / scale) - 0.5);
         total += keep;
         scale *= 2.0;
     }
@@ -71,9 +79,9 @@ void main() {
         float keep = clamp((s / footprint - 3.0) / 3.0, 0.0, 1.0);
         pebbles += keep * (smoothstep(0.72 - edge, 0.72 + edge, n) - smoothstep(0.22 - edge, 0.22 + edge, 1.0 - n));
     }
-    float albedo = 0.45 + contrast * (0.9 * texture / max(total, 1.0) * 1.6 + 0.22 * pebbles);
-    vec3 normal = normalize(cross(dFdx(world), dFdy(world)));
-    if (normal.z < 0.0) normal = -normal;
+    float c = rock ? contrast - 1.0 : contrast;
+    float base = rock ? 0.38 : 0.45;
+    float albedo = base + c * (0.9 * texture / max(total, 1.0) * 1.6 + (rock ? 0.0 : 0.22) * pebbles);
     float light = 0.25 + 0.75 * max(dot(normal, sun), 0.0);
     albedo_out = clamp(albedo * light, 0.0, 1.0);
 }
@@ -98,10 +106,10 @@ _GL_T_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
 class TerrainRenderer:
-    """Renders grayscale images of the terrain tiles for a camera; one GL context, reused."""
+    """Renders grayscale images of the terrain tiles for any camera; one GL context, reused."""
 
-    def __init__(self, tiles: list[TerrainTile], camera: Camera, seed: int = 0, near: float = 0.3,
-                 far: float = 120.0, sun_elevation_deg: float = 40.0, sun_azimuth_deg: float = 135.0):
+    def __init__(self, tiles: list[TerrainTile], seed: int = 0, near: float = 0.3, far: float = 120.0,
+                 sun_elevation_deg: float = 40.0, sun_azimuth_deg: float = 135.0):
         try:
             import moderngl
         except ImportError:
@@ -111,8 +119,7 @@ class TerrainRenderer:
             self.ctx = moderngl.create_standalone_context(backend="egl")
         except Exception as exc:  # no EGL: moderngl raises its own Error
             raise ConfigError(f"no headless OpenGL (EGL) context: {exc}") from None
-        self.camera, self.far = camera, far
-        self.projection = gl_projection(camera, near, far)
+        self.near, self.far = near, far
         self.program = self.ctx.program(vertex_shader=_VERTEX, fragment_shader=_FRAGMENT)
         el, az = np.deg2rad(sun_elevation_deg), np.deg2rad(sun_azimuth_deg)
         self.program["sun"].value = (float(np.cos(el) * np.cos(az)), float(np.cos(el) * np.sin(az)), float(np.sin(el)))
@@ -123,19 +130,27 @@ class TerrainRenderer:
             ibo = self.ctx.buffer(tile.triangles.tobytes())
             vao = self.ctx.vertex_array(self.program, [(vbo, "4f", "in_vertex")], index_buffer=ibo)
             self.tiles.append((tile.centre, vao))
-        self.fbo = self.ctx.framebuffer(
-            color_attachments=[self.ctx.renderbuffer((camera.width, camera.height), components=1, dtype="f4")],
-            depth_attachment=self.ctx.depth_renderbuffer((camera.width, camera.height)))
+        self._framebuffers: dict[tuple[int, int], object] = {}
+        self._lenses: dict[Camera, _Lens] = {}
+        self._last: tuple[object, Camera] | None = None
 
-    def render(self, world_T_camera: np.ndarray) -> np.ndarray:
-        """Albedo x shading in [0, 1] (height, width) float32 seen by the camera at world_T_camera
-        (OpenCV camera frame); 0.6 where the sky is."""
+    def _framebuffer(self, size: tuple[int, int]):
+        if size not in self._framebuffers:
+            self._framebuffers[size] = self.ctx.framebuffer(
+                color_attachments=[self.ctx.renderbuffer(size, components=1, dtype="f4")],
+                depth_attachment=self.ctx.depth_renderbuffer(size))
+        return self._framebuffers[size]
+
+    def render_pinhole(self, world_T_camera: np.ndarray, camera: Camera) -> np.ndarray:
+        """Albedo x shading in [0, 1] (height, width) float32 seen by an ideal pinhole camera at
+        world_T_camera (OpenCV camera frame; the camera's distortion is ignored); 0.6 is sky."""
         import moderngl
 
         camera_T_world = np.linalg.inv(world_T_camera)
-        clip = self.projection @ _GL_T_CV @ camera_T_world
+        clip = gl_projection(camera, self.near, self.far) @ _GL_T_CV @ camera_T_world
         self.program["clip_T_world"].write(clip.T.astype("f4").tobytes())  # GLSL is column-major
-        self.fbo.use()
+        fbo = self._framebuffer((camera.width, camera.height))
+        fbo.use()
         self.ctx.clear(0.6, 0.6, 0.6, 1.0, depth=1.0)
         self.ctx.enable(moderngl.DEPTH_TEST)
         here = world_T_camera[:2, 3]
@@ -143,17 +158,56 @@ class TerrainRenderer:
         for centre, vao in self.tiles:
             if np.linalg.norm(centre - here) < reach:
                 vao.render()
-        raw = self.fbo.read(components=1, dtype="f4")
-        image = np.frombuffer(raw, dtype=np.float32).reshape(self.camera.height, self.camera.width)
+        self._last = (fbo, camera)
+        raw = fbo.read(components=1, dtype="f4")
+        image = np.frombuffer(raw, dtype=np.float32).reshape(camera.height, camera.width)
         return np.flipud(image)  # OpenGL's first row is the bottom one
 
+    def render(self, world_T_camera: np.ndarray, camera: Camera) -> np.ndarray:
+        """What the camera sees through its lens: with distortion, a pinhole image wide enough
+        for every pixel is resampled through the lens model (OpenCV's k1, k2, p1, p2)."""
+        if not any(camera.distortion()):
+            return self.render_pinhole(world_T_camera, camera)
+        if camera not in self._lenses:
+            self._lenses[camera] = _Lens(camera)
+        lens = self._lenses[camera]
+        return lens(self.render_pinhole(world_T_camera, lens.pinhole))
+
     def depth(self) -> np.ndarray:
-        """Metric depth (camera z, m) of the last render, (height, width)."""
-        raw = self.fbo.read(attachment=-1, components=1, dtype="f4")
-        z = np.flipud(np.frombuffer(raw, dtype=np.float32).reshape(self.camera.height, self.camera.width))
-        p = self.projection
+        """Metric depth (camera z, m) of the last pinhole render, (height, width)."""
+        fbo, camera = self._last
+        raw = fbo.read(attachment=-1, components=1, dtype="f4")
+        z = np.flipud(np.frombuffer(raw, dtype=np.float32).reshape(camera.height, camera.width))
+        p = gl_projection(camera, self.near, self.far)
         ndc = 2.0 * z - 1.0
         return p[2, 3] / (ndc + p[2, 2])
+
+
+class _Lens:
+    """A distorting lens as a resampling: every raw pixel's undistorted direction (OpenCV's
+    iterative undistortion) looked up in a pinhole image that covers them all."""
+
+    def __init__(self, camera: Camera, margin_px: int = 3):
+        import cv2
+
+        u, v = np.meshgrid(np.arange(camera.width, dtype=np.float64), np.arange(camera.height, dtype=np.float64))
+        pixels = np.column_stack([u.ravel(), v.ravel()]).reshape(-1, 1, 2)
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-12)
+        xy = cv2.undistortPoints(pixels, camera.matrix(), camera.distortion(), criteria=criteria).reshape(-1, 2)
+        lo, hi = xy.min(axis=0), xy.max(axis=0)
+        cx = -lo[0] * camera.fx + margin_px
+        cy = -lo[1] * camera.fy + margin_px
+        width = int(np.ceil(hi[0] * camera.fx + cx)) + margin_px + 1
+        height = int(np.ceil(hi[1] * camera.fy + cy)) + margin_px + 1
+        self.pinhole = Camera(fx=camera.fx, fy=camera.fy, cx=float(cx), cy=float(cy), width=width, height=height)
+        map_x = (xy[:, 0] * camera.fx + cx).reshape(camera.height, camera.width).astype(np.float32)
+        map_y = (xy[:, 1] * camera.fy + cy).reshape(camera.height, camera.width).astype(np.float32)
+        self.maps = map_x, map_y
+
+    def __call__(self, pinhole_image: np.ndarray) -> np.ndarray:
+        import cv2
+
+        return cv2.remap(pinhole_image, *self.maps, cv2.INTER_LINEAR)
 
 
 def sensor_image(radiance: np.ndarray, rng: np.random.Generator, noise_dn: float = 1.5) -> np.ndarray:

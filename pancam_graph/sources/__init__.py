@@ -25,7 +25,7 @@ class SourceOptions:
     holdout_every: int | None = None  # rosbag, kitti_raw (default 5)
     geoid_height_m: float | None = None  # kitti_raw
     detector: str | None = None  # image sources: gftt, orb, sift
-    skip_bad_frames: bool | None = None  # image folder: skip a bad image's stop instead of stopping
+    skip_bad_frames: bool | None = None  # image sources: skip a bad image's stop instead of stopping
     stereo_topics: tuple[str, str] | None = None  # rosbag: left and right image topics (stereo VO)
 
     def check(self, kind: str, allowed: set[str]) -> None:
@@ -72,9 +72,9 @@ def open_source(text: str, options: SourceOptions = SourceOptions(),
         options.check(kind, set())
         return observations.load(Path(text))
     if kind == "kitti_odometry":
-        options.check(kind, {"detector"})
+        options.check(kind, {"detector", "skip_bad_frames"})
         frontend = FrontendConfig(detector=options.detector) if options.detector else None
-        return kitti_odometry.load(Path(text), frontend, progress)
+        return kitti_odometry.load(Path(text), frontend, progress, bool(options.skip_bad_frames))
     if kind == "image_folder":
         options.check(kind, {"detector", "skip_bad_frames"})
         frontend = FrontendConfig(detector=options.detector) if options.detector else None

@@ -1,20 +1,28 @@
 """An image folder (docs/observation_format.md, `frames.csv`): a traverse whose navigation
-stereo pairs are images. The front-end runs over every frame; GPS, odometry, truth and the
-rig come from the folder as in an observation folder. `pancam-graph render` writes one."""
+stereo pairs are images. The front-end runs over every frame (rectifying raw images with the
+folder's calibration first); GPS, odometry, truth and the rig come from the folder as in an
+observation folder. `pancam-graph render` writes one."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..config import FrontendConfig
 from ..errors import InputError
 from ..frontend.tracker import StereoTracker
+from ..records import Stop
 from ..results import SourceInfo
 from .base import SourceData
+from .frames import median_frame_ms, track_frames
+
+if TYPE_CHECKING:
+    from ..io.observations import ObservationSet
 
 
 def matches(path: Path) -> bool:
@@ -43,6 +51,24 @@ def read_gray(path: Path, size: tuple[int, int]) -> np.ndarray:
     return image
 
 
+class FramePairs:
+    """The stereo pairs of an image folder, read (raw) and rectified."""
+
+    def __init__(self, obs: ObservationSet):
+        cam = obs.traverse.rig.wac
+        self.size = (cam.height, cam.width)
+        self.frames = obs.frames
+        # raw images (lens distortion, a misaligned right camera) are rectified before tracking
+        self.rectify = None if obs.calibration is None else obs.calibration.rectification_maps()
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def read(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        left, right = self.frames[k]
+        return read_gray(left, self.size), read_gray(right, self.size)
+
+
 def load(folder: Path, frontend: FrontendConfig | None = None,
          progress: Callable[[str, int, int], None] | None = None, skip_bad_frames: bool = False) -> SourceData:
     """`skip_bad_frames`: a missing, truncated or wrong-sized image leaves its stop without
@@ -50,26 +76,27 @@ def load(folder: Path, frontend: FrontendConfig | None = None,
     from ..io.observations import read_observations
 
     obs = read_observations(folder)
-    traverse = obs.traverse
-    cam = traverse.rig.wac
-    tracker = StereoTracker(frontend)
-    stops, skipped = [], []
-    for stop, (left, right) in zip(traverse.stops, obs.frames, strict=True):
-        size = (cam.height, cam.width)
-        try:
-            pair = read_gray(left, size), read_gray(right, size)
-        except InputError as exc:
-            if not skip_bad_frames:
-                raise
-            skipped.append(f"stop {stop.index} skipped: {exc}")
-            stops.append(stop)  # no observations: the VO bridges the stop
-        else:
-            stops.append(replace(stop, stereo=tracker(*pair)))
-        if progress is not None:
-            progress("front-end", stop.index + 1, len(traverse.stops))
     frontend = frontend or FrontendConfig()
-    frame_ms = tracker.times.ms.get("frame", [np.nan])
-    info = SourceInfo("image_folder", str(folder), "truth.kitti of the image folder" if obs.truth else "none",
-                      notes=(f"front-end {frontend.detector}: median {np.median(frame_ms):.1f} ms per frame",
-                             *skipped), options={"detector": frontend.detector, "skip_bad_frames": skip_bad_frames})
-    return SourceData(replace(traverse, stops=tuple(stops)), obs.truth, obs.estimator, obs.seed, info)
+    tracker = StereoTracker(frontend)
+    pairs = FramePairs(obs)
+
+    def read_pair(k: int) -> tuple[np.ndarray, np.ndarray]:
+        left, right = pairs.read(k)
+        if pairs.rectify is None:
+            return left, right
+        start = time.perf_counter()
+        rectified = pairs.rectify(left, right)
+        tracker.times.add("rectify", start)
+        return rectified
+
+    def finish(stops: list[Stop], notes: list[str]) -> SourceData:
+        n = len(stops)
+        truth = None if obs.truth is None else replace(obs.truth, world_T_body=obs.truth.world_T_body[:n])
+        rectified = "rectified with the folder's calibration, " if pairs.rectify is not None else ""
+        info = SourceInfo("image_folder", str(folder), "truth.kitti of the image folder" if truth else "none",
+                          notes=(f"front-end {frontend.detector}: {rectified}median "
+                                 f"{median_frame_ms(tracker):.1f} ms per frame", *notes),
+                          options={"detector": frontend.detector, "skip_bad_frames": skip_bad_frames})
+        return SourceData(replace(obs.traverse, stops=tuple(stops)), truth, obs.estimator, obs.seed, info)
+
+    return track_frames(obs.traverse.stops, read_pair, tracker, finish, skip_bad_frames, progress)

@@ -12,12 +12,13 @@ import numpy as np
 
 from ..config import EstimatorConfig, FrontendConfig
 from ..errors import InputError
-from ..frontend.tracker import StageTimes, StereoTracker
+from ..frontend.tracker import StereoTracker
 from ..geodesy import LocalFrame
-from ..records import GroundTruth, SlipPrior, Stop, Traverse
+from ..records import GroundTruth, SlipPrior, StereoObservations, Stop, Traverse
 from ..results import SourceInfo
 from ..rig import BODY_T_FORWARD_CAMERA, Rig
 from .base import SourceData
+from .frames import median_frame_ms, track_frames
 
 # Matching and localisation error of the front-end's features (1 sigma).
 PIXEL_SIGMA_PX = 0.5
@@ -44,32 +45,38 @@ def matches(path: Path) -> bool:
 
 
 def load(folder: Path, frontend: FrontendConfig | None = None,
-         progress: Callable[[str, int, int], None] | None = None) -> SourceData:
+         progress: Callable[[str, int, int], None] | None = None, skip_bad_frames: bool = False) -> SourceData:
     from ..io.kitti import read_kitti_odometry
 
     sequence = read_kitti_odometry(folder)
+    frontend = frontend or FrontendConfig()
     tracker = StereoTracker(frontend)
-    stops = []
     size = (sequence.stereo.camera.height, sequence.stereo.camera.width)
-    for k in range(len(sequence)):
+
+    def read_pair(k: int) -> tuple[np.ndarray, np.ndarray]:
         left, right = sequence.stereo_pair(k)
         for path, image in ((sequence.left_images[k], left), (sequence.right_images[k], right)):
             if image.shape != size:
                 raise InputError(f"{path}: {image.shape[1]} x {image.shape[0]} px, but the calibration (and the "
                                  f"first left image) is {size[1]} x {size[0]}")
-        stops.append(Stop(k, float(sequence.times_s[k]), tracker(left, right)))
-        if progress is not None:
-            progress("front-end", k + 1, len(sequence))
-    return traverse_from_sequence(sequence, stops, tracker.times, frontend or FrontendConfig())
+        return left, right
+
+    stops = [Stop(k, float(sequence.times_s[k]), StereoObservations.empty()) for k in range(len(sequence))]
+    return track_frames(stops, read_pair, tracker,
+                        lambda tracked, notes: traverse_from_sequence(sequence, tracked, tracker, frontend, notes),
+                        skip_bad_frames, progress)
 
 
-def traverse_from_sequence(sequence, stops: list[Stop], times: StageTimes, frontend: FrontendConfig) -> SourceData:
+def traverse_from_sequence(sequence, stops: list[Stop], tracker: StereoTracker, frontend: FrontendConfig,
+                           notes: list[str] = ()) -> SourceData:
+    """The traverse of the stops tracked (the first len(stops) frames of the sequence)."""
     cam = sequence.stereo.camera
     rig = Rig(f"kitti {sequence.folder.name}", cam, sequence.stereo.baseline_m, mast_height_m=1.65)
     truth = None
     if sequence.world_T_camera is not None:  # camera poses in the first camera's frame
         body = BODY_T_FORWARD_CAMERA
-        truth = GroundTruth(body @ sequence.world_T_camera @ np.linalg.inv(body), np.zeros((0, 3)))
+        world_T_camera = sequence.world_T_camera[:len(stops)]
+        truth = GroundTruth(body @ world_T_camera @ np.linalg.inv(body), np.zeros((0, 3)))
     start = np.eye(4) if truth is None else truth.world_T_body[0]
     traverse = Traverse(
         name=sequence.folder.name, rig=rig, origin=LocalFrame(0.0, 0.0, 0.0), stops=tuple(stops),
@@ -80,6 +87,7 @@ def traverse_from_sequence(sequence, stops: list[Stop], times: StageTimes, front
     info = SourceInfo("kitti_odometry", str(sequence.folder), "poses.txt (KITTI ground truth)" if truth else "none",
                       notes=("no geodetic origin: the local frame is the first camera's, WGS84 exports are "
                              "placeholders at 0 N 0 E",
-                             f"front-end {frontend.detector}: median {np.median(times.ms['frame']):.1f} ms per frame"),
+                             f"front-end {frontend.detector}: median {median_frame_ms(tracker):.1f} ms per frame",
+                             *notes),
                       options={"detector": frontend.detector})
     return SourceData(traverse, truth, REAL_IMAGE_ESTIMATOR, 0, info)

@@ -1,0 +1,52 @@
+"""The image front-end over a sequence of stereo frames: every stop's pair read, rectified and
+tracked in order; a bad frame either leaves its stop to the VO bridge or stops the sequence
+with what was tracked before it kept."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+
+import numpy as np
+
+from ..errors import FrameError, InputError
+from ..frontend.tracker import StereoTracker
+from ..records import Stop
+from .base import SourceData
+
+# Reads stop k's (left, right) grayscale pair, rectified; raises InputError naming the file.
+ReadPair = Callable[[int], tuple[np.ndarray, np.ndarray]]
+
+
+def track_frames(stops: Sequence[Stop], read_pair: ReadPair, tracker: StereoTracker,
+                 finish: Callable[[list[Stop], list[str]], SourceData], skip_bad_frames: bool = False,
+                 progress: Callable[[str, int, int], None] | None = None) -> SourceData:
+    """`finish(tracked stops, notes)` builds the source's data from the stops tracked so far.
+
+    A frame that cannot be read: with `skip_bad_frames` its stop gets no observations (the VO
+    bridges it) and a note; otherwise FrameError, whose `partial` is `finish` of the stops before."""
+    tracked: list[Stop] = []
+    notes: list[str] = []
+    for stop in stops:
+        try:
+            pair = read_pair(stop.index)
+        except InputError as exc:
+            if not skip_bad_frames:
+                partial = finish(tracked, notes) if tracked else None
+                raise FrameError(f"stop {stop.index}: {exc}", stop.index, partial) from None
+            notes.append(f"stop {stop.index} skipped: {exc}")
+            tracked.append(stop)  # no observations: the VO bridges the stop
+        else:
+            tracked.append(replace(stop, stereo=tracker(*pair)))
+        if progress is not None:
+            progress("front-end", stop.index + 1, len(stops))
+    return finish(tracked, notes)
+
+
+def median_frame_ms(tracker: StereoTracker) -> float:
+    """Median time per frame, rectification (when the source rectifies) included."""
+    frame = np.asarray(tracker.times.ms.get("frame", [np.nan]))
+    rectify = tracker.times.ms.get("rectify")
+    if rectify is not None and len(rectify) == len(frame):
+        frame = frame + np.asarray(rectify)
+    return float(np.median(frame))
