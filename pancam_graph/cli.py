@@ -253,7 +253,7 @@ def _keep_frontend_work(exc: FrameError, out: Path | None) -> typer.Exit:
     try:
         with results_folder(out) as folder:
             write_observations(folder / "observations", data.traverse, data.estimator, data.seed, data.truth)
-            raise exc
+            raise exc  # leaving as a failed run keeps the folder as <out>.partial
     except FrameError:
         pass
     except PancamGraphError as write_error:

@@ -70,8 +70,7 @@ def test_rectifying_the_raw_pair_gives_the_pinhole_images_of_the_rectified_pair(
     calibration = raw_stereo_pair(traverse.rig.wac, traverse.rig.baseline_m, SCENARIO.render)
     rectified = calibration.rectified()
     assert not calibration.is_rectified
-    left_raw, right_raw = (_camera(k, d, calibration.size) for k, d in
-                           ((calibration.k_left, calibration.d_left), (calibration.k_right, calibration.d_right)))
+    left_raw, right_raw = calibration.cameras()
     right_T_left = np.eye(4)
     right_T_left[:3, :3], right_T_left[:3, 3] = calibration.rotation, calibration.translation
     world_T_left = truth.world_T_body[5] @ traverse.body_T_nav().matrix()
@@ -90,13 +89,6 @@ def test_rectifying_the_raw_pair_gives_the_pinhole_images_of_the_rectified_pair(
         assert np.corrcoef(rect[ground].ravel(), direct[ground].ravel())[0, 1] > 0.95
     # and the raw image really is distorted: without the lens model it is pixels off
     assert _shift_px(raw[1][ground], direct_right[ground]) > 1.0
-
-
-def _camera(k, d, size):
-    from pancam_graph.rig import Camera
-
-    return Camera(fx=k[0, 0], fy=k[1, 1], cx=k[0, 2], cy=k[1, 2], width=size[0], height=size[1], k1=d[0], k2=d[1],
-                  p1=d[2], p2=d[3])
 
 
 @pytest.fixture(scope="module")

@@ -62,6 +62,17 @@ class StereoCalibration:
     def baseline_m(self) -> float:
         return float(np.linalg.norm(self.translation))
 
+    def cameras(self) -> tuple[Camera, Camera]:
+        """The left and right cameras as calibrated (their first four distortion coefficients)."""
+        w, h = self.size
+
+        def camera(k: np.ndarray, d: np.ndarray) -> Camera:
+            k1, k2, p1, p2 = (float(v) for v in np.pad(d, (0, 4))[:4])
+            return Camera(fx=float(k[0, 0]), fy=float(k[1, 1]), cx=float(k[0, 2]), cy=float(k[1, 2]), width=w,
+                          height=h, k1=k1, k2=k2, p1=p1, p2=p2)
+
+        return camera(self.k_left, self.d_left), camera(self.k_right, self.d_right)
+
     @property
     def is_rectified(self) -> bool:
         """Images already rectified: no distortion, identical cameras side by side."""

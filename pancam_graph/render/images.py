@@ -38,11 +38,6 @@ def raw_stereo_pair(camera: Camera, baseline_m: float, config: RenderConfig) -> 
                              right.distortion(), (camera.width, camera.height), right_R_left, translation)
 
 
-def _camera(k: np.ndarray, d: np.ndarray, size: tuple[int, int]) -> Camera:
-    return Camera(fx=float(k[0, 0]), fy=float(k[1, 1]), cx=float(k[0, 2]), cy=float(k[1, 2]), width=size[0],
-                  height=size[1], k1=float(d[0]), k2=float(d[1]), p1=float(d[2]), p2=float(d[3]))
-
-
 def render_scenario(scenario: Scenario, folder: Path, seed: int | None = None,
                     progress: Callable[[str, int, int], None] | None = None) -> int:
     """Write the image folder; returns the number of images."""
@@ -54,8 +49,7 @@ def render_scenario(scenario: Scenario, folder: Path, seed: int | None = None,
     renderer = TerrainRenderer(terrain_tiles(scenario, dense_path(scenario.path), seed), seed=seed)
     rig = traverse.rig
     calibration = raw_stereo_pair(rig.wac, rig.baseline_m, config)
-    left_camera = _camera(calibration.k_left, calibration.d_left, calibration.size)
-    right_camera = _camera(calibration.k_right, calibration.d_right, calibration.size)
+    left_camera, right_camera = calibration.cameras()
     left_T_right = np.linalg.inv(np.vstack([np.column_stack([calibration.rotation, calibration.translation]),
                                             [0.0, 0.0, 0.0, 1.0]]))
     rng = np.random.default_rng([seed, 3])

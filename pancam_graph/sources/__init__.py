@@ -81,11 +81,11 @@ def open_source(text: str, options: SourceOptions = SourceOptions(),
         return image_folder.load(Path(text), frontend, progress, bool(options.skip_bad_frames))
     holdout = 5 if options.holdout_every is None else options.holdout_every
     if kind == "rosbag" and options.stereo_topics is not None:
-        options.check(kind, {"stereo_topics", "detector"})
+        options.check(kind, {"stereo_topics", "detector", "skip_bad_frames"})
         left, right = options.stereo_topics
         frontend = FrontendConfig(detector=options.detector) if options.detector else None
         return recorded.load_stereo_bag(Path(text), left, right, _info_topic(left), _info_topic(right), frontend,
-                                        progress)
+                                        progress, bool(options.skip_bad_frames))
     if kind == "rosbag":
         options.check(kind, {"gps_topic", "odom_topic", "holdout_every"})
         return recorded.load_bag(Path(text), options.gps_topic, options.odom_topic, holdout)

@@ -164,7 +164,7 @@ _PAIR_TOLERANCE_S = 0.005  # a left and a right image this close in time are one
 
 
 def load_stereo_bag(path: Path, left_topic: str, right_topic: str, left_info: str, right_info: str,
-                    frontend=None, progress=None) -> SourceData:
+                    frontend=None, progress=None, skip_bad_frames: bool = False) -> SourceData:
     """A bag with a rectified stereo pair (Image or CompressedImage) and its two CameraInfo
     topics: one stop per stereo pair, the image front-end over every pair, a body-fixed camera
     (left camera at the body origin looking forward). GPS fixes and wheel odometry, when the
@@ -172,30 +172,33 @@ def load_stereo_bag(path: Path, left_topic: str, right_topic: str, left_info: st
     from ..frontend.tracker import StereoTracker
     from ..io.rosbag import read_images, read_navsatfix, read_odometry, read_stereo_camera_info
     from ..rig import BODY_T_FORWARD_CAMERA, Rig
+    from .frames import track_frames
 
     stereo = read_stereo_camera_info(path, left_info, right_info)
     cam = stereo.camera
     rights = [(m.time_s, m.image) for m in read_images(path, right_topic)]
     right_times = np.array([t for t, _ in rights])
-    tracker = StereoTracker(frontend)
-    stops: list[Stop] = []
+    pairs = []  # (time, left image, right image)
     unpaired = 0
     for message in read_images(path, left_topic):
         j = int(np.argmin(np.abs(right_times - message.time_s))) if len(right_times) else -1
         if j < 0 or abs(right_times[j] - message.time_s) > _PAIR_TOLERANCE_S:
             unpaired += 1
             continue
-        left, right = (_gray(message.image), _gray(rights[j][1]))
+        pairs.append((message.time_s, message.image, rights[j][1]))
+    if len(pairs) < 2:
+        raise InputError(f"{path}: {len(pairs)} stereo pairs on {left_topic} + {right_topic} (within "
+                         f"{_PAIR_TOLERANCE_S * 1e3:.0f} ms; {unpaired} left images without a right one)")
+
+    def read_pair(k: int) -> tuple[np.ndarray, np.ndarray]:
+        time_s, left, right = pairs[k]
+        left, right = _gray(left), _gray(right)
         for topic, image in ((left_topic, left), (right_topic, right)):
             if image.shape != (cam.height, cam.width):
-                raise InputError(f"{path}: {topic} at t = {message.time_s:.3f} s: {image.shape[1]} x "
+                raise InputError(f"{path}: {topic} at t = {time_s:.3f} s: {image.shape[1]} x "
                                  f"{image.shape[0]} px, but the camera_info says {cam.width} x {cam.height}")
-        stops.append(Stop(len(stops), message.time_s, tracker(left, right)))
-        if progress is not None:
-            progress("front-end", len(stops), 0)
-    if len(stops) < 2:
-        raise InputError(f"{path}: {len(stops)} stereo pairs on {left_topic} + {right_topic} (within "
-                         f"{_PAIR_TOLERANCE_S * 1e3:.0f} ms; {unpaired} left images without a right one)")
+        return left, right
+
     fixes, odometry = [], None
     try:
         fixes, _ = read_navsatfix(path, None)
@@ -205,25 +208,28 @@ def load_stereo_bag(path: Path, left_topic: str, right_topic: str, left_info: st
         odometry = read_odometry(path, None)
     except InputError:
         pass
-    if odometry is not None:
-        times = np.array([s.time_s for s in stops])
-        odom = odometry_at(odometry, times)
-        stops = [stop if k == 0 else replace(stop, dead_reckoning=DeadReckoning(
-            odom[k - 1].between(odom[k]).matrix(), OdometryNoise().covariance(odom[k - 1].between(odom[k]))))
-            for k, stop in enumerate(stops)]
-    origin = LocalFrame(fixes[0].lat_deg, fixes[0].lon_deg, fixes[0].h_m) if fixes else LocalFrame(0.0, 0.0, 0.0)
-    traverse = Traverse(
-        name=Path(path).stem, rig=Rig(Path(path).stem, cam, stereo.baseline_m, mast_height_m=1.0), origin=origin,
-        stops=tuple(stops), traverse_tilt_rad=0.0, image_noise_px=0.5, gps_lever_arm_m=np.zeros(3),
-        start_world_T_body=np.eye(4), start_sigmas=np.array([1e-4] * 3 + [1e-3] * 3),
-        gps_fixes=tuple(sorted(fixes, key=lambda f: f.time_s)), body_T_nav_left=BODY_T_FORWARD_CAMERA)
     from .kitti_odometry import REAL_IMAGE_ESTIMATOR
 
-    info = SourceInfo("rosbag", str(path), "none", notes=(
-        f"stereo pairs from {left_topic} + {right_topic} ({unpaired} unpaired left images)",
-        "the start pose is the local frame's origin (the bag gives no surveyed start)"),
-        options={"left_topic": left_topic, "right_topic": right_topic})
-    return SourceData(traverse, None, REAL_IMAGE_ESTIMATOR, 0, info)
+    def finish(stops: list[Stop], notes: list[str]) -> SourceData:
+        if odometry is not None:
+            odom = odometry_at(odometry, np.array([s.time_s for s in stops]))
+            stops = [stop if k == 0 else replace(stop, dead_reckoning=DeadReckoning(
+                odom[k - 1].between(odom[k]).matrix(), OdometryNoise().covariance(odom[k - 1].between(odom[k]))))
+                for k, stop in enumerate(stops)]
+        origin = LocalFrame(fixes[0].lat_deg, fixes[0].lon_deg, fixes[0].h_m) if fixes else LocalFrame(0.0, 0.0, 0.0)
+        traverse = Traverse(
+            name=Path(path).stem, rig=Rig(Path(path).stem, cam, stereo.baseline_m, mast_height_m=1.0),
+            origin=origin, stops=tuple(stops), traverse_tilt_rad=0.0, image_noise_px=0.5,
+            gps_lever_arm_m=np.zeros(3), start_world_T_body=np.eye(4), start_sigmas=np.array([1e-4] * 3 + [1e-3] * 3),
+            gps_fixes=tuple(sorted(fixes, key=lambda f: f.time_s)), body_T_nav_left=BODY_T_FORWARD_CAMERA)
+        info = SourceInfo("rosbag", str(path), "none", notes=(
+            f"stereo pairs from {left_topic} + {right_topic} ({unpaired} unpaired left images)",
+            "the start pose is the local frame's origin (the bag gives no surveyed start)", *notes),
+            options={"left_topic": left_topic, "right_topic": right_topic})
+        return SourceData(traverse, None, REAL_IMAGE_ESTIMATOR, 0, info)
+
+    stops = [Stop(k, time_s, StereoObservations.empty()) for k, (time_s, _, _) in enumerate(pairs)]
+    return track_frames(stops, read_pair, StereoTracker(frontend), finish, skip_bad_frames, progress)
 
 
 def _gray(image: np.ndarray) -> np.ndarray:
