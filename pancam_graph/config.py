@@ -120,6 +120,11 @@ DEFAULT_CONFIGURATIONS: dict[str, list[str]] = {
 }
 
 
+# The VO's per-step rotation error beyond white pixel noise, measured on the real KITTI frames
+# (docs/frontend.md); it also makes the VO covariance hold on rendered images.
+REAL_IMAGE_ROTATION_FLOOR_DEG_PER_M = 0.03
+
+
 class EstimatorConfig(_Strict):
     """Every constant of the estimator: what is written with the results is the whole story."""
 
@@ -208,6 +213,11 @@ class FrontendConfig(_Strict):
     smoothness_fraction: float = Field(0.25, gt=0.0, description="... and relative to the neighbour's")
     ratio: float = Field(0.8, gt=0.0, le=1.0, description="descriptor detectors: Lowe's ratio test")
     max_motion_px: float = Field(150.0, gt=0.0, description="descriptor detectors: image motion between frames")
+    odometry_aided: bool = Field(True, description="image folders with dead reckoning: search each track where "
+                                 "the odometry says it went (MER's VO does the same)")
+    prediction_gate_px: float = Field(
+        20.0, gt=0.0, description="with the motion since the last frame known (wheel odometry): a track whose "
+        "offset from its predicted position differs from the median offset by more is dropped")
 
 
 class RenderConfig(_Strict):

@@ -131,8 +131,8 @@ def test_the_rectified_camera_frame_is_raw_R_rectified_of_the_calibrated_one(kit
     """Points seen by KITTI's real unrectified pair 02/03 (distortion, 0.4 deg misalignment),
     rectified with `rectification_maps`' model: same row in both images, and triangulated in
     the rectified camera they are the original points once turned by raw_R_rectified."""
-    from pancam_graph.io.calibration import StereoCalibration
     from pancam_graph.rig import triangulate_rectified
+    from pancam_graph.stereo_pair import StereoCalibration
 
     k = kitti
     calibration = StereoCalibration("kitti", k["K1"], k["D1"], k["K2"], k["D2"], k["size"], k["R"], k["T"])
@@ -180,3 +180,59 @@ def test_a_preset_rig_with_a_calibrated_pair_reads_back_unchanged(short_scenario
     assert back.hrc == rig.hrc and back.mast_height_m == rig.mast_height_m
     assert back.wac.fx == pytest.approx(1694.5) and back.baseline_m == pytest.approx(0.5012)
     np.testing.assert_allclose(back.rectification(), rotation, atol=1e-12)
+
+
+KATWIJK = Path(__file__).parent / "data" / "real" / "katwijk_pancam_calib"
+
+
+def test_katwijk_pancam_matlab_calibration_reads_with_its_published_baseline_and_focal_length():
+    import scipy.io
+
+    from pancam_graph.io.calibration import read_matlab_stereo_parameters
+
+    path = KATWIJK / "PanCam_calibstruct.mat"
+    c = read_matlab_stereo_parameters(path, image_size=(1280, 960))
+    assert c.baseline_m * 1e3 == pytest.approx(502.44, abs=0.01)  # published: about 502.4 mm
+    assert c.k_left[0, 0] == pytest.approx(1421.16, abs=0.01) and c.k_left[1, 1] == pytest.approx(1429.54, abs=0.01)
+    assert c.k_left[0, 2] == pytest.approx(654.639 - 1.0, abs=1e-3)  # MATLAB pixels are 1-based
+    np.testing.assert_allclose(c.d_left[:2], [-0.26445, 0.26257], atol=1e-5)
+    # The file's own fundamental matrix, rebuilt from K, R and T in OpenCV's conventions (1-based
+    # pixels again): it checks the transposed K and R, the pixel shift and the units together.
+    t = c.translation
+    cross = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    f = np.linalg.inv(c.k_right).T @ cross @ c.rotation @ np.linalg.inv(c.k_left)
+    one_based = np.array([[1.0, 0, -1], [0, 1, -1], [0, 0, 1]])
+    f = one_based.T @ f @ one_based
+    matlab = scipy.io.loadmat(str(path), squeeze_me=True, struct_as_record=False)["stereoParams"].FundamentalMatrix
+    np.testing.assert_allclose(f / np.linalg.norm(f), matlab / np.linalg.norm(matlab), atol=1e-9)
+    # the navigation pair's file also holds MATLAB's `ans`: the stereoParams struct is the one read
+    loc = read_matlab_stereo_parameters(KATWIJK / "LocCam_calibstruct.mat", image_size=(1024, 768))
+    assert loc.baseline_m * 1e3 == pytest.approx(120.08, abs=0.01) and loc.k_left[0, 0] == pytest.approx(834.26, abs=0.01)
+
+
+def test_the_katwijk_pancam_rig_preset_is_the_calibration_file():
+    from pancam_graph.io.calibration import read_raw_calibration
+    from pancam_graph.rig import katwijk_pancam_calibration, rig_preset
+
+    read = read_raw_calibration(KATWIJK / "PanCam_calibstruct.mat", image_size=(1280, 960))
+    bundled = katwijk_pancam_calibration()
+    for name in ("k_left", "d_left", "k_right", "d_right", "rotation", "translation"):
+        np.testing.assert_allclose(getattr(bundled, name), getattr(read, name), rtol=1e-14, atol=1e-15)
+    rig = rig_preset("katwijk_pancam")
+    assert rig.wac == read.rectified().camera and rig.baseline_m == pytest.approx(0.50244, abs=1e-5)
+    # the rectified left camera's x axis points along the baseline, at the right camera's centre
+    right_centre = -read.rotation.T @ read.translation
+    np.testing.assert_allclose(rig.rectification()[:, 0], right_centre / np.linalg.norm(right_centre), atol=1e-9)
+
+
+def test_a_matlab_calibration_without_image_size_or_of_the_wrong_kind_is_named(tmp_path):
+    from pancam_graph.io.calibration import read_raw_calibration
+
+    path = KATWIJK / "PanCam_calibstruct.mat"
+    with pytest.raises(InputError, match=r"PanCam_calibstruct.mat: CameraParameters1.ImageSize is empty.*"
+                                         r"reach x = 1196, y = 921"):
+        read_raw_calibration(path)
+    bad = tmp_path / "calib.mat"
+    bad.write_bytes(b"not a mat file at all")
+    with pytest.raises(InputError, match="calib.mat: not a MATLAB .mat file"):
+        read_raw_calibration(bad)

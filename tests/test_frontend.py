@@ -175,3 +175,31 @@ def test_stereo_images_from_a_ros_bag_run_the_same_front_end_and_vo(tmp_path):
     travelled = np.linalg.norm(true_end)
     assert travelled > 10.0
     assert np.linalg.norm(vo.world_T_body[-1, :3, 3] - true_end) < 0.02 * travelled
+
+
+def test_the_odometry_prediction_puts_a_feature_where_the_moved_camera_sees_it():
+    import gtsam
+
+    from pancam_graph.frontend.tracker import CameraMotion
+    from pancam_graph.rig import rig_preset
+
+    rig = rig_preset("exomars")
+    body_T_camera = rig.body_T_left(0.0, -0.3).matrix()
+    # the rover drives 1.5 m forward turning 10 deg left, over points on the ground ahead
+    body_step = gtsam.Pose3(gtsam.Rot3.Yaw(np.radians(10.0)), np.array([1.5, 0.2, 0.0])).matrix()
+    world_points = np.array([[4.0, 0.5, 0.0], [6.0, -1.0, 0.1], [9.0, 2.0, -0.2], [5.0, 0.0, 0.3]])
+
+    def seen(world_T_body):
+        camera = np.linalg.inv(world_T_body @ body_T_camera)
+        p = world_points @ camera[:3, :3].T + camera[:3, 3]
+        c = rig.wac
+        uv = np.column_stack([c.fx * p[:, 0] / p[:, 2] + c.cx, c.fy * p[:, 1] / p[:, 2] + c.cy])
+        return uv, c.fx * rig.baseline_m / p[:, 2]
+
+    uv0, d0 = seen(np.eye(4))
+    uv1, d1 = seen(body_step)
+    motion = CameraMotion.from_body_motion(body_step, body_T_camera, rig.wac, rig.baseline_m)
+    predicted, disparity, ok = motion.predict(uv0.astype(np.float32), d0.astype(np.float32))
+    assert ok.all() and np.abs(uv1 - uv0).max() > 100  # the features really moved
+    np.testing.assert_allclose(predicted, uv1, atol=1e-2)
+    np.testing.assert_allclose(disparity, d1, rtol=1e-5)

@@ -106,11 +106,11 @@ def test_vo_from_rendered_images(rendered):
     result = run_traverse(data.traverse, data.truth, data.estimator, data.seed, RunOptions(configs=("vo",)),
                           source=data.info)
     vo = result.configurations["vo"]
-    # Lucas-Kanade loses (or mis-locks on the repetitive texture) most tracks over a 2 m step at
-    # a few stops: measured 4 VO failures here (raw images through the lens, rectified),
-    # bridged by dead reckoning (docs/frontend.md: motion-aided tracking was tried).
-    assert vo.bridged_stops <= 4
-    assert vo.metrics.relative_closure_pct < 1.0
+    # Searching each track where the wheel odometry says it went keeps every 2 m step: measured
+    # 0 VO failures and 0.12 % closure (5 failures and 0.29 % without the prediction, where
+    # Lucas-Kanade loses or mis-locks most tracks on the repetitive texture).
+    assert vo.bridged_stops <= 1
+    assert vo.metrics.relative_closure_pct < 0.5
     assert vo.consistency.anees < 3.0
 
 

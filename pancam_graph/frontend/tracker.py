@@ -10,7 +10,10 @@ disagrees by more than `smoothness_px` and `smoothness_fraction`). Matches are s
 
 Three detectors (`FrontendConfig.detector`):
 - `gftt`: Shi-Tomasi corners, stereo and temporal matching by Lucas-Kanade optical flow with a
-  forward-backward check (the default: see docs/frontend.md for the comparison);
+  forward-backward check (the default: see docs/frontend.md for the comparison). Given the
+  camera's motion since the last frame (`CameraMotion`, from wheel odometry), each track's
+  search starts where its triangulated point reprojects, and a track whose offset from that
+  prediction strays from the others' is dropped;
 - `orb`, `sift`: keypoints and descriptors, stereo matching by descriptor along the row,
   temporal matching by descriptor near the previous position, both mutual; the disparity is
   then refined to sub-pixel by Lucas-Kanade.
@@ -19,15 +22,17 @@ Three detectors (`FrontendConfig.detector`):
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy.spatial import Delaunay
+from scipy.spatial import Delaunay, cKDTree
 
 from ..config import FrontendConfig
 from ..errors import FrontendError
 from ..records import StereoObservations
+from ..rig import Camera, triangulate_rectified
 
 
 @dataclass
@@ -57,8 +62,39 @@ class _Tracks:
     descriptors: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class CameraMotion:
+    """What the rover believes the left camera did since the last frame (wheel odometry, as
+    MER's VO uses it): current_T_previous (4x4) of the rectified left camera, and that camera's
+    model, to say where each tracked feature should now appear."""
+
+    current_T_previous: np.ndarray
+    camera: Camera
+    baseline_m: float
+
+    @staticmethod
+    def from_body_motion(previous_T_current: np.ndarray, body_T_camera: np.ndarray, camera: Camera,
+                         baseline_m: float) -> CameraMotion:
+        """From the body's motion (previous_T_current, 4x4) and the camera's mount on the body."""
+        camera_motion = np.linalg.inv(body_T_camera) @ previous_T_current @ body_T_camera
+        return CameraMotion(np.linalg.inv(camera_motion), camera, baseline_m)
+
+    def predict(self, uv: np.ndarray, disparity: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Predicted pixel positions and disparities of features (uv, disparity) of the previous
+        frame, and which predictions are usable (in front of the camera)."""
+        p = triangulate_rectified(uv[:, 0], uv[:, 0] - disparity, uv[:, 1], self.camera, self.baseline_m)
+        q = p @ self.current_T_previous[:3, :3].T + self.current_T_previous[:3, 3]
+        ok = np.isfinite(q[:, 2]) & (q[:, 2] > 0.3)
+        z = np.where(ok, q[:, 2], 1.0)
+        c = self.camera
+        predicted = np.column_stack([c.fx * q[:, 0] / z + c.cx, c.fy * q[:, 1] / z + c.cy])
+        return np.where(ok[:, None], predicted, uv).astype(np.float32), (c.fx * self.baseline_m / z).astype(
+            np.float32), ok
+
+
 class StereoTracker:
-    """Feed it rectified stereo pairs in order; each call returns that frame's observations."""
+    """Feed it rectified stereo pairs in order; each call returns that frame's observations.
+    Given the camera's motion since the last frame, tracks are searched where it says they went."""
 
     def __init__(self, config: FrontendConfig | None = None):
         self.config = config or FrontendConfig()
@@ -66,6 +102,9 @@ class StereoTracker:
         self._last = _Tracks()
         self._previous_left: np.ndarray | None = None
         self._next_id = 0
+        # Corner detection runs beside temporal tracking (OpenCV releases the GIL); the worker
+        # thread ends with the tracker.
+        self._detection = ThreadPoolExecutor(max_workers=1, thread_name_prefix="corners")
         c = self.config
         self._lk = dict(winSize=(c.klt_window_px, c.klt_window_px), maxLevel=c.klt_levels,
                         criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
@@ -76,13 +115,13 @@ class StereoTracker:
             self._features = cv2.SIFT_create(nfeatures=c.max_features)
             self._norm = cv2.NORM_L2
 
-    def __call__(self, left: np.ndarray, right: np.ndarray) -> StereoObservations:
+    def __call__(self, left: np.ndarray, right: np.ndarray, motion: CameraMotion | None = None) -> StereoObservations:
         if left.shape != right.shape or left.ndim != 2:
             raise FrontendError(f"stereo pair: left {left.shape} and right {right.shape} must be equal grayscale "
                                 "images")
         start = time.perf_counter()
         if self.config.detector == "gftt":
-            uv, ids, disparity = self._klt_frame(left, right, start)
+            uv, ids, disparity = self._klt_frame(left, right, start, motion)
         else:
             uv, ids, disparity = self._descriptor_frame(left, right, start)
         t = time.perf_counter()
@@ -99,14 +138,27 @@ class StereoTracker:
 
     # -- corners and optical flow --------------------------------------------------------------
 
-    def _klt_frame(self, left, right, t):
+    def _klt_frame(self, left, right, t, motion: CameraMotion | None):
         c = self.config
         uv, ids, disparity = self._last.uv, self._last.ids, self._last.disparity
+        # Corners are found on the whole image while the tracks are followed (the two keep both
+        # cores busy); those too near a followed track are dropped afterwards.
+        corners = self._detection.submit(cv2.goodFeaturesToTrack, left, c.max_features + len(uv),
+                                         c.gftt_quality, c.min_distance_px, blockSize=7)
         if self._previous_left is not None and len(uv):
-            moved, ok = self._flow(self._previous_left, left, uv, uv)
+            guess = uv
+            if motion is not None:
+                guess, disparity, _ = motion.predict(uv, disparity)  # disparity: where stereo starts
+            moved, ok = self._flow(self._previous_left, left, uv, guess)
+            if motion is not None and ok.sum() > 2:
+                # The odometry's heading error moves every track alike; a track that strays from
+                # the others' offset has locked onto another texture element.
+                offset = moved[ok] - guess[ok]
+                stray = np.linalg.norm(offset - np.median(offset, axis=0), axis=1) > c.prediction_gate_px
+                ok[np.flatnonzero(ok)[stray]] = False
             uv, ids, disparity = moved[ok], ids[ok], disparity[ok]
         t = self.times.add("temporal", t)
-        fresh = self._corners(left, uv, c.max_features - len(uv))
+        fresh = self._fresh_corners(left, corners.result(), uv, c.max_features - len(uv))
         uv = np.vstack([uv, fresh]).astype(np.float32)
         ids = np.concatenate([ids, self._new_ids(len(fresh))])
         disparity = np.concatenate([disparity, np.full(len(fresh), np.nan, np.float32)])
@@ -115,33 +167,42 @@ class StereoTracker:
         self.times.add("stereo", t)
         return uv[ok], ids[ok], disparity[ok]
 
-    def _corners(self, image, existing: np.ndarray, count: int) -> np.ndarray:
-        if count <= 0:
-            return np.zeros((0, 2), np.float32)
+    def _fresh_corners(self, image, found: np.ndarray | None, tracked: np.ndarray, count: int) -> np.ndarray:
+        """The strongest `count` corners at least `min_distance_px` from every tracked feature,
+        refined to sub-pixel."""
         c = self.config
-        mask = np.full(image.shape, 255, np.uint8)
-        for u, v in existing.astype(int):
-            cv2.circle(mask, (int(u), int(v)), c.min_distance_px, 0, -1)
-        found = cv2.goodFeaturesToTrack(image, count, c.gftt_quality, c.min_distance_px, mask=mask, blockSize=7)
-        if found is None:
+        if found is None or count <= 0:
             return np.zeros((0, 2), np.float32)
-        return cv2.cornerSubPix(image, found, (5, 5), (-1, -1),
+        found = found.reshape(-1, 2)
+        if len(tracked):
+            distance, _ = cKDTree(tracked).query(found, distance_upper_bound=c.min_distance_px)
+            found = found[distance > c.min_distance_px]  # inf when no track is that near
+        found = found[:count]  # goodFeaturesToTrack returns the strongest first
+        if not len(found):
+            return np.zeros((0, 2), np.float32)
+        return cv2.cornerSubPix(image, found.reshape(-1, 1, 2).copy(), (5, 5), (-1, -1),
                                 (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01)).reshape(-1, 2)
 
-    def _flow(self, a, b, points, guess, levels: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Lucas-Kanade from image a to b with a forward-backward check; (positions in b, ok)."""
+    def _flow(self, a, b, points, guess, levels: int | None = None, accept=None) -> tuple[np.ndarray, np.ndarray]:
+        """Lucas-Kanade from image a to b with a forward-backward check; (positions in b, ok).
+        `accept(positions in b)` rejects matches before the check (whose cost is per point)."""
         lk = dict(self._lk)
         if levels is not None:
             lk["maxLevel"] = levels
         p0 = points.reshape(-1, 1, 2).astype(np.float32)
-        p1, st1, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, guess.reshape(-1, 1, 2).astype(np.float32).copy(),
-                                              flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
-        back, st2, _ = cv2.calcOpticalFlowPyrLK(b, a, p1, p0.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
+        p1, status, _ = cv2.calcOpticalFlowPyrLK(a, b, p0, guess.reshape(-1, 1, 2).astype(np.float32).copy(),
+                                                 flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
         h, w = a.shape
         p1 = p1.reshape(-1, 2)
-        ok = (st1.ravel() == 1) & (st2.ravel() == 1)
-        ok &= np.linalg.norm(back.reshape(-1, 2) - points, axis=1) < self.config.mutual_max_px
-        ok &= (p1[:, 0] >= 0) & (p1[:, 0] <= w - 1) & (p1[:, 1] >= 0) & (p1[:, 1] <= h - 1)
+        ok = (status.ravel() == 1) & (p1[:, 0] >= 0) & (p1[:, 0] <= w - 1) & (p1[:, 1] >= 0) & (p1[:, 1] <= h - 1)
+        if accept is not None:
+            ok &= accept(p1)
+        check = np.flatnonzero(ok)
+        if len(check):
+            back, status, _ = cv2.calcOpticalFlowPyrLK(b, a, p1[check].reshape(-1, 1, 2).copy(), p0[check].copy(),
+                                                       flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
+            ok[check] = (status.ravel() == 1) & (
+                np.linalg.norm(back.reshape(-1, 2) - points[check], axis=1) < self.config.mutual_max_px)
         return p1, ok
 
     def _stereo_flow(self, left, right, uv, disparity) -> tuple[np.ndarray, np.ndarray]:
@@ -151,11 +212,15 @@ class StereoTracker:
         c = self.config
         start = np.where(np.isfinite(disparity), disparity, c.initial_disparity_px)
         guess = uv - np.column_stack([start, np.zeros(len(uv))]).astype(np.float32)
-        matched, ok = self._flow(left, right, uv, guess)
-        d = uv[:, 0] - matched[:, 0]
-        ok &= np.abs(matched[:, 1] - uv[:, 1]) <= c.row_max_px
-        ok &= (d > c.min_disparity_px) & (d < c.max_disparity_px)
-        return ok, d.astype(np.float32)
+        matched, ok = self._flow(left, right, uv, guess, accept=lambda right_uv: self._stereo_ok(uv, right_uv))
+        return ok, (uv[:, 0] - matched[:, 0]).astype(np.float32)
+
+    def _stereo_ok(self, left_uv: np.ndarray, right_uv: np.ndarray) -> np.ndarray:
+        """The same row (rectified) and a disparity in range."""
+        c = self.config
+        d = left_uv[:, 0] - right_uv[:, 0]
+        return (np.abs(right_uv[:, 1] - left_uv[:, 1]) <= c.row_max_px) & (d > c.min_disparity_px) & (
+            d < c.max_disparity_px)
 
     # -- keypoints and descriptors --------------------------------------------------------------
 
@@ -175,10 +240,9 @@ class StereoTracker:
         i, j = self._mutual(dl, dr, allowed)
         uv, desc = pl[i], dl[i]
         # sub-pixel disparity: optical flow from the matched position, on the full image
-        matched, ok = self._flow(left, right, uv, pr[j], levels=1)
+        matched, ok = self._flow(left, right, uv, pr[j], levels=1,
+                                 accept=lambda right_uv: self._stereo_ok(uv, right_uv))
         d = uv[:, 0] - matched[:, 0]
-        ok &= np.abs(matched[:, 1] - uv[:, 1]) <= c.row_max_px
-        ok &= (d > c.min_disparity_px) & (d < c.max_disparity_px)
         uv, desc, d = uv[ok], desc[ok], d[ok]
         t = self.times.add("stereo", t)
         ids = self._new_ids(len(uv))

@@ -1,12 +1,11 @@
-"""Stereo calibration files: OpenCV YAML, Kalibr camchain, ROS camera_info; and the rectified
-stereo model the back-end works in (OpenCV's stereoRectify when the pair is not rectified).
+"""Stereo calibration files: OpenCV YAML, Kalibr camchain, ROS camera_info, MATLAB
+stereoParameters (saved as a struct). What they describe is modelled in stereo_pair.py.
 
 Every reader names the file and the field it could not find or understand.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -14,95 +13,11 @@ import numpy as np
 
 from ..errors import InputError
 from ..rig import Camera
+from ..stereo_pair import RectifiedStereo, StereoCalibration
 
 KALIBR_CAMERA_MODELS = ("pinhole",)
 KALIBR_DISTORTION_MODELS = ("radtan", "none")  # OpenCV's plumb-bob order (k1, k2, p1, p2)
 ROS_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "")
-
-
-@dataclass(frozen=True)
-class RectifiedStereo:
-    """A rectified stereo pair: the left camera's pinhole model and the baseline (m), and the
-    rectified left camera's axes in the calibrated (raw) left camera's frame (rectification turns
-    the camera a little; identity when the pair came rectified)."""
-
-    camera: Camera
-    baseline_m: float
-    raw_R_rectified: np.ndarray = field(default_factory=lambda: np.eye(3), compare=False)
-
-
-@dataclass(frozen=True)
-class RectificationMaps:
-    """Pixel maps taking raw (distorted, unaligned) images to the rectified pair (cv2.remap)."""
-
-    left: tuple[np.ndarray, np.ndarray]
-    right: tuple[np.ndarray, np.ndarray]
-
-    def __call__(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return (cv2.remap(left, *self.left, cv2.INTER_LINEAR),
-                cv2.remap(right, *self.right, cv2.INTER_LINEAR))
-
-
-@dataclass(frozen=True)
-class StereoCalibration:
-    """Two calibrated cameras as OpenCV's stereoCalibrate gives them: intrinsics K, distortion D
-    (OpenCV order), image size (width, height), and R, T taking left-camera points to the
-    right camera (x_right = R x_left + T)."""
-
-    source: str
-    k_left: np.ndarray
-    d_left: np.ndarray
-    k_right: np.ndarray
-    d_right: np.ndarray
-    size: tuple[int, int]
-    rotation: np.ndarray
-    translation: np.ndarray
-
-    @property
-    def baseline_m(self) -> float:
-        return float(np.linalg.norm(self.translation))
-
-    def cameras(self) -> tuple[Camera, Camera]:
-        """The left and right cameras as calibrated (their first four distortion coefficients)."""
-        w, h = self.size
-
-        def camera(k: np.ndarray, d: np.ndarray) -> Camera:
-            k1, k2, p1, p2 = (float(v) for v in np.pad(d, (0, 4))[:4])
-            return Camera(fx=float(k[0, 0]), fy=float(k[1, 1]), cx=float(k[0, 2]), cy=float(k[1, 2]), width=w,
-                          height=h, k1=k1, k2=k2, p1=p1, p2=p2)
-
-        return camera(self.k_left, self.d_left), camera(self.k_right, self.d_right)
-
-    @property
-    def is_rectified(self) -> bool:
-        """Images already rectified: no distortion, identical cameras side by side."""
-        t = self.translation / self.baseline_m
-        return (not np.any(self.d_left) and not np.any(self.d_right) and np.allclose(self.k_left, self.k_right)
-                and np.allclose(self.rotation, np.eye(3), atol=1e-9) and abs(abs(t[0]) - 1.0) < 1e-9)
-
-    def _stereo_rectify(self):
-        return cv2.stereoRectify(self.k_left, self.d_left, self.k_right, self.d_right, self.size, self.rotation,
-                                 self.translation.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0.0)
-
-    def rectified(self) -> RectifiedStereo:
-        """The pair after rectification (OpenCV stereoRectify, zero disparity at infinity, only
-        valid pixels: alpha 0)."""
-        r1, _, p1, p2, _, _, _ = self._stereo_rectify()
-        w, h = self.size
-        camera = Camera(fx=float(p1[0, 0]), fy=float(p1[1, 1]), cx=float(p1[0, 2]), cy=float(p1[1, 2]), width=w,
-                        height=h)
-        if not np.all(np.isfinite(p1)) or camera.fx <= 0 or camera.fy <= 0:
-            raise InputError(f"{self.source}: the calibration gives no usable rectification (focal length "
-                             f"{camera.fx:.4g} x {camera.fy:.4g} px after stereoRectify)")
-        # stereoRectify's R1 takes raw left-camera vectors into the rectified frame
-        return RectifiedStereo(camera, float(-p2[0, 3] / p2[0, 0]), np.asarray(r1, dtype=float).T)
-
-    def rectification_maps(self) -> RectificationMaps:
-        """The maps `rectified()`'s pair is made with (fixed-point, for a fast remap)."""
-        r1, r2, p1, p2, _, _, _ = self._stereo_rectify()
-        maps = [cv2.initUndistortRectifyMap(k, d, r, p, self.size, cv2.CV_16SC2)
-                for k, d, r, p in ((self.k_left, self.d_left, r1, p1), (self.k_right, self.d_right, r2, p2))]
-        return RectificationMaps(*maps)
 
 
 # -- OpenCV YAML (FileStorage) -------------------------------------------------------------------
@@ -195,6 +110,79 @@ def read_kalibr_camchain(path: Path) -> StereoCalibration:
     return _checked(StereoCalibration(str(path), k1, d1, k2, d2, size, t[:3, :3], t[:3, 3]))
 
 
+# -- MATLAB stereoParameters ----------------------------------------------------------------------
+
+MATLAB_UNITS_M = {"mm": 1e-3, "millimeters": 1e-3, "cm": 1e-2, "centimeters": 1e-2, "m": 1.0, "meters": 1.0}
+
+
+def read_matlab_stereo_parameters(path: Path, image_size: tuple[int, int] | None = None) -> StereoCalibration:
+    """A MATLAB stereoParameters object saved as a struct (`struct(stereoParams)`, its two
+    CameraParameters too, as the ESA Katwijk data set's calibrations are): read with scipy.
+
+    MATLAB's conventions are not OpenCV's: IntrinsicMatrix is K transposed and its pixels are
+    1-based; RotationOfCamera2 multiplies row vectors (OpenCV's R is its transpose);
+    TranslationOfCamera2 is in the calibration's WorldUnits. `image_size` (width, height) is
+    needed when the file's ImageSize is empty, as older MATLAB releases leave it."""
+    import scipy.io
+
+    path = Path(path)
+    try:
+        data = scipy.io.loadmat(str(path), squeeze_me=True, struct_as_record=False)
+    except Exception as exc:  # scipy raises assorted errors (IndexError, ValueError, ...) on a malformed file
+        raise InputError(f"{path}: not a MATLAB .mat file scipy can read ({exc}); a stereoParameters object "
+                         "must be saved as a struct (v7 or earlier, not v7.3)") from None
+    params = {k: v for k, v in data.items() if not k.startswith("__") and hasattr(v, "CameraParameters1")}
+    if len(params) > 1:
+        params.pop("ans", None)  # MATLAB's last answer, saved along when the whole workspace was
+    if len(params) != 1:
+        raise InputError(f"{path}: expected one stereoParameters struct (with CameraParameters1/2), found "
+                         f"{len(params)} ({', '.join(params)}); MATLAB objects must be converted with struct() "
+                         "before saving")
+    stereo = next(iter(params.values()))
+
+    def numbers(obj, name: str, size: int | None, parent: str) -> np.ndarray:
+        value = getattr(obj, name, None)
+        try:
+            array = np.asarray(value, dtype=float).ravel()
+        except (TypeError, ValueError):
+            array = np.zeros(0)
+        if value is None or (size is not None and array.size != size) or not np.all(np.isfinite(array)):
+            expected = f"{size} finite numbers" if size else "finite numbers"
+            raise InputError(f"{path}: field '{parent}{name}': expected {expected}, got {value!r:.60}")
+        return array
+
+    scale = MATLAB_UNITS_M.get(str(getattr(stereo, "WorldUnits", "")).strip().lower())
+    if scale is None:
+        raise InputError(f"{path}: field 'WorldUnits': {getattr(stereo, 'WorldUnits', None)!r} is not a length "
+                         f"unit this reader knows ({', '.join(sorted(MATLAB_UNITS_M))})")
+    cameras, sizes = [], []
+    for name in ("CameraParameters1", "CameraParameters2"):
+        cam = getattr(stereo, name)
+        k = numbers(cam, "IntrinsicMatrix", 9, f"{name}.").reshape(3, 3).T
+        k[:2, 2] -= 1.0  # MATLAB's first pixel centre is (1, 1), OpenCV's (0, 0)
+        radial = numbers(cam, "RadialDistortion", None, f"{name}.")
+        tangential = numbers(cam, "TangentialDistortion", 2, f"{name}.")
+        if radial.size not in (2, 3):
+            raise InputError(f"{path}: field '{name}.RadialDistortion': expected 2 or 3 coefficients")
+        d = np.array([radial[0], radial[1], tangential[0], tangential[1], radial[2] if radial.size == 3 else 0.0])
+        size = np.asarray(getattr(cam, "ImageSize", []), dtype=float).ravel()
+        sizes.append(None if size.size == 0 else (int(size[1]), int(size[0])))  # MATLAB: [rows, columns]
+        cameras.append((k, d, np.asarray(getattr(cam, "ReprojectedPoints", np.zeros((0, 2, 1))), dtype=float)))
+    size = image_size or sizes[0]
+    if size is None:
+        reached = np.concatenate([c[2].reshape(-1, 2, *c[2].shape[2:]).swapaxes(1, -1).reshape(-1, 2)
+                                  for c in cameras if c[2].size])
+        hint = (f"; its calibration points reach x = {reached[:, 0].max():.0f}, y = {reached[:, 1].max():.0f} px"
+                if len(reached) else "")
+        raise InputError(f"{path}: CameraParameters1.ImageSize is empty (older MATLAB releases leave it so): give "
+                         f"the image size (width, height){hint}")
+    rotation = numbers(stereo, "RotationOfCamera2", 9, "").reshape(3, 3).T
+    translation = numbers(stereo, "TranslationOfCamera2", 3, "") * scale
+    (k1, d1, _), (k2, d2, _) = cameras
+    return _checked(StereoCalibration(str(path), k1, d1, k2, d2, (int(size[0]), int(size[1])), rotation,
+                                      translation))
+
+
 # -- ROS camera_info ------------------------------------------------------------------------------
 
 def read_camera_info_pair(left: Path, right: Path) -> RectifiedStereo:
@@ -231,26 +219,32 @@ def _camera_info(path: Path) -> tuple[np.ndarray, tuple[int, int]]:
 
 # -- shared -------------------------------------------------------------------------------------
 
-def read_stereo_calibration(path: Path, right: Path | None = None) -> RectifiedStereo:
+def read_stereo_calibration(path: Path, right: Path | None = None,
+                            image_size: tuple[int, int] | None = None) -> RectifiedStereo:
     """Any supported calibration, told apart by content: a Kalibr camchain (cam0/cam1), a pair
-    of camera_info files (`right` given), or OpenCV FileStorage YAML/XML; as the rectified pair."""
-    raw = read_raw_calibration(path, right)
+    of camera_info files (`right` given), OpenCV FileStorage YAML/XML, or a MATLAB .mat; as the
+    rectified pair."""
+    raw = read_raw_calibration(path, right, image_size)
     return read_camera_info_pair(Path(path), Path(right)) if raw is None else raw.rectified()
 
 
-def read_raw_calibration(path: Path, right: Path | None = None) -> StereoCalibration | None:
+def read_raw_calibration(path: Path, right: Path | None = None,
+                         image_size: tuple[int, int] | None = None) -> StereoCalibration | None:
     """The calibration as calibrated (what raw images are rectified with); None for a
-    camera_info pair, whose projection matrices describe images that come rectified."""
+    camera_info pair, whose projection matrices describe images that come rectified.
+    `image_size` (width, height): for a MATLAB file that does not record it."""
     path = Path(path)
     if right is not None:
         return None
+    if path.suffix.lower() == ".mat":
+        return read_matlab_stereo_parameters(path, image_size)
     text = _read_text(path)
     if text.lstrip().startswith("%YAML") or text.lstrip().startswith("<?xml"):
         return read_opencv_yaml(path)
     if "cam0" in text:
         return read_kalibr_camchain(path)
     raise InputError(f"{path}: not a calibration this reader knows (OpenCV FileStorage with a %YAML:1.0 header, "
-                     "Kalibr camchain with cam0/cam1, or a camera_info pair)")
+                     "Kalibr camchain with cam0/cam1, MATLAB stereoParameters .mat, or a camera_info pair)")
 
 
 def _read_text(path: Path) -> str:

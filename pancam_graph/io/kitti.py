@@ -25,7 +25,8 @@ import numpy as np
 from ..errors import InputError
 from ..geodesy import LocalFrame
 from ..records import GpsFix, OdometryTrack
-from .calibration import RectifiedStereo, rectified_from_projections
+from ..stereo_pair import RectifiedStereo
+from .calibration import rectified_from_projections
 from .trajectories import read_kitti_poses
 
 OXTS_FIELDS = (

@@ -48,7 +48,7 @@ from ..records import (
 from ..rig import Rig, rig_preset
 
 if TYPE_CHECKING:
-    from .calibration import StereoCalibration
+    from ..stereo_pair import StereoCalibration
 
 MANIFEST = "traverse.toml"
 FRAMES = "frames.csv"  # an image folder: the navigation stereo pair's images per stop
@@ -73,8 +73,11 @@ class RigSource(_Strict):
     preset's mast and HRC with the calibrated navigation pair."""
 
     preset: str | None = None
-    calibration: str | None = Field(None, description="OpenCV YAML, Kalibr camchain or left camera_info")
+    calibration: str | None = Field(None, description="OpenCV YAML, Kalibr camchain, MATLAB stereoParameters .mat "
+                                    "or left camera_info")
     calibration_right: str | None = Field(None, description="right camera_info (with a camera_info left)")
+    calibration_image_size: tuple[int, int] | None = Field(
+        None, description="width, height px: for a MATLAB calibration that does not record it")
     mast_height_m: float = Field(1.5, gt=0.0)
     body_T_left: list[list[float]] | None = Field(
         None, description="4x4: the navigation pair's left camera in the body frame, for a body-fixed pair "
@@ -224,7 +227,8 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
 def _write_rectified_yaml(path: Path, rig: Rig) -> None:
     """A rectified pair as OpenCV FileStorage YAML: identical cameras, no distortion, the right
     one `baseline` along x."""
-    from .calibration import StereoCalibration, write_opencv_yaml
+    from ..stereo_pair import StereoCalibration
+    from .calibration import write_opencv_yaml
 
     k = rig.wac.matrix()
     size = (rig.wac.width, rig.wac.height)
@@ -315,7 +319,7 @@ def _rig(folder: Path, source: RigSource) -> tuple[Rig, StereoCalibration | None
     from .calibration import read_camera_info_pair, read_raw_calibration
 
     right = folder / source.calibration_right if source.calibration_right else None
-    raw = read_raw_calibration(folder / source.calibration, right)
+    raw = read_raw_calibration(folder / source.calibration, right, source.calibration_image_size)
     stereo = read_camera_info_pair(folder / source.calibration, right) if raw is None else raw.rectified()
     rotation = None if raw is None or raw.is_rectified else tuple(stereo.raw_R_rectified.ravel().tolist())
     if source.rectification is not None:

@@ -12,7 +12,8 @@ import numpy as np
 
 from ..errors import InputError
 from ..records import GpsFix, OdometryTrack
-from .calibration import RectifiedStereo, rectified_from_projections
+from ..stereo_pair import RectifiedStereo
+from .calibration import rectified_from_projections
 
 NAVSAT_NO_FIX = -1  # sensor_msgs/NavSatStatus.STATUS_NO_FIX
 

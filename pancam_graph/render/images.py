@@ -12,14 +12,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..config import RenderConfig, Scenario
+from ..config import REAL_IMAGE_ROTATION_FLOOR_DEG_PER_M, RenderConfig, Scenario
 from ..errors import ResultsError
-from ..io.calibration import StereoCalibration
 from ..io.observations import PanoramaImage, write_observations
 from ..records import Traverse
 from ..rig import Camera
 from ..sim import simulate
 from ..sim.world import dense_path
+from ..stereo_pair import StereoCalibration
 from .renderer import TerrainRenderer, sensor_image
 from .terrain import terrain_tiles
 
@@ -86,7 +86,11 @@ def render_scenario(scenario: Scenario, folder: Path, seed: int | None = None,
                 done += 1
         if progress is not None:
             progress("rendering", done, total)
-    write_observations(folder, traverse, scenario.estimator, seed, truth, scenario.rig, frames=frames,
+    # The VO's steps from these pixels err beyond white pixel noise, as on real images: the
+    # rotation floor measured on KITTI makes their covariance hold (docs/frontend.md).
+    estimator = scenario.estimator.model_copy(update={"vo_rotation_floor_deg_per_m": max(
+        scenario.estimator.vo_rotation_floor_deg_per_m, REAL_IMAGE_ROTATION_FLOOR_DEG_PER_M)})
+    write_observations(folder, traverse, estimator, seed, truth, scenario.rig, frames=frames,
                        panorama_frames=panorama, calibration=calibration)
     return 2 * len(frames) + sum(2 if p.camera == "wac" else 1 for p in panorama)
 

@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import FrameError, InputError
-from ..frontend.tracker import StereoTracker
+from ..frontend.tracker import CameraMotion, StereoTracker
 from ..records import Stop
 from .base import SourceData
 
@@ -20,14 +20,20 @@ ReadPair = Callable[[int], tuple[np.ndarray, np.ndarray]]
 
 def track_frames(stops: Sequence[Stop], read_pair: ReadPair, tracker: StereoTracker,
                  finish: Callable[[list[Stop], list[str]], SourceData], skip_bad_frames: bool = False,
-                 progress: Callable[[str, int, int], None] | None = None) -> SourceData:
+                 progress: Callable[[str, int, int], None] | None = None,
+                 camera_motion: Callable[[np.ndarray], CameraMotion] | None = None) -> SourceData:
     """`finish(tracked stops, notes)` builds the source's data from the stops tracked so far.
+    `camera_motion(body previous_T_current)`: with the stops' dead reckoning, the tracker looks
+    for each track where the rover's own motion estimate puts it.
 
     A frame that cannot be read: with `skip_bad_frames` its stop gets no observations (the VO
     bridges it) and a note; otherwise FrameError, whose `partial` is `finish` of the stops before."""
     tracked: list[Stop] = []
     notes: list[str] = []
+    moved: np.ndarray | None = None  # the body's dead-reckoned motion since the last tracked frame
     for stop in stops:
+        step = stop.dead_reckoning
+        moved = None if moved is None or step is None else moved @ step.prev_T_curr
         try:
             pair = read_pair(stop.index)
         except InputError as exc:
@@ -37,7 +43,9 @@ def track_frames(stops: Sequence[Stop], read_pair: ReadPair, tracker: StereoTrac
             notes.append(f"stop {stop.index} skipped: {exc}")
             tracked.append(stop)  # no observations: the VO bridges the stop
         else:
-            tracked.append(replace(stop, stereo=tracker(*pair)))
+            motion = None if camera_motion is None or moved is None else camera_motion(moved)
+            tracked.append(replace(stop, stereo=tracker(*pair, motion)))
+            moved = np.eye(4)
         if progress is not None:
             progress("front-end", stop.index + 1, len(stops))
     return finish(tracked, notes)

@@ -15,8 +15,8 @@ import numpy as np
 
 from ..config import FrontendConfig
 from ..errors import InputError
-from ..frontend.tracker import StereoTracker
-from ..records import Stop
+from ..frontend.tracker import CameraMotion, StereoTracker
+from ..records import Stop, Traverse
 from ..results import SourceInfo
 from .base import SourceData
 from .frames import median_frame_ms, track_frames
@@ -99,4 +99,15 @@ def load(folder: Path, frontend: FrontendConfig | None = None,
                           options={"detector": frontend.detector, "skip_bad_frames": skip_bad_frames})
         return SourceData(replace(obs.traverse, stops=tuple(stops)), truth, obs.estimator, obs.seed, info)
 
-    return track_frames(obs.traverse.stops, read_pair, tracker, finish, skip_bad_frames, progress)
+    camera_motion = odometry_camera_motion(obs.traverse) if frontend.odometry_aided else None
+    return track_frames(obs.traverse.stops, read_pair, tracker, finish, skip_bad_frames, progress, camera_motion)
+
+
+def odometry_camera_motion(traverse: Traverse) -> Callable[[np.ndarray], CameraMotion]:
+    """The navigation camera's motion from the body's (dead reckoning), for the tracker."""
+    rig, body_T_camera = traverse.rig, traverse.body_T_nav().matrix()
+
+    def camera_motion(previous_T_current: np.ndarray) -> CameraMotion:
+        return CameraMotion.from_body_motion(previous_T_current, body_T_camera, rig.wac, rig.baseline_m)
+
+    return camera_motion

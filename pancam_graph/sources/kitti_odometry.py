@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import EstimatorConfig, FrontendConfig
+from ..config import REAL_IMAGE_ROTATION_FLOOR_DEG_PER_M, EstimatorConfig, FrontendConfig
 from ..errors import InputError
 from ..frontend.tracker import StereoTracker
 from ..geodesy import LocalFrame
@@ -32,7 +32,7 @@ PIXEL_SIGMA_PX = 0.5
 REAL_IMAGE_ESTIMATOR = EstimatorConfig(
     vo_max_range_m=40.0,
     vo_translation_floor=0.012,
-    vo_rotation_floor_deg_per_m=0.03,
+    vo_rotation_floor_deg_per_m=REAL_IMAGE_ROTATION_FLOOR_DEG_PER_M,
     vo_scale_sigma=0.01,
     configurations={"vo": ["vo", "vo_scale"]},
 )
