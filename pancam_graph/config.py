@@ -9,19 +9,30 @@ from __future__ import annotations
 import tomllib
 from importlib import resources
 from pathlib import Path
-from typing import Literal, TypeVar
+from typing import Annotated, Literal, TypeVar
 
 import tomli_w
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from .errors import ConfigError, PancamGraphError
 
-Range = tuple[float, float]
+
+def _ordered(pair: tuple[float, float]) -> tuple[float, float]:
+    if pair[0] > pair[1]:
+        raise ValueError(f"must be (min, max) with min <= max, got {list(pair)}")
+    return pair
+
+
+# A (min, max) pair; every float of every model is finite (allow_inf_nan=False below).
+Range = Annotated[tuple[float, float], AfterValidator(_ordered)]
+# A coordinate or offset in metres: beyond 1000 km it is a typo, and would allocate terrain
+Metres = Annotated[float, Field(ge=-1e6, le=1e6)]
+Degrees = Annotated[float, Field(ge=-90.0, le=90.0)]
 M = TypeVar("M", bound=BaseModel)
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class OriginConfig(_Strict):
@@ -29,23 +40,23 @@ class OriginConfig(_Strict):
 
     lat_deg: float = Field(ge=-90.0, le=90.0)
     lon_deg: float = Field(ge=-180.0, le=180.0)
-    h_m: float = 0.0
+    h_m: float = Field(0.0, ge=-1000.0, le=10000.0, description="ellipsoidal height")
 
 
 class PathConfig(_Strict):
     """The driven path: waypoints (east m, north m, elevation m relative to the origin)."""
 
-    waypoints: list[tuple[float, float, float]] = Field(min_length=2)
+    waypoints: list[tuple[Metres, Metres, Metres]] = Field(min_length=2, max_length=100000)
     sharp_turns: list[int] = Field(default_factory=list, description="waypoint indices kept as corners")
     stop_spacing_m: Range = (1.0, 2.0)
-    speed_mps: float = Field(0.1, gt=0.0)
-    dwell_s: float = Field(20.0, ge=0.0)
+    speed_mps: float = Field(0.1, gt=0.0, le=10.0)
+    dwell_s: float = Field(20.0, ge=0.0, le=86400.0)
 
     @model_validator(mode="after")
     def _check(self) -> PathConfig:
         lo, hi = self.stop_spacing_m
-        if not 0.0 < lo <= hi:
-            raise ValueError("stop_spacing_m must be (min, max) with 0 < min <= max")
+        if not 0.05 <= lo <= hi <= 100.0:
+            raise ValueError("stop_spacing_m must be (min, max) with 0.05 <= min <= max <= 100 m")
         for i in self.sharp_turns:
             if not 0 < i < len(self.waypoints) - 1:
                 raise ValueError(f"sharp_turns index {i} is not an interior waypoint")
@@ -53,16 +64,16 @@ class PathConfig(_Strict):
 
 
 class TerrainConfig(_Strict):
-    landmark_density_per_m2: float = Field(0.5, gt=0.0)
-    corridor_half_width_m: float = Field(45.0, gt=0.0)
-    undulation_m: float = Field(0.8, ge=0.0)
-    roughness_m: float = Field(0.2, ge=0.0)
+    landmark_density_per_m2: float = Field(0.5, gt=0.0, le=20.0)
+    corridor_half_width_m: float = Field(45.0, gt=0.0, le=1000.0)
+    undulation_m: float = Field(0.8, ge=0.0, le=100.0)
+    roughness_m: float = Field(0.2, ge=0.0, le=10.0)
     featureless: list[Range] = Field(default_factory=list, description="path-distance ranges, m")
     featureless_density_factor: float = Field(0.01, ge=0.0, le=1.0)
 
 
 class CameraConfig(_Strict):
-    image_noise_px: float = Field(0.3, gt=0.0)
+    image_noise_px: float = Field(0.3, gt=0.0, le=50.0)
     outlier_fraction: float = Field(0.05, ge=0.0, lt=0.5)
     traverse_tilt_deg: float = Field(-12.0, ge=-90.0, le=90.0)
     vo_range_m: Range = (2.0, 25.0)
@@ -72,38 +83,60 @@ class SitesConfig(_Strict):
     enabled: bool = True
     spacing_m: Range = (30.0, 60.0)
     pan_range_deg: Range = Field((-180.0, 180.0), description="full panorama: (-180, 180)")
-    pan_step_deg: float = Field(30.0, gt=0.0)
-    tilts_deg: list[float] = Field(default_factory=lambda: [-6.0, -22.0])
-    max_range_m: float = Field(40.0, gt=0.0)
+    pan_step_deg: float = Field(30.0, ge=1.0, le=360.0)
+    tilts_deg: list[Degrees] = Field(default_factory=lambda: [-6.0, -22.0], max_length=20)
+    max_range_m: float = Field(40.0, gt=0.0, le=10000.0)
     hrc: bool = True
-    hrc_tilt_deg: float = -5.0
-    dwell_s: float = Field(900.0, ge=0.0, description="time a site's panorama takes (the rover stands still)")
+    hrc_tilt_deg: Degrees = -5.0
+    dwell_s: float = Field(900.0, ge=0.0, le=86400.0, description="time a site's panorama takes (the rover "
+                           "stands still)")
+
+    @model_validator(mode="after")
+    def _check(self) -> SitesConfig:
+        if self.spacing_m[0] <= 0.0:
+            raise ValueError(f"spacing_m must be positive, got {list(self.spacing_m)}")
+        lo, hi = self.pan_range_deg
+        if not -360.0 <= lo <= hi <= 360.0:
+            raise ValueError(f"pan_range_deg must lie within (-360, 360), got {list(self.pan_range_deg)}")
+        frames = (int((hi - lo) / self.pan_step_deg) + 1) * max(len(self.tilts_deg), 1)
+        if frames > 2000:
+            raise ValueError(f"pan_range_deg, pan_step_deg and tilts_deg give {frames} frames per site (at most "
+                             "2000)")
+        return self
 
 
 class GpsConfig(_Strict):
     enabled: bool = True
-    sigma_horizontal_m: float = Field(2.0, gt=0.0)
-    sigma_vertical_m: float = Field(3.0, gt=0.0)
+    sigma_horizontal_m: float = Field(2.0, gt=0.0, le=1000.0)
+    sigma_vertical_m: float = Field(3.0, gt=0.0, le=1000.0)
     every_n_stops: int = Field(1, ge=1, description="fixes at stops (ignored when rate_hz is set)")
     rate_hz: float | None = Field(None, gt=0.0, le=20.0,
                                   description="fixes at this rate over the whole drive, between stops too")
     dropouts: list[Range] = Field(default_factory=list, description="path-distance ranges, m")
     multipath_fraction: float = Field(0.0, ge=0.0, lt=1.0)
     multipath_offset_m: Range = (15.0, 60.0)
-    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 1.8)
+    lever_arm_m: tuple[float, float, float] = Field((0.0, 0.0, 1.8), description="antenna in the body frame")
+
+    @model_validator(mode="after")
+    def _check(self) -> GpsConfig:
+        if max(abs(v) for v in self.lever_arm_m) > 10.0:
+            raise ValueError(f"lever_arm_m must be within 10 m of the body origin, got {list(self.lever_arm_m)}")
+        return self
 
 
 class DeadReckoningConfig(_Strict):
     """Wheel odometry (distance with slip) and an IMU (heading with drift, absolute tilt)."""
 
     enabled: bool = True
-    wheel_slip_mean: float = Field(0.03, description="expected slip: odometry distance / true distance - 1")
-    wheel_slip_bias_sigma: float = Field(0.02, ge=0.0, description="the traverse's slip differs from the mean "
+    wheel_slip_mean: float = Field(0.03, ge=-0.5, le=1.0, description="expected slip: odometry distance / true "
+                                   "distance - 1")
+    wheel_slip_bias_sigma: float = Field(0.02, ge=0.0, le=1.0, description="the traverse's slip differs from the mean "
                                          "by this much (1 sigma), the same at every step")
-    wheel_slip_sigma: float = Field(0.03, ge=0.0, description="step-to-step slip noise around the traverse's")
-    heading_noise_deg: float = Field(0.2, ge=0.0)
-    gyro_drift_deg_per_h: float = Field(2.0, ge=0.0)
-    tilt_noise_deg: float = Field(0.1, ge=0.0)
+    wheel_slip_sigma: float = Field(0.03, ge=0.0, le=1.0, description="step-to-step slip noise around the "
+                                    "traverse's")
+    heading_noise_deg: float = Field(0.2, ge=0.0, le=90.0)
+    gyro_drift_deg_per_h: float = Field(2.0, ge=0.0, le=3600.0)
+    tilt_noise_deg: float = Field(0.1, ge=0.0, le=90.0)
 
 
 # Each configuration is a named list of measurement kinds (pancam_graph/kinds/). A run solves
@@ -266,9 +299,12 @@ def load_toml_model(path: str | Path, model: type[M], what: str, error: type[Pan
     the field, raised as `error`."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark is not TOML, but editors write it
     except OSError as exc:
         raise error(f"{path}: cannot read {what}: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise error(f"{path}: not UTF-8 text (byte {exc.start}: {exc.object[exc.start:exc.start + 4]!r}); "
+                    "TOML files are UTF-8") from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

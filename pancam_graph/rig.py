@@ -173,35 +173,19 @@ def _prototype() -> Rig:
     )
 
 
-def katwijk_pancam_calibration():
-    """The ExoMars PanCam emulator's WAC pair as calibrated for ESA's Katwijk beach data set
-    (shared/data/real/katwijk_pancam_calib/PanCam_calibstruct.mat in OpenCV's conventions, as
-    io.calibration.read_matlab_stereo_parameters reads it; tests/test_calibration.py checks that
-    these numbers are the file's). The file records no image size: 1280 x 960 is inferred (the
-    principal points lie within 20 px of its centre; the calibration points reach 1196 x 921)."""
-    from .stereo_pair import StereoCalibration
-
-    return StereoCalibration(
-        "katwijk_pancam",
-        k_left=np.array([[1421.1647841447711, 0.0, 653.639245547796], [0.0, 1429.543764232347, 470.6953010174994],
-                         [0.0, 0.0, 1.0]]),
-        d_left=np.array([-0.26445465117198347, 0.262569280554075, 0.0, 0.0, 0.0]),
-        k_right=np.array([[1446.127580127209, 0.0, 660.1432907851638], [0.0, 1455.1325707276055, 474.6841065984696],
-                          [0.0, 0.0, 1.0]]),
-        d_right=np.array([-0.2581848784241113, 0.2106141543256835, 0.0, 0.0, 0.0]),
-        size=(1280, 960),
-        rotation=np.array([[0.999998666984418, 0.0011834846049933985, 0.0011248971405408033],
-                           [-0.001194414629862996, 0.9999515983999329, 0.009765973126692543],
-                           [-0.001113284814871064, -0.009767303702099946, 0.9999516790201974]]),
-        translation=np.array([-0.5024194575825028, 0.0015424951108473247, -0.004588702214570369]),
-    )
-
-
 def _katwijk_pancam() -> Rig:
-    # The emulator's calibrated WAC pair, rectified, on the ExoMars mast height; it has no HRC.
-    stereo = katwijk_pancam_calibration().rectified()
-    return Rig("katwijk_pancam", stereo.camera, stereo.baseline_m, mast_height_m=1.5,
-               raw_R_rectified=tuple(stereo.raw_R_rectified.ravel().tolist()))
+    # The ExoMars PanCam emulator's WAC pair as calibrated for ESA's Katwijk beach data set
+    # (shared/data/real/katwijk_pancam_calib/PanCam_calibstruct.mat), rectified by OpenCV's
+    # stereoRectify; tests/test_calibration.py checks these numbers against that file. The file
+    # records no image size: 1280 x 960 is inferred (the principal points lie within 20 px of its
+    # centre; the calibration points reach 1196 x 921). On the ExoMars mast height; no HRC.
+    wac = Camera(fx=1446.2898299710705, fy=1446.2898299710705, cx=641.9771499633789, cy=472.0479431152344,
+                 width=1280, height=960)
+    raw_R_rectified = (0.9999457491091042, 0.0019256124045044505, -0.010236740472432974,
+                       -0.0019756160235994713, 0.9999861565182645, -0.004876854842638292,
+                       0.01022720782812327, 0.004896814137425077, 0.9999357106491116)
+    return Rig("katwijk_pancam", wac, baseline_m=0.5024427796641896, mast_height_m=1.5,
+               raw_R_rectified=raw_R_rectified)
 
 
 RIG_PRESETS = {

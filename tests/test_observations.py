@@ -120,3 +120,41 @@ def test_a_track_listed_twice_at_a_stop_names_its_line(folders, tmp_path):
     track = lines[2].split(",")[3]  # stop,time_s,dwell_s,track,...
     with pytest.raises(Exception, match=rf"stereo.csv: line 5: stop 0 lists track {track} a second time"):
         read_observations(folder)
+
+
+def test_csv_files_with_a_byte_order_mark_and_crlf_read_the_same_and_other_bytes_are_named(folders, tmp_path):
+    from pancam_graph.errors import InputError
+
+    folder = _copy(folders, tmp_path)
+    first = read_observations(folder).traverse
+    for name in ("stereo.csv", "odometry.csv", "gps.csv"):
+        text = (folder / name).read_text()
+        (folder / name).write_bytes(b"\xef\xbb\xbf" + text.replace("\n", "\r\n").encode())
+    again = read_observations(folder).traverse
+    assert len(again.stops) == len(first.stops) and len(again.gps_fixes) == len(first.gps_fixes)
+    assert all((a.stereo.uvv == b.stereo.uvv).all() for a, b in zip(first.stops, again.stops, strict=True))
+    lines = (folder / "gps.csv").read_bytes().split(b"\r\n")
+    lines[2] = lines[2] + b"\xff\xfe"
+    (folder / "gps.csv").write_bytes(b"\r\n".join(lines))
+    with pytest.raises(InputError, match=r"gps.csv: not UTF-8 text"):
+        read_observations(folder)
+    (folder / "gps.csv").write_text("time_s," + "x" * 200_000 + "\n")
+    with pytest.raises(InputError, match=r"gps.csv: line 1: not a CSV row this reader takes \(field larger"):
+        read_observations(folder)
+
+
+@pytest.mark.parametrize("old,new,words", [
+    ("image_noise_px = 0.3\n", "image_noise_px = nan\n", "field 'image_noise_px': Input should be a finite number"),
+    ("wheel_slip_sigma = ", "wheel_slip_sigma = inf\nx_old_slip = ", "field 'wheel_slip_sigma': Input should be a "
+     "finite number"),
+])
+def test_manifest_numbers_must_be_finite(folders, tmp_path, old, new, words):
+    from pancam_graph.errors import InputError
+
+    folder = _copy(folders, tmp_path)
+    text = (folder / "traverse.toml").read_text()
+    assert old in text
+    (folder / "traverse.toml").write_text(text.replace(old, new, 1))
+    with pytest.raises(InputError) as error:
+        read_observations(folder)
+    assert words in " ".join(str(error.value).split())

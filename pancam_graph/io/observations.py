@@ -25,13 +25,13 @@ from collections import defaultdict
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 import tomli_w
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
-from ..config import EstimatorConfig, OriginConfig, load_toml_model
+from ..config import EstimatorConfig, OriginConfig, _Strict, load_toml_model
 from ..errors import InputError
 from ..geodesy import LocalFrame
 from ..records import (
@@ -64,8 +64,8 @@ ODOMETRY_COLUMNS = (["stop"] + [f"r{i}{j}" for i in range(1, 4) for j in range(1
                     + [f"c{i}{j}" for i, j in zip(*_UPPER, strict=True)])
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+LeverArm = Annotated[float, Field(ge=-10.0, le=10.0)]
+Sigma = Annotated[float, Field(gt=0.0, le=1e4)]
 
 
 class RigSource(_Strict):
@@ -78,7 +78,7 @@ class RigSource(_Strict):
     calibration_right: str | None = Field(None, description="right camera_info (with a camera_info left)")
     calibration_image_size: tuple[int, int] | None = Field(
         None, description="width, height px: for a MATLAB calibration that does not record it")
-    mast_height_m: float = Field(1.5, gt=0.0)
+    mast_height_m: float = Field(1.5, gt=0.0, le=20.0)
     body_T_left: list[list[float]] | None = Field(
         None, description="4x4: the navigation pair's left camera in the body frame, for a body-fixed pair "
         "(default: on the mast at pan 0 and traverse_tilt_rad)")
@@ -92,14 +92,16 @@ class Manifest(_Strict):
     seed: int = Field(0, description="seeds the tie-point selection at sites")
     origin: OriginConfig
     rig: RigSource
-    image_noise_px: float = Field(gt=0.0)
-    traverse_tilt_rad: float = Field(description="mast tilt of the navigation stereo pair (pan 0)")
-    gps_lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    image_noise_px: float = Field(gt=0.0, le=50.0)
+    traverse_tilt_rad: float = Field(ge=-1.5708, le=1.5708, description="mast tilt of the navigation stereo pair "
+                                     "(pan 0)")
+    gps_lever_arm_m: tuple[LeverArm, LeverArm, LeverArm] = (0.0, 0.0, 0.0)
     start_world_T_body: list[list[float]] = Field(description="4x4, surveyed start pose in local ENU")
-    start_sigmas: tuple[float, float, float, float, float, float] = Field(
+    start_sigmas: tuple[Sigma, Sigma, Sigma, Sigma, Sigma, Sigma] = Field(
         description="rotation rad x3, position m x3 (1 sigma)")
-    wheel_slip_mean: float = Field(0.0, description="expected odometry slip shared along the traverse")
-    wheel_slip_sigma: float = Field(0.05, gt=0.0, description="its uncertainty (1 sigma)")
+    wheel_slip_mean: float = Field(0.0, ge=-0.5, le=1.0, description="expected odometry slip shared along the "
+                                   "traverse")
+    wheel_slip_sigma: float = Field(0.05, gt=0.0, le=1.0, description="its uncertainty (1 sigma)")
     estimator: EstimatorConfig = EstimatorConfig()
 
 
@@ -340,20 +342,26 @@ class _Table:
     def __init__(self, path: Path, columns: list[str], optional: list[str] = ()):
         self.path = path
         try:
-            f = path.open(encoding="utf-8", newline="")
+            f = path.open(encoding="utf-8-sig", newline="")  # spreadsheets write a byte-order mark
         except OSError as exc:
             raise InputError(f"{path}: cannot read: {exc.strerror}") from None
         with f:
             reader = csv.reader(f)
-            header = next(reader, [])
-            missing = [c for c in columns if c not in header]
-            if missing:
-                raise InputError(f"{path}: line 1: missing column(s) {', '.join(missing)} "
-                                 f"(expected {','.join(columns)})")
-            self.index = [header.index(c) for c in columns]
-            self.optional_index = {c: header.index(c) for c in optional if c in header}
-            self.columns = columns
-            self.rows = [(line, row) for line, row in enumerate(reader, start=2) if row]
+            try:
+                header = [c.strip() for c in next(reader, [])]
+                missing = [c for c in columns if c not in header]
+                if missing:
+                    raise InputError(f"{path}: line 1: missing column(s) {', '.join(missing)} "
+                                     f"(expected {','.join(columns)})")
+                self.index = [header.index(c) for c in columns]
+                self.optional_index = {c: header.index(c) for c in optional if c in header}
+                self.columns = columns
+                self.rows = [(line, row) for line, row in enumerate(reader, start=2) if row]
+            except UnicodeDecodeError as exc:
+                raise InputError(f"{path}: not UTF-8 text (byte {exc.start} of a block: "
+                                 f"{exc.object[exc.start:exc.start + 4]!r})") from None
+            except csv.Error as exc:  # e.g. a field over the csv module's 131,072 characters
+                raise InputError(f"{path}: line {reader.line_num}: not a CSV row this reader takes ({exc})") from None
 
     def values(self, line: int, row: list[str]) -> list[str]:
         if len(row) < max(self.index) + 1:
