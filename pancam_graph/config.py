@@ -19,7 +19,7 @@ from .errors import ConfigError, PancamGraphError
 
 def _ordered(pair: tuple[float, float]) -> tuple[float, float]:
     if pair[0] > pair[1]:
-        raise ValueError(f"must be (min, max) with min <= max, got {list(pair)}")
+        raise ValueError("must be (min, max) with min <= max")
     return pair
 
 

@@ -28,7 +28,7 @@ waypoints = [[0.0, 0.0, 0.0], [30.0, 0.0, 0.0]]
         (GOOD.replace("[path]", "[path]\nspeeed_mps = 1.0"), "path.speeed_mps"),
         (GOOD.replace('name = "tiny"', 'name = "tiny"\nseed = "zero"'), "seed"),
         (GOOD.replace("lat_deg = 39.7", "lat_deg = 95.0"), "origin.lat_deg"),
-        (GOOD.replace("[path]", "[path]\nstop_spacing_m = [2.0, 1.0]"), "path"),
+        (GOOD.replace("[path]", "[path]\nstop_spacing_m = [2.0, 1.0]"), "path.stop_spacing_m"),
     ],
 )
 def test_bad_scenario_is_rejected_naming_file_and_field(tmp_path, text, field):
