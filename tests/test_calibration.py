@@ -236,3 +236,38 @@ def test_a_matlab_calibration_without_image_size_or_of_the_wrong_kind_is_named(t
     bad.write_bytes(b"not a mat file at all")
     with pytest.raises(InputError, match="calib.mat: not a MATLAB .mat file"):
         read_raw_calibration(bad)
+
+
+def _broken(kitti: dict, name: str, index, value) -> dict:
+    k = {key: (v.copy() if isinstance(v, np.ndarray) else v) for key, v in kitti.items()}
+    k[name][index] = value
+    return k
+
+
+@pytest.mark.parametrize("name,index,value,words", [
+    ("K1", (1, 1), 0.0, "left camera focal lengths fx = 959.791, fy = 0 px must be positive"),
+    ("K2", (0, 0), 0.0, "right camera focal lengths fx = 0"),
+    ("K1", (0, 2), np.nan, "K1 has a value that is not a finite number"),
+    ("K2", (1, 2), 2000.0, "right camera principal point (695.752, 2000) px is off the 1392 x 512 image"),
+    ("T", slice(None), 0.0, "baseline 0 m: expected a stereo pair's"),
+    ("R", (0, 0), -1.0, "R is not a rotation matrix"),
+])
+def test_a_calibration_vo_cannot_use_is_refused_naming_what(kitti, tmp_path, name, index, value, words):
+    """Each once ran 'successfully' as dead reckoning (VO failing at every stop) or crashed in
+    OpenCV (issue 15)."""
+    broken = _broken(kitti, name, index, value)
+    with pytest.raises(InputError) as error:
+        read_opencv_yaml(_opencv_yaml(tmp_path / "stereo.yml", broken))
+    assert "stereo.yml: " + words in str(error.value)
+    if name in ("K1", "K2") and not np.isnan(value):  # Kalibr carries the same intrinsics
+        (tmp_path / "camchain.yaml").write_text(yaml.safe_dump(_camchain(broken)))
+        with pytest.raises(InputError, match="camchain.yaml: "):
+            read_kalibr_camchain(tmp_path / "camchain.yaml")
+
+
+def test_a_kalibr_nan_is_named_not_an_opencv_traceback(kitti, tmp_path):
+    chain = _camchain(kitti)
+    chain["cam0"]["distortion_coeffs"][1] = float("nan")
+    (tmp_path / "camchain.yaml").write_text(yaml.safe_dump(chain))
+    with pytest.raises(InputError, match=r"camchain.yaml: D1 has a value that is not a finite number"):
+        read_stereo_calibration(tmp_path / "camchain.yaml")

@@ -197,6 +197,10 @@ def rectified_from_projections(p_left: np.ndarray, p_right: np.ndarray, size: tu
                                right_source: str) -> RectifiedStereo:
     """The rectified model from the two 3x4 projection matrices of a rectified pair (ROS
     camera_info P, KITTI P0/P1): the right one carries Tx = -fx * baseline."""
+    if not (np.all(np.isfinite(p_left)) and np.all(np.isfinite(p_right))):
+        raise InputError(f"{right_source}: a projection matrix has a value that is not a finite number")
+    _check_intrinsics(right_source, "left", p_left[0, 0], p_left[1, 1], p_left[0, 2], p_left[1, 2], *size)
+    _check_intrinsics(right_source, "right", p_right[0, 0], p_right[1, 1], p_right[0, 2], p_right[1, 2], *size)
     if p_right[0, 3] >= 0:
         raise InputError(f"{right_source}: projection matrix Tx = {p_right[0, 3]}: expected -fx * baseline < 0 "
                          "for the right camera (are left and right swapped?)")
@@ -291,9 +295,30 @@ def _numbers(path: Path, data: dict, name: str, count: int, parent: str) -> np.n
 
 
 def _checked(calibration: StereoCalibration) -> StereoCalibration:
+    """A calibration VO can use: finite numbers, a proper rotation, positive focal lengths and
+    baseline, principal points on the image (a broken one would fail VO at every stop and the
+    run would quietly be dead reckoning)."""
     c = calibration
-    if not np.allclose(c.rotation @ c.rotation.T, np.eye(3), atol=1e-4):
+    for name, value in (("K1", c.k_left), ("D1", c.d_left), ("K2", c.k_right), ("D2", c.d_right),
+                        ("R", c.rotation), ("T", c.translation)):
+        if not np.all(np.isfinite(value)):
+            raise InputError(f"{c.source}: {name} has a value that is not a finite number: {value.ravel().tolist()}")
+    if not np.allclose(c.rotation @ c.rotation.T, np.eye(3), atol=1e-4) or np.linalg.det(c.rotation) < 0:
         raise InputError(f"{c.source}: R is not a rotation matrix")
-    if c.baseline_m <= 0 or c.k_left[0, 0] <= 0 or c.k_right[0, 0] <= 0:
-        raise InputError(f"{c.source}: baseline and focal lengths must be positive")
+    width, height = c.size
+    if width <= 0 or height <= 0:
+        raise InputError(f"{c.source}: image size {width} x {height} px must be positive")
+    for name, k in (("left", c.k_left), ("right", c.k_right)):
+        _check_intrinsics(c.source, name, k[0, 0], k[1, 1], k[0, 2], k[1, 2], width, height)
+    if c.baseline_m <= 1e-4:
+        raise InputError(f"{c.source}: baseline {c.baseline_m:.3g} m: expected a stereo pair's (positive)")
     return calibration
+
+
+def _check_intrinsics(source: str, camera: str, fx: float, fy: float, cx: float, cy: float, width: int,
+                      height: int) -> None:
+    if not (fx > 0 and fy > 0):
+        raise InputError(f"{source}: {camera} camera focal lengths fx = {fx:.6g}, fy = {fy:.6g} px must be positive")
+    if not (0 <= cx <= width and 0 <= cy <= height):
+        raise InputError(f"{source}: {camera} camera principal point ({cx:.6g}, {cy:.6g}) px is off the "
+                         f"{width} x {height} image")
