@@ -121,3 +121,33 @@ def test_gpx_point_without_elevation_is_named(tmp_path):
     path.write_text(_gpx(points))
     with pytest.raises(InputError, match=r"no_ele.gpx: track 0, segment 0, point 1 \(30.0001, 114.0\): no <ele>"):
         read_gpx(path, 1.0, 2.0)
+
+
+def test_a_byte_order_mark_and_crlf_read_the_same_and_other_bytes_are_named(tmp_path):
+    """What Windows tools and spreadsheets write (issue 15): NMEA, GPX, KF-GINS and GPS CSV."""
+    fixes = read_kfgins(KFGINS)[:50]
+    date = (GPS_EPOCH + dt.timedelta(weeks=WEEK, seconds=fixes[0].time_s)).date()
+    t0 = dt.datetime(2020, 1, 1, tzinfo=dt.UTC)
+    points = [gpxpy.gpx.GPXTrackPoint(f.lat_deg, f.lon_deg, elevation=f.h_m,
+                                      time=t0 + dt.timedelta(seconds=f.time_s - fixes[0].time_s)) for f in fixes]
+    csv_text = "time_s,lat_deg,lon_deg,h_m,sigma_h_m,sigma_v_m\n" + "".join(
+        f"{f.time_s},{f.lat_deg!r},{f.lon_deg!r},{f.h_m},1.0,2.0\n" for f in fixes)
+    files = {"drive.nmea": "\n".join(_nmea_lines(fixes, date)) + "\n", "drive.gpx": _gpx(points),
+             "drive.txt": "".join(KFGINS.read_text().splitlines(keepends=True)[:50]), "drive.csv": csv_text}
+
+    def read(path):
+        if path.suffix == ".gpx":
+            return read_gpx(path, 1.5, 3.0)
+        if path.suffix == ".txt":
+            return read_kfgins(path)
+        return read_gps_file(path)
+
+    for name, text in files.items():
+        plain, windows = tmp_path / name, tmp_path / f"windows_{name}"
+        plain.write_text(text)
+        windows.write_bytes(b"\xef\xbb\xbf" + text.replace("\n", "\r\n").encode())
+        assert read(windows) == read(plain) and len(read(plain)) > 0, name
+        broken = tmp_path / f"latin1_{name}"
+        broken.write_bytes(text.encode()[:200] + b"\xe9\xff" + text.encode()[200:])
+        with pytest.raises(InputError, match=rf"latin1_{name}: not UTF-8 text \(byte 200"):
+            read(broken)

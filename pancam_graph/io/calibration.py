@@ -14,6 +14,7 @@ import numpy as np
 from ..errors import InputError
 from ..rig import Camera
 from ..stereo_pair import RectifiedStereo, StereoCalibration
+from .tables import read_text
 
 KALIBR_CAMERA_MODELS = ("pinhole",)
 KALIBR_DISTORTION_MODELS = ("radtan", "none")  # OpenCV's plumb-bob order (k1, k2, p1, p2)
@@ -252,10 +253,7 @@ def read_raw_calibration(path: Path, right: Path | None = None,
 
 
 def _read_text(path: Path) -> str:
-    try:
-        return Path(path).read_text(encoding="utf-8")
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read calibration: {exc.strerror}") from None
+    return read_text(path, "calibration")
 
 
 def _yaml(path: Path) -> dict:

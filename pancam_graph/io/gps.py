@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import bisect
 import csv
+import io
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
 from ..records import GpsFix
+from .tables import read_text
 
 # The CSV columns this reader understands; time, latitude, longitude and height are required.
 CSV_REQUIRED = ("time_s", "lat_deg", "lon_deg", "h_m")
@@ -54,11 +56,8 @@ def read_kfgins(path: Path) -> list[GpsFix]:
     return fixes
 
 
-def _open(path: Path):
-    try:
-        return path.open(encoding="utf-8", newline="")
-    except OSError as exc:
-        raise InputError(f"{path}: cannot open: {exc.strerror}") from None
+def _open(path: Path) -> io.StringIO:
+    return io.StringIO(read_text(path, "GPS file"), newline="")
 
 
 def _fix(path: Path, line: int, row: dict, sigma_h: float | None, sigma_v: float | None) -> GpsFix:

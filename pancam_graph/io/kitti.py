@@ -27,6 +27,7 @@ from ..geodesy import LocalFrame
 from ..records import GpsFix, OdometryTrack
 from ..stereo_pair import RectifiedStereo
 from .calibration import rectified_from_projections
+from .tables import read_text
 from .trajectories import read_kitti_poses
 
 OXTS_FIELDS = (
@@ -117,7 +118,7 @@ def read_oxts(folder: Path) -> OxtsPackets:
         raise InputError(f"{folder}: {len(files)} packets in data/ but {len(times)} lines in timestamps.txt")
     values = np.zeros((len(files), len(OXTS_FIELDS)))
     for i, path in enumerate(files):
-        fields = path.read_text(encoding="utf-8").split()
+        fields = read_text(path).split()
         if len(fields) != len(OXTS_FIELDS):
             raise InputError(f"{path}: line 1: expected {len(OXTS_FIELDS)} OXTS fields, got {len(fields)}")
         try:
@@ -131,7 +132,7 @@ def _read_timestamps(path: Path) -> np.ndarray:
     if not path.exists():
         raise InputError(f"{path}: missing")
     times = []
-    for line, text in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    for line, text in enumerate(read_text(path).splitlines(), start=1):
         if not text.strip():
             continue
         try:
@@ -222,7 +223,7 @@ class _CalibFile:
         if not self.path.is_file():
             raise InputError(f"{self.path}: missing")
         self.entries = {}
-        for line, text in enumerate(self.path.read_text(encoding="utf-8").splitlines(), start=1):
+        for line, text in enumerate(read_text(self.path).splitlines(), start=1):
             key, colon, value = text.partition(":")
             if not colon and text.strip():  # bare rows of numbers: P0, P1, P2, P3 in order
                 key, value = f"P{len(self.entries)}", text
@@ -245,7 +246,7 @@ def _read_seconds(path: Path) -> np.ndarray:
     if not path.is_file():
         raise InputError(f"{path}: missing")
     times = []
-    for line, text in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    for line, text in enumerate(read_text(path).splitlines(), start=1):
         if text.strip():
             try:
                 times.append(float(text))
