@@ -185,3 +185,18 @@ def test_the_reproduce_line_reproduces_the_run(tmp_path, monkeypatch):
     assert configs(tmp_path / "again") == configs(out)
     run_toml = (out / "run.toml").read_text()
     assert 'batch = true' in run_toml and '"vo+gps" = [' in run_toml and "gtsam" in run_toml
+
+
+def test_eval_reads_the_tools_own_wgs84_trajectory_and_gps_log(results, tmp_path):
+    """A results folder's `trajectory_vo_wgs84.csv` (h_ellipsoidal_m) against its `gps_fixes.csv`
+    gives what the TUM file of the same trajectory gives (issue 15: eval rejected it)."""
+    closure = {}
+    for estimate in ("trajectory_vo_wgs84.csv", "trajectory_vo.tum"):
+        out = tmp_path / estimate
+        result = runner.invoke(app, ["eval", str(results / estimate), str(results / "gps_fixes.csv"),
+                                     "--out", str(out)])
+        assert result.exit_code == 0, result.output
+        (metrics,) = json.loads((out / "metrics.json").read_text())["configs"].values()
+        closure[estimate] = metrics["closure_error_m"]
+    assert closure["trajectory_vo_wgs84.csv"] == pytest.approx(closure["trajectory_vo.tum"], abs=1e-3)
+    assert closure["trajectory_vo.tum"] > 0.1  # the GPS log is noisy: a real difference, not zero

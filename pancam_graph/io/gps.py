@@ -25,13 +25,16 @@ KFGINS_COLUMNS = ("time_s", "lat_deg", "lon_deg", "h_m", "sigma_n_m", "sigma_e_m
 
 def read_gps_csv(path: Path, sigma_horizontal_m: float | None = None, sigma_vertical_m: float | None = None
                  ) -> list[GpsFix]:
-    """CSV with a header naming at least time_s, lat_deg, lon_deg, h_m, and optionally
+    """CSV with a header naming at least time_s, lat_deg, lon_deg, h_m (ellipsoidal; or
+    h_ellipsoidal_m, as the results folder's trajectories name it), and optionally
     sigma_h_m / sigma_v_m or sigma_n_m / sigma_e_m / sigma_u_m; missing sigmas take the
     configured ones."""
     path = Path(path)
     with _open(path) as f:
         reader = csv.DictReader(f)
         header = reader.fieldnames or []
+        if "h_m" not in header and "h_ellipsoidal_m" in header:  # our own *_wgs84.csv trajectories
+            reader.fieldnames = header = ["h_m" if c == "h_ellipsoidal_m" else c for c in header]
         missing = [c for c in CSV_REQUIRED if c not in header]
         if missing:
             raise InputError(f"{path}: line 1: header lacks column(s) {', '.join(missing)} "
