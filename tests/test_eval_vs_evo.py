@@ -112,6 +112,11 @@ def test_eval_names_bad_files(tmp_path):
     late.write_text("100 0 0 0 0 0 0 1\n101 1 0 0 0 0 0 1\n")
     result = runner.invoke(app, ["eval", str(late), str(good)])
     assert result.exit_code == 2 and "0 poses matched within 0.01 s" in result.output
+    # NaN passed the rotation check and failed only after the whole run (issue 15)
+    nan = tmp_path / "nan.kitti"
+    nan.write_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 nan 0 1 0 0 0 0 1 0\n")
+    result = runner.invoke(app, ["eval", str(nan), str(nan)])
+    assert result.exit_code == 2 and "nan.kitti: pose 2: a value that is not a finite number" in result.output
 
 
 def test_view_replays_a_recorded_drive(pairs, tmp_path):

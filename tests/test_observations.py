@@ -158,3 +158,16 @@ def test_manifest_numbers_must_be_finite(folders, tmp_path, old, new, words):
     with pytest.raises(InputError) as error:
         read_observations(folder)
     assert words in " ".join(str(error.value).split())
+
+
+def test_a_nan_in_truth_kitti_is_named_when_read_not_after_the_run(folders, tmp_path):
+    from pancam_graph.errors import InputError
+
+    folder = _copy(folders, tmp_path)
+    lines = (folder / "truth.kitti").read_text().splitlines()
+    fields = lines[4].split()
+    fields[3] = "nan"
+    lines[4] = " ".join(fields)
+    (folder / "truth.kitti").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=r"truth.kitti: pose 5: a value that is not a finite number"):
+        read_observations(folder)

@@ -587,12 +587,10 @@ def _read_truth_slip(path: Path) -> float | None:
 
 
 def _read_truth(path: Path, n: int) -> np.ndarray:
-    try:
-        rows = np.loadtxt(path, ndmin=2)
-    except ValueError as exc:
-        raise InputError(f"{path}: not a KITTI pose file (12 numbers per line): {exc}") from None
-    if rows.shape != (n, 12):
-        raise InputError(f"{path}: {rows.shape[0]} poses of {rows.shape[1]} numbers; expected {n} (one per stop) of 12")
-    poses = np.zeros((n, 4, 4))
-    poses[:, :3, :], poses[:, 3, 3] = rows.reshape(n, 3, 4), 1.0
+    """Checked as any KITTI pose file (finite, rotations orthonormal), one pose per stop."""
+    from .trajectories import read_kitti_poses
+
+    poses = read_kitti_poses(path).world_T_body
+    if len(poses) != n:
+        raise InputError(f"{path}: {len(poses)} poses; expected {n} (one per stop)")
     return poses

@@ -52,7 +52,15 @@ def _table(path: Path, columns: int, what: str) -> np.ndarray:
     return rows
 
 
+def _finite(path: Path, rows: np.ndarray) -> None:
+    """NaN or inf in a pose file would pass every other check and fail only after a whole run."""
+    bad = ~np.all(np.isfinite(rows), axis=1)
+    if np.any(bad):
+        raise InputError(f"{path}: pose {int(np.argmax(bad)) + 1}: a value that is not a finite number")
+
+
 def _kitti(path: Path, rows: np.ndarray) -> Trajectory:
+    _finite(path, rows)
     poses = np.zeros((len(rows), 4, 4))
     poses[:, :3, :] = rows.reshape(-1, 3, 4)
     poses[:, 3, 3] = 1.0
@@ -77,6 +85,7 @@ def _numeric_rows(path: Path) -> np.ndarray | None:
 
 
 def _tum(path: Path, rows: np.ndarray) -> Trajectory:
+    _finite(path, rows)
     poses = np.zeros((len(rows), 4, 4))
     for i, r in enumerate(rows):
         q = r[4:8]
