@@ -171,3 +171,24 @@ def test_a_nan_in_truth_kitti_is_named_when_read_not_after_the_run(folders, tmp_
     (folder / "truth.kitti").write_text("\n".join(lines) + "\n")
     with pytest.raises(InputError, match=r"truth.kitti: pose 5: a value that is not a finite number"):
         read_observations(folder)
+
+
+@pytest.mark.parametrize("column,value,words", [
+    ("stop", "-1", "stop -1 outside 0..9999999"),
+    ("stop", "10000000000", "stop 10000000000 outside 0..9999999"),
+    ("track", str(2**63), f"track {2**63} outside 0..2^63-1"),
+])
+def test_stop_and_track_numbers_out_of_range_are_named(folders, tmp_path, column, value, words):
+    """An IndexError, all memory, an int64 overflow before (issue 15)."""
+    import re
+
+    from pancam_graph.errors import InputError
+
+    folder = _copy(folders, tmp_path)
+    lines = (folder / "stereo.csv").read_text().splitlines()
+    fields = lines[5].split(",")
+    fields[lines[0].split(",").index(column)] = value
+    lines[5] = ",".join(fields)
+    (folder / "stereo.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match="stereo.csv: line 6: " + re.escape(words)):
+        read_observations(folder)

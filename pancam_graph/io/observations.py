@@ -406,6 +406,8 @@ def _read_stereo(path: Path) -> tuple[list[float], list[float], list[StereoObser
     for line, row in table.rows:
         stop, time_s, track, ul, ur, v = table.values(line, row)
         k = int(table.number(line, "stop", stop, integer=True))
+        if not 0 <= k < _MAX_STOPS:
+            raise InputError(f"{path}: line {line}: stop {k} outside 0..{_MAX_STOPS - 1}")
         t = table.number(line, "time_s", time_s)
         if times.setdefault(k, t) != t:
             raise InputError(f"{path}: line {line}: stop {k} has time {t}, earlier rows say {times[k]}")
@@ -414,12 +416,15 @@ def _read_stereo(path: Path) -> tuple[list[float], list[float], list[StereoObser
             raise InputError(f"{path}: line {line}: stop {k}: dwell_s must be >= 0 and the same on every row")
         if track == "" and ul == "" and ur == "" and v == "":
             continue
-        rows[k].append((table.number(line, "track", track, integer=True), table.number(line, "u_left", ul),
-                        table.number(line, "u_right", ur), table.number(line, "v", v), line))
+        track_id = int(table.number(line, "track", track, integer=True))
+        if not 0 <= track_id < 2**63:
+            raise InputError(f"{path}: line {line}: track {track_id} outside 0..2^63-1")
+        rows[k].append((track_id, table.number(line, "u_left", ul), table.number(line, "u_right", ur),
+                        table.number(line, "v", v), line))
     n = len(times)
-    if sorted(times) != list(range(n)):
-        missing = sorted(set(range(max(times) + 1)) - set(times)) if times else [0]
-        raise InputError(f"{path}: stops must be numbered 0..N-1 with a row each; no row for stop {missing[0]}")
+    missing = next((k for k in range(n + 1) if k not in times), None)
+    if missing is not None and missing < n or n == 0:
+        raise InputError(f"{path}: stops must be numbered 0..N-1 with a row each; no row for stop {missing or 0}")
     observations = []
     for k in range(n):
         tracks = np.array([r[0] for r in rows[k]], dtype=np.int64)
@@ -552,6 +557,7 @@ def _read_odometry(path: Path, n: int) -> dict[int, DeadReckoning]:
 
 
 _MAX_TRACK = 10_000_000  # true landmarks are stored densely by track id
+_MAX_STOPS = 10_000_000  # a stop number beyond is a typo (and would be allocated for)
 
 
 def _read_truth_landmarks(path: Path) -> np.ndarray:
