@@ -307,7 +307,7 @@ def load_toml_model(path: str | Path, model: type[M], what: str, error: type[Pan
                     "TOML files are UTF-8") from None
     try:
         data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
+    except (tomllib.TOMLDecodeError, ValueError) as exc:  # ValueError: an integer of thousands of digits
         raise error(f"{path}: not valid TOML: {exc}") from None
     try:
         return model.model_validate(data)

@@ -6,10 +6,12 @@ Every reader names the file and the field it could not find or understand.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import cv2
 import numpy as np
+import yaml
 
 from ..errors import InputError
 from ..rig import Camera
@@ -25,40 +27,110 @@ ROS_DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "")
 
 def read_opencv_yaml(path: Path) -> StereoCalibration:
     """OpenCV FileStorage YAML/XML as written by stereoCalibrate samples: K1 (or M1), D1,
-    K2 (or M2), D2, R, T, and image_width + image_height (or imageSize)."""
+    K2 (or M2), D2, R, T, and image_width + image_height (or imageSize).
+
+    YAML is parsed here, not by OpenCV: OpenCV 5's FileStorage corrupts its heap on some
+    malformed matrices (a matrix without `cols` crashed the process later, found by fuzzing)."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such calibration file")
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    if not fs.isOpened():
-        raise InputError(f"{path}: not an OpenCV FileStorage file (YAML with a %YAML:1.0 header, or XML)")
-    try:
-        def matrix(names: tuple[str, ...], shape: tuple[int, ...]) -> np.ndarray:
-            for name in names:
-                node = fs.getNode(name)
-                if not node.empty():
-                    if node.isReal() or node.isInt():
-                        value = np.array([node.real()])
-                    elif node.isSeq():
-                        value = np.array([node.at(i).real() for i in range(node.size())])
-                    else:
-                        value = node.mat()
-                    if value is None or value.size != int(np.prod(shape)):
-                        got = "nothing" if value is None else f"{value.size} values"
-                        raise InputError(f"{path}: field '{name}': expected {int(np.prod(shape))} values, got {got}")
-                    return value.astype(float).reshape(shape)
-            raise InputError(f"{path}: missing field '{' or '.join(names)}'")
+    text = read_text(path, "calibration")
+    if text.lstrip().startswith("<?xml"):
+        nodes = _opencv_xml_nodes(path)
+    else:
+        nodes = _opencv_yaml_nodes(path, text)
 
-        k1, d1 = matrix(("K1", "M1"), (3, 3)), _distortion(path, "D1", fs.getNode("D1"))
-        k2, d2 = matrix(("K2", "M2"), (3, 3)), _distortion(path, "D2", fs.getNode("D2"))
-        rotation, translation = matrix(("R",), (3, 3)), matrix(("T",), (3,))
-        if not fs.getNode("imageSize").empty():
-            size = tuple(int(v) for v in matrix(("imageSize",), (2,)))
-        else:
-            size = (int(matrix(("image_width",), (1,))[0]), int(matrix(("image_height",), (1,))[0]))
-    finally:
+    def matrix(names: tuple[str, ...], sizes: tuple[int, ...]) -> np.ndarray:
+        for name in names:
+            if name in nodes:
+                value = _node_values(path, name, nodes[name])
+                if value.size not in sizes:
+                    raise InputError(f"{path}: field '{name}': expected {' or '.join(map(str, sizes))} values, got "
+                                     f"{value.size}")
+                return value
+        raise InputError(f"{path}: missing field '{' or '.join(names)}'")
+
+    k1, d1 = matrix(("K1", "M1"), (9,)).reshape(3, 3), matrix(("D1",), DISTORTION_SIZES)
+    k2, d2 = matrix(("K2", "M2"), (9,)).reshape(3, 3), matrix(("D2",), DISTORTION_SIZES)
+    rotation, translation = matrix(("R",), (9,)).reshape(3, 3), matrix(("T",), (3,))
+    if "imageSize" in nodes:
+        size = matrix(("imageSize",), (2,))
+    else:
+        size = np.concatenate([matrix(("image_width",), (1,)), matrix(("image_height",), (1,))])
+    if not np.all(np.isfinite(size)) or np.any(size != np.round(size)) or np.any(np.abs(size) > 1e6):
+        raise InputError(f"{path}: image size {size.tolist()}: expected whole numbers of pixels")
+    return _checked(StereoCalibration(str(path), k1, d1, k2, d2, (int(size[0]), int(size[1])), rotation,
+                                      translation))
+
+
+DISTORTION_SIZES = (4, 5, 8, 12, 14)
+_OPENCV_SPECIAL = {".nan": float("nan"), ".inf": float("inf"), "+.inf": float("inf"), "-.inf": float("-inf")}
+
+
+class _OpenCVYamlLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, with OpenCV's `!!opencv-matrix` read as the mapping it is."""
+
+
+_OpenCVYamlLoader.add_constructor("tag:yaml.org,2002:opencv-matrix",
+                                  lambda loader, node: loader.construct_mapping(node, deep=True))
+
+
+def _opencv_yaml_nodes(path: Path, text: str) -> dict:
+    body = re.sub(r"\A\s*%YAML[: ]?[\d.]*[^\n]*\n", "", text)  # '%YAML:1.0' is OpenCV's, not YAML's
+    try:
+        data = yaml.load(body, Loader=_OpenCVYamlLoader)  # noqa: S506 - a SafeLoader subclass
+    except (yaml.YAMLError, ValueError) as exc:  # ValueError: an integer of thousands of digits
+        raise InputError(f"{path}: not valid YAML: {str(exc).splitlines()[0]}") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: not an OpenCV FileStorage file (a YAML mapping of K1, D1, K2, D2, R, T)")
+    return data
+
+
+def _opencv_xml_nodes(path: Path) -> dict:
+    """XML FileStorage through OpenCV (rarely used; the YAML form is parsed without it)."""
+    for key, value in re.findall(r"<(rows|cols)>\s*(\d+)", read_text(path, "calibration")):
+        if int(value) > 64:  # OpenCV allocates what the header says before reading the data
+            raise InputError(f"{path}: a matrix with {key} = {value}: not a calibration's")
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        if not fs.isOpened():
+            raise InputError(f"{path}: not an OpenCV FileStorage file (YAML with a %YAML:1.0 header, or XML)")
+        nodes = {}
+        for name in ("K1", "M1", "D1", "K2", "M2", "D2", "R", "T", "imageSize", "image_width", "image_height"):
+            node = fs.getNode(name)
+            if node.empty():
+                continue
+            if node.isReal() or node.isInt():
+                nodes[name] = node.real()
+            elif node.isSeq():
+                nodes[name] = [node.at(i).real() for i in range(node.size())]
+            else:
+                value = node.mat()
+                nodes[name] = None if value is None else value.ravel().tolist()
         fs.release()
-    return _checked(StereoCalibration(str(path), k1, d1, k2, d2, size, rotation, translation))
+    except (cv2.error, SystemError) as exc:  # FileStorage's parser on a malformed file
+        raise InputError(f"{path}: not a valid OpenCV FileStorage file: {str(exc).strip()[-200:]}") from None
+    return nodes
+
+
+def _node_values(path: Path, name: str, node) -> np.ndarray:
+    """A FileStorage node's numbers: an opencv-matrix (rows x cols data), a list or a number."""
+    if isinstance(node, dict):
+        rows, cols, data = node.get("rows"), node.get("cols"), node.get("data")
+        if not (isinstance(rows, int) and isinstance(cols, int) and isinstance(data, list)):
+            raise InputError(f"{path}: field '{name}': an opencv-matrix needs rows, cols and data")
+        if len(data) != rows * cols:
+            raise InputError(f"{path}: field '{name}': {len(data)} values for {rows} x {cols}")
+        node = data
+    values = node if isinstance(node, list) else [node]
+    # OpenCV writes .Nan and .Inf, which YAML 1.1 reads as text
+    values = [_OPENCV_SPECIAL.get(v.lower(), v) if isinstance(v, str) else v for v in values]
+    if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in values):
+        raise InputError(f"{path}: field '{name}': expected numbers, got {node!r:.80}")
+    try:
+        return np.array(values, dtype=float)
+    except OverflowError:
+        raise InputError(f"{path}: field '{name}': a number beyond floating point") from None
 
 
 def write_opencv_yaml(path: Path, calibration: StereoCalibration) -> None:
@@ -74,15 +146,6 @@ def write_opencv_yaml(path: Path, calibration: StereoCalibration) -> None:
     fs.write("image_width", int(c.size[0]))
     fs.write("image_height", int(c.size[1]))
     fs.release()
-
-
-def _distortion(path: Path, name: str, node) -> np.ndarray:
-    if node.empty():
-        raise InputError(f"{path}: missing field '{name}'")
-    value = node.mat()
-    if value is None or value.size not in (4, 5, 8, 12, 14):
-        raise InputError(f"{path}: field '{name}': expected 4, 5, 8, 12 or 14 distortion coefficients")
-    return value.astype(float).ravel()
 
 
 # -- Kalibr camchain ------------------------------------------------------------------------------
@@ -257,11 +320,9 @@ def _read_text(path: Path) -> str:
 
 
 def _yaml(path: Path) -> dict:
-    import yaml
-
     try:
         data = yaml.safe_load(_read_text(path))
-    except yaml.YAMLError as exc:
+    except (yaml.YAMLError, ValueError) as exc:  # ValueError: an integer of thousands of digits
         raise InputError(f"{path}: not valid YAML: {exc}") from None
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a YAML mapping at the top")

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import bisect
 import csv
+import datetime as dt
 import io
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from ..records import GpsFix
 from .tables import read_text
 
 # The CSV columns this reader understands; time, latitude, longitude and height are required.
+MAX_SIGMA_M = 1e4  # a fix less certain than this says nothing (and squares past float range)
 CSV_REQUIRED = ("time_s", "lat_deg", "lon_deg", "h_m")
 # KF-GINS GNSS files: GPS seconds of week, lat, lon, ellipsoidal height, std north, east, up.
 KFGINS_COLUMNS = ("time_s", "lat_deg", "lon_deg", "h_m", "sigma_n_m", "sigma_e_m", "sigma_u_m")
@@ -32,14 +34,17 @@ def read_gps_csv(path: Path, sigma_horizontal_m: float | None = None, sigma_vert
     path = Path(path)
     with _open(path) as f:
         reader = csv.DictReader(f)
-        header = reader.fieldnames or []
-        if "h_m" not in header and "h_ellipsoidal_m" in header:  # our own *_wgs84.csv trajectories
-            reader.fieldnames = header = ["h_m" if c == "h_ellipsoidal_m" else c for c in header]
-        missing = [c for c in CSV_REQUIRED if c not in header]
-        if missing:
-            raise InputError(f"{path}: line 1: header lacks column(s) {', '.join(missing)} "
-                             f"(has {', '.join(header) or 'nothing'})")
-        rows = [(reader.line_num, row) for row in reader]
+        try:
+            header = reader.fieldnames or []
+            if "h_m" not in header and "h_ellipsoidal_m" in header:  # our own *_wgs84.csv trajectories
+                reader.fieldnames = header = ["h_m" if c == "h_ellipsoidal_m" else c for c in header]
+            missing = [c for c in CSV_REQUIRED if c not in header]
+            if missing:
+                raise InputError(f"{path}: line 1: header lacks column(s) {', '.join(missing)} "
+                                 f"(has {', '.join(header) or 'nothing'})")
+            rows = [(reader.line_num, row) for row in reader]
+        except csv.Error as exc:  # e.g. a field over the csv module's 131,072 characters
+            raise InputError(f"{path}: line {reader.line_num}: not a CSV row this reader takes ({exc})") from None
     return [_fix(path, line, row, sigma_horizontal_m, sigma_vertical_m) for line, row in rows]
 
 
@@ -80,15 +85,15 @@ def _fix(path: Path, line: int, row: dict, sigma_h: float | None, sigma_v: float
     if row.get("sigma_h_m") not in (None, ""):
         sigma_h = number("sigma_h_m")
     elif row.get("sigma_n_m") not in (None, "") and row.get("sigma_e_m") not in (None, ""):
-        sigma_h = float(np.sqrt(0.5 * (number("sigma_n_m") ** 2 + number("sigma_e_m") ** 2)))
+        sigma_h = float(np.hypot(number("sigma_n_m"), number("sigma_e_m")) / np.sqrt(2.0))
     if row.get("sigma_v_m") not in (None, ""):
         sigma_v = number("sigma_v_m")
     elif row.get("sigma_u_m") not in (None, ""):
         sigma_v = number("sigma_u_m")
     if sigma_h is None or sigma_v is None:
         raise InputError(f"{path}: line {line}: no sigma columns and no sigma configured")
-    if sigma_h <= 0 or sigma_v <= 0:
-        raise InputError(f"{path}: line {line}: sigmas must be positive")
+    if not (0 < sigma_h <= MAX_SIGMA_M and 0 < sigma_v <= MAX_SIGMA_M):
+        raise InputError(f"{path}: line {line}: sigmas {sigma_h:.3g}, {sigma_v:.3g} m must be in (0, {MAX_SIGMA_M:g}]")
     return GpsFix(number("time_s"), lat, lon, number("h_m"), sigma_h, sigma_v)
 
 
@@ -126,42 +131,59 @@ def read_nmea(path: Path, sigma_horizontal_m: float | None = None, sigma_vertica
             except (pynmea2.ParseError, ValueError) as exc:
                 rejected.append((line, f"{path}: line {line}: unparsable sentence: {_reason(exc)}"))
                 continue
-            if isinstance(msg, pynmea2.GGA):
-                gga.append((line, msg))
-            elif isinstance(msg, pynmea2.RMC) and msg.datestamp is not None and msg.timestamp is not None:
-                rmc.append((line, msg))
-            elif isinstance(msg, pynmea2.GST) and msg.timestamp is not None:
-                gst[msg.timestamp] = msg
+            try:  # pynmea2 parses fields when they are first read
+                if isinstance(msg, pynmea2.GGA):
+                    gga.append((line, msg))
+                elif (isinstance(msg, pynmea2.RMC) and isinstance(msg.datestamp, dt.date)
+                      and isinstance(msg.timestamp, dt.time)):
+                    rmc.append((line, msg))
+                elif isinstance(msg, pynmea2.GST) and isinstance(msg.timestamp, dt.time):
+                    gst[msg.timestamp] = msg
+            except (ValueError, TypeError) as exc:
+                rejected.append((line, f"{path}: line {line}: unparsable sentence: {_reason(exc)}"))
     if gga and not rmc:
         raise InputError(f"{path}: {len(gga)} GGA sentences but no RMC sentence with a date; "
                          "GGA carries only the time of day")
 
     fixes = []
     for line, msg in gga:
-        where = f"{path}: line {line}"
-        if not msg.gps_qual:
-            rejected.append((line, f"{where}: GGA without a fix (quality {msg.gps_qual or 0})"))
-            continue
-        if msg.timestamp is None or msg.altitude is None or not msg.lat or not msg.lon:
-            rejected.append((line, f"{where}: GGA lacks time, position or altitude"))
-            continue
         try:
-            separation = float(msg.geo_sep) if msg.geo_sep else 0.0
-        except ValueError:
-            rejected.append((line, f"{where}: geoid separation {msg.geo_sep!r} is not a number"))
-            continue
-        stated = gst.get(msg.timestamp)
-        sigma_h, sigma_v = sigma_horizontal_m, sigma_vertical_m
-        if stated is not None and stated.std_dev_latitude and stated.std_dev_longitude:
-            sigma_h = float(np.sqrt(0.5 * (float(stated.std_dev_latitude) ** 2
-                                           + float(stated.std_dev_longitude) ** 2)))
-            if stated.std_dev_altitude:
-                sigma_v = float(stated.std_dev_altitude)
-        if sigma_h is None or sigma_v is None:
-            raise InputError(f"{where}: no GST sentence for this fix and no sigma configured")
-        fixes.append(GpsFix(_utc_seconds(line, msg.timestamp, rmc), float(msg.latitude), float(msg.longitude),
-                            float(msg.altitude) + separation, sigma_h, sigma_v))
+            fix = _gga_fix(path, line, msg, gst, rmc, sigma_horizontal_m, sigma_vertical_m)
+        except (ValueError, TypeError, OverflowError) as exc:  # a field pynmea2 parses only when read
+            fix = f"{path}: line {line}: unparsable GGA: {_reason(exc)}"
+        if isinstance(fix, str):
+            rejected.append((line, fix))
+        else:
+            fixes.append(fix)
     return fixes, [reason for _, reason in sorted(rejected)]
+
+
+def _gga_fix(path: Path, line: int, msg, gst: dict, rmc: list, sigma_horizontal_m: float | None,
+             sigma_vertical_m: float | None) -> GpsFix | str:
+    """The fix of a GGA sentence, or why it is rejected."""
+    where = f"{path}: line {line}"
+    if not msg.gps_qual:
+        return f"{where}: GGA without a fix (quality {msg.gps_qual or 0})"
+    if not isinstance(msg.timestamp, dt.time) or msg.altitude is None or not msg.lat or not msg.lon:
+        return f"{where}: GGA lacks time, position or altitude"
+    try:
+        separation = float(msg.geo_sep) if msg.geo_sep else 0.0
+    except ValueError:
+        return f"{where}: geoid separation {msg.geo_sep!r} is not a number"
+    stated = gst.get(msg.timestamp)
+    sigma_h, sigma_v = sigma_horizontal_m, sigma_vertical_m
+    if stated is not None and stated.std_dev_latitude and stated.std_dev_longitude:
+        sigma_h = float(np.hypot(float(stated.std_dev_latitude), float(stated.std_dev_longitude)) / np.sqrt(2.0))
+        if stated.std_dev_altitude:
+            sigma_v = float(stated.std_dev_altitude)
+    if sigma_h is None or sigma_v is None:
+        raise InputError(f"{where}: no GST sentence for this fix and no sigma configured")
+    lat, lon, h = float(msg.latitude), float(msg.longitude), float(msg.altitude) + separation
+    if not (np.isfinite([lat, lon, h]).all() and -90 <= lat <= 90 and -180 <= lon <= 180):
+        return f"{where}: position {lat}, {lon}, {h} is not on the Earth"
+    if not (0 < sigma_h <= MAX_SIGMA_M and 0 < sigma_v <= MAX_SIGMA_M):
+        return f"{where}: GST sigmas {sigma_h:.3g}, {sigma_v:.3g} m are not in (0, {MAX_SIGMA_M:g}]"
+    return GpsFix(_utc_seconds(line, msg.timestamp, rmc), lat, lon, h, sigma_h, sigma_v)
 
 
 def _reason(exc: Exception) -> str:
@@ -172,8 +194,6 @@ def _reason(exc: Exception) -> str:
 
 def _utc_seconds(line: int, time_of_day, rmc: list) -> float:
     """UTC Unix time of a GGA time of day, dated by the latest RMC at or before `line`."""
-    import datetime as dt
-
     # rmc is in file order: the latest one at or before `line` (else the first one)
     i = bisect.bisect_right(rmc, line, key=lambda entry: entry[0])
     date_msg = rmc[max(i - 1, 0)][1]
@@ -197,8 +217,6 @@ def read_gpx(path: Path, sigma_horizontal_m: float, sigma_vertical_m: float, geo
     ele + `geoid_separation_m` (0 by default, i.e. `ele` is taken as ellipsoidal). A point
     without time or elevation is an error naming track, segment and point.
     """
-    import datetime as dt
-
     import gpxpy
     import gpxpy.gpx
 

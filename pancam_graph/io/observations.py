@@ -46,6 +46,7 @@ from ..records import (
     Traverse,
 )
 from ..rig import Rig, rig_preset
+from .tables import read_text
 
 if TYPE_CHECKING:
     from ..stereo_pair import StereoCalibration
@@ -584,10 +585,10 @@ def _read_truth_slip(path: Path) -> float | None:
     import tomllib
 
     try:
-        value = tomllib.loads(path.read_text(encoding="utf-8")).get("wheel_slip")
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        value = tomllib.loads(read_text(path, "truth")).get("wheel_slip")
+    except (tomllib.TOMLDecodeError, ValueError) as exc:
         raise InputError(f"{path}: not valid TOML: {exc}") from None
-    if not isinstance(value, int | float) or not np.isfinite(value):
+    if not isinstance(value, int | float) or isinstance(value, bool) or not abs(value) < 1e6:
         raise InputError(f"{path}: field 'wheel_slip': expected a finite number, got {value!r}")
     return float(value)
 

@@ -1,0 +1,217 @@
+"""Seeded fuzzing of every input reader: real and generated files, mutated as files get broken
+in the field (truncated, bytes flipped or inserted, numbers replaced by nan, inf, huge or
+negative values, lines dropped, duplicated or swapped, a byte-order mark, CRLF), each read by
+its reader. A reader may refuse a file only with the project's own errors (PancamGraphError);
+anything else escaping is a finding. `tests/test_fuzz_readers.py` runs a few hundred; run
+`python tests/fuzz_inputs.py N` for more (the issue-15 figure: 20,000)."""
+
+from __future__ import annotations
+
+import random
+import re
+import shutil
+import sys
+import tempfile
+import traceback
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pancam_graph.errors import PancamGraphError
+
+HERE = Path(__file__).parent
+REAL = HERE / "data" / "real"
+NUMBER = re.compile(rb"-?\d+(\.\d+)?(e[-+]?\d+)?")
+REPLACEMENTS = [b"nan", b"inf", b"-inf", b"1e308", b"-1e308", b"-1", b"0", b"", b"abc", b"9223372036854775808",
+                b"1" * 400, b"1e-320", b"\xff\xfe", b"\x00", b'"', b"[", b"=", b","]
+
+
+def mutate(data: bytes, rng: random.Random) -> tuple[bytes, str]:
+    """One or two mutations of a file's bytes, and their names."""
+    names = []
+    for _ in range(rng.choice((1, 1, 2))):
+        kind = rng.choice(("truncate", "flip", "insert", "number", "number", "number", "drop_line", "dup_line",
+                           "swap_lines", "bom", "crlf", "huge_field"))
+        names.append(kind)
+        if kind == "truncate" and data:
+            data = data[:rng.randrange(len(data))]
+        elif kind == "flip" and data:
+            b = bytearray(data)
+            for _ in range(rng.randint(1, 5)):
+                b[rng.randrange(len(b))] = rng.randrange(256)
+            data = bytes(b)
+        elif kind == "insert":
+            i = rng.randrange(len(data) + 1)
+            data = data[:i] + bytes(rng.randrange(256) for _ in range(rng.randint(1, 8))) + data[i:]
+        elif kind == "number":
+            matches = list(NUMBER.finditer(data))
+            if matches:
+                m = rng.choice(matches)
+                data = data[:m.start()] + rng.choice(REPLACEMENTS) + data[m.end():]
+        elif kind in ("drop_line", "dup_line", "swap_lines"):
+            lines = data.split(b"\n")
+            if len(lines) > 1:
+                i, j = rng.randrange(len(lines)), rng.randrange(len(lines))
+                if kind == "drop_line":
+                    del lines[i]
+                elif kind == "dup_line":
+                    lines.insert(j, lines[i])
+                else:
+                    lines[i], lines[j] = lines[j], lines[i]
+            data = b"\n".join(lines)
+        elif kind == "bom":
+            data = b"\xef\xbb\xbf" + data
+        elif kind == "crlf":
+            data = data.replace(b"\n", b"\r\n")
+        elif kind == "huge_field":
+            i = rng.randrange(len(data) + 1)
+            data = data[:i] + b"9" * 200_000 + data[i:]
+    return data, "+".join(names)
+
+
+@dataclass
+class Target:
+    """A reader and the files it reads: `read(folder)` reads `files` (names in a folder made from
+    `seed_folder`, one of which is mutated per trial)."""
+
+    name: str
+    seed_folder: Path
+    files: list[str]
+    read: Callable[[Path], object]
+
+
+@dataclass
+class Findings:
+    trials: Counter = field(default_factory=Counter)
+    refused: Counter = field(default_factory=Counter)  # the project's own errors
+    escaped: list[str] = field(default_factory=list)  # anything else: bugs
+
+
+def targets(work: Path) -> list[Target]:
+    """Seed files for every reader, written into `work`."""
+    import datetime as dt
+
+    import gpxpy.gpx
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    from pancam_graph.config import RenderConfig, bundled_scenarios, load_scenario
+    from pancam_graph.io.calibration import read_stereo_calibration, write_opencv_yaml
+    from pancam_graph.io.gps import read_gps_file, read_gpx, read_kfgins
+    from pancam_graph.io.observations import read_observations, write_observations
+    from pancam_graph.io.trajectories import read_trajectory
+    from pancam_graph.render.images import raw_stereo_pair
+    from pancam_graph.sim import simulate
+
+    scenario_dir = work / "scenario"
+    scenario_dir.mkdir()
+    shutil.copy(bundled_scenarios()["short_trail"], scenario_dir / "s.toml")
+
+    scenario = load_scenario(bundled_scenarios()["short_trail"])
+    scenario = scenario.model_copy(update={"path": scenario.path.model_copy(
+        update={"waypoints": scenario.path.waypoints[:2]})})
+    traverse, truth = simulate(scenario, 1)
+    obs = work / "observations"
+    write_observations(obs, traverse, scenario.estimator, 1, truth, scenario.rig)
+
+    gps = work / "gps"
+    gps.mkdir()
+    kfgins_lines = (REAL / "kfgins" / "GNSS-RTK.txt").read_text().splitlines(keepends=True)[:40]
+    (gps / "fixes.txt").write_text("".join(kfgins_lines))
+    fixes = read_kfgins(gps / "fixes.txt")
+    (gps / "fixes.csv").write_text("time_s,lat_deg,lon_deg,h_m,sigma_h_m,sigma_v_m\n" + "".join(
+        f"{f.time_s},{f.lat_deg!r},{f.lon_deg!r},{f.h_m},1.0,2.0\n" for f in fixes))
+    g = gpxpy.gpx.GPX()
+    track = gpxpy.gpx.GPXTrack()
+    segment = gpxpy.gpx.GPXTrackSegment()
+    t0 = dt.datetime(2020, 1, 1, tzinfo=dt.UTC)
+    segment.points = [gpxpy.gpx.GPXTrackPoint(f.lat_deg, f.lon_deg, elevation=f.h_m,
+                                              time=t0 + dt.timedelta(seconds=i)) for i, f in enumerate(fixes)]
+    track.segments.append(segment)
+    g.tracks.append(track)
+    (gps / "fixes.gpx").write_text(g.to_xml())
+    (gps / "fixes.nmea").write_text(_nmea(fixes))
+
+    calib = work / "calibration"
+    calib.mkdir()
+    write_opencv_yaml(calib / "stereo.yaml", raw_stereo_pair(traverse.rig.wac, traverse.rig.baseline_m,
+                                                            RenderConfig()))
+    shutil.copy(REAL / "katwijk_pancam_calib" / "PanCam_calibstruct.mat", calib / "pancam.mat")
+
+    poses = work / "poses"
+    poses.mkdir()
+    shutil.copy(obs / "truth.kitti", poses / "truth.kitti")
+    q = Rotation.from_matrix(truth.world_T_body[:, :3, :3]).as_quat()
+    tum = np.column_stack([np.arange(len(q), dtype=float), truth.world_T_body[:, :3, 3], q])
+    np.savetxt(poses / "truth.tum", tum, fmt="%.9f")
+
+    return [
+        Target("scenario", scenario_dir, ["s.toml"], lambda d: load_scenario(d / "s.toml")),
+        Target("observations", obs, sorted(p.name for p in obs.iterdir()), read_observations),
+        Target("gps csv", gps, ["fixes.csv"], lambda d: read_gps_file(d / "fixes.csv", 1.0, 1.0)),
+        Target("kf-gins", gps, ["fixes.txt"], lambda d: read_gps_file(d / "fixes.txt")),
+        Target("gpx", gps, ["fixes.gpx"], lambda d: read_gpx(d / "fixes.gpx", 1.0, 1.0)),
+        Target("nmea", gps, ["fixes.nmea"], lambda d: read_gps_file(d / "fixes.nmea", 1.0, 1.0)),
+        Target("opencv yaml", calib, ["stereo.yaml"], lambda d: read_stereo_calibration(d / "stereo.yaml")),
+        Target("matlab", calib, ["pancam.mat"], lambda d: read_stereo_calibration(d / "pancam.mat",
+                                                                                   image_size=(1280, 960))),
+        Target("kitti poses", poses, ["truth.kitti"], lambda d: read_trajectory(d / "truth.kitti")),
+        Target("tum", poses, ["truth.tum"], lambda d: read_trajectory(d / "truth.tum")),
+    ]
+
+
+def _nmea(fixes) -> str:
+    import pynmea2
+    lines = []
+    for i, f in enumerate(fixes):
+        t = f"{12 + i // 3600:02d}{(i // 60) % 60:02d}{i % 60:02d}.00"
+        lat = f"{int(f.lat_deg):02d}{(f.lat_deg % 1) * 60:010.7f}"
+        lon = f"{int(f.lon_deg):03d}{(f.lon_deg % 1) * 60:010.7f}"
+        lines.append(str(pynmea2.RMC("GP", "RMC", (t, "A", lat, "N", lon, "E", "0.0", "0.0", "010120", "", ""))))
+        lines.append(str(pynmea2.GGA("GP", "GGA", (t, lat, "N", lon, "E", "4", "12", "0.8", f"{f.h_m:.4f}", "M",
+                                                    "0.0", "M", "", ""))))
+    return "\n".join(lines) + "\n"
+
+
+def fuzz(trials: int, seed: int = 0, keep: Path | None = None) -> Findings:
+    rng = random.Random(seed)
+    findings = Findings()
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        all_targets = targets(work)
+        for target in all_targets:  # the unmutated files read
+            target.read(target.seed_folder)
+        for trial in range(trials):
+            target = all_targets[trial % len(all_targets)]
+            name = rng.choice(target.files)
+            folder = work / "trial"
+            if folder.exists():
+                shutil.rmtree(folder)
+            shutil.copytree(target.seed_folder, folder)
+            data, how = mutate((target.seed_folder / name).read_bytes(), rng)
+            (folder / name).write_bytes(data)
+            if keep is not None:  # a native crash kills the process: the last file tells which
+                shutil.copy(folder / name, keep / f"last_{target.name.replace(' ', '_')}_{name}")
+                (keep / "last.txt").write_text(f"{trial} {target.name} {name} {how}\n")
+            findings.trials[target.name] += 1
+            try:
+                target.read(folder)
+            except PancamGraphError:
+                findings.refused[target.name] += 1
+            except Exception as exc:  # the finding: anything else escaping a reader
+                where = traceback.extract_tb(exc.__traceback__)[-1]
+                findings.escaped.append(f"{target.name} {name} ({how}): {type(exc).__name__}: {str(exc)[:160]} "
+                                        f"[{Path(where.filename).name}:{where.lineno}]")
+    return findings
+
+
+if __name__ == "__main__":
+    n = int(sys.argv[1]) if len(sys.argv) > 1 else 2000
+    keep = Path(sys.argv[3]) if len(sys.argv) > 3 else None
+    result = fuzz(n, seed=int(sys.argv[2]) if len(sys.argv) > 2 else 0, keep=keep)
+    for name in sorted(result.trials):
+        print(f"{name:14s} {result.trials[name]:6d} files, {result.refused[name]:6d} refused with a message")
+    print(f"{len(result.escaped)} escaped")
+    for line in Counter(e.split(": ", 1)[1] for e in result.escaped).most_common(40):
+        print(" ", line)
