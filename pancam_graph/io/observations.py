@@ -66,6 +66,9 @@ ODOMETRY_COLUMNS = (["stop"] + [f"r{i}{j}" for i in range(1, 4) for j in range(1
 
 
 LeverArm = Annotated[float, Field(ge=-10.0, le=10.0)]
+Matrix3 = tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
+Matrix4 = tuple[tuple[float, float, float, float], tuple[float, float, float, float],
+                tuple[float, float, float, float], tuple[float, float, float, float]]
 Sigma = Annotated[float, Field(gt=0.0, le=1e4)]
 
 
@@ -80,10 +83,10 @@ class RigSource(_Strict):
     calibration_image_size: tuple[int, int] | None = Field(
         None, description="width, height px: for a MATLAB calibration that does not record it")
     mast_height_m: float = Field(1.5, gt=0.0, le=20.0)
-    body_T_left: list[list[float]] | None = Field(
+    body_T_left: Matrix4 | None = Field(
         None, description="4x4: the navigation pair's left camera in the body frame, for a body-fixed pair "
         "(default: on the mast at pan 0 and traverse_tilt_rad)")
-    rectification: list[list[float]] | None = Field(
+    rectification: Matrix3 | None = Field(
         None, description="3x3: a rectified calibration's left camera axes in the camera as mounted (the "
         "transpose of stereoRectify's R1), when the images were rectified before the calibration was written")
 
@@ -97,7 +100,7 @@ class Manifest(_Strict):
     traverse_tilt_rad: float = Field(ge=-1.5708, le=1.5708, description="mast tilt of the navigation stereo pair "
                                      "(pan 0)")
     gps_lever_arm_m: tuple[LeverArm, LeverArm, LeverArm] = (0.0, 0.0, 0.0)
-    start_world_T_body: list[list[float]] = Field(description="4x4, surveyed start pose in local ENU")
+    start_world_T_body: Matrix4 = Field(description="4x4, surveyed start pose in local ENU")
     start_sigmas: tuple[Sigma, Sigma, Sigma, Sigma, Sigma, Sigma] = Field(
         description="rotation rad x3, position m x3 (1 sigma)")
     wheel_slip_mean: float = Field(0.0, ge=-0.5, le=1.0, description="expected odometry slip shared along the "
@@ -392,6 +395,12 @@ class _Table:
             numbers = [self.number(line, c, v) for c, v in zip(self.columns[1:], values[1:], strict=True)]
             yield line, self.stop(line, values[0], n), numbers
 
+    def track(self, line: int, text: str) -> int:
+        t = int(self.number(line, "track", text, integer=True))
+        if not 0 <= t < 2**63:  # an int64 in every array that holds tracks
+            raise InputError(f"{self.path}: line {line}: track {t} outside 0..2^63-1")
+        return t
+
     def stop(self, line: int, text: str, n: int) -> int:
         k = int(self.number(line, "stop", text, integer=True))
         if not 0 <= k < n:
@@ -417,10 +426,7 @@ def _read_stereo(path: Path) -> tuple[list[float], list[float], list[StereoObser
             raise InputError(f"{path}: line {line}: stop {k}: dwell_s must be >= 0 and the same on every row")
         if track == "" and ul == "" and ur == "" and v == "":
             continue
-        track_id = int(table.number(line, "track", track, integer=True))
-        if not 0 <= track_id < 2**63:
-            raise InputError(f"{path}: line {line}: track {track_id} outside 0..2^63-1")
-        rows[k].append((track_id, table.number(line, "u_left", ul), table.number(line, "u_right", ur),
+        rows[k].append((table.track(line, track), table.number(line, "u_left", ul), table.number(line, "u_right", ur),
                         table.number(line, "v", v), line))
     n = len(times)
     missing = next((k for k in range(n + 1) if k not in times), None)
@@ -493,7 +499,7 @@ def _read_frames(table: _Table, n: int, measured: list[str]) -> dict[int, dict[t
         k = table.stop(line, values["stop"], n)
         key = (table.number(line, "pan_rad", values["pan_rad"]), table.number(line, "tilt_rad", values["tilt_rad"]))
         grouped[k].setdefault(key, []).append(
-            [table.number(line, "track", values["track"], integer=True)]
+            [table.track(line, values["track"])]
             + [table.number(line, c, values[c]) for c in columns[4:]])
     return {k: {key: (np.array([r[0] for r in rows], dtype=np.int64),
                       np.array([r[1:] for r in rows], dtype=float).reshape(-1, len(measured)))
