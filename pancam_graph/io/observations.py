@@ -555,8 +555,12 @@ def _read_odometry(path: Path, n: int) -> dict[int, DeadReckoning]:
         cov = np.zeros((6, 6))
         cov[_UPPER] = numbers[12:]
         cov = cov + np.triu(cov, 1).T
-        if not np.allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-6):
+        if np.abs(pose[:3, :3]).max() > 1.0 + 1e-6 or not np.allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3),
+                                                                         atol=1e-6):
             raise InputError(f"{path}: line {line}: r11..r33 is not a rotation matrix")
+        if np.abs(pose[:3, 3]).max() > 1e4:
+            raise InputError(f"{path}: line {line}: tx, ty, tz: a step of {np.abs(pose[:3, 3]).max():.3g} m between "
+                             "stops")
         if np.any(np.linalg.eigvalsh(cov) <= 0):
             raise InputError(f"{path}: line {line}: covariance c00..c55 is not positive definite")
         increments[k] = DeadReckoning(pose, cov)
