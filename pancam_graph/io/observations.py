@@ -167,7 +167,7 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
         # a calibrated pair (alone, or on a preset's mast): its rectified model as OpenCV YAML,
         # and the turn rectification gave the left camera
         _write_rectified_yaml(folder / "calibration.yaml", rig)
-        rotation = None if rig.raw_R_rectified is None else rig.rectification().tolist()
+        rotation = None if rig.raw_R_rectified is None else tuple(map(tuple, rig.rectification().tolist()))
         rig_source = rig_source.model_copy(update={"preset": preset if preset in RIG_PRESETS else None,
                                                    "calibration": "calibration.yaml", "rectification": rotation})
     manifest = Manifest(
