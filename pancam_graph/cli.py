@@ -586,6 +586,7 @@ def _bench_frontend(source: str | None, detector: str | None) -> None:
     from .config import FrontendConfig
     from .frontend.tracker import StereoTracker
     from .sources import source_kind
+    from .sources.frames import frame_ms, track_frames
 
     try:
         kind = source_kind(source) if source is not None else None
@@ -593,30 +594,31 @@ def _bench_frontend(source: str | None, detector: str | None) -> None:
             raise ConfigError(f"bench frontend {source or ''}: give stereo images (an image folder or a KITTI "
                               "odometry sequence folder, e.g. ../shared/data/real/kitti_odometry_51)")
         config = FrontendConfig(detector=_detector(detector) or "gftt")
-        frames, size, rectify, motions = _stereo_frames(Path(source), kind)
+        stops, read_raw, size, rectify, camera_motion = _stereo_frames(Path(source), kind)
         tracker = StereoTracker(config)
+        read_ms: list[float] = []
+
+        def read_pair(k: int):
+            start = time.perf_counter()
+            pair = read_raw(k)
+            read_ms.append((time.perf_counter() - start) * 1e3)
+            return pair if rectify is None else rectify(pair, tracker.times)
+
         load_before = os.getloadavg()
-        features, read_ms, frame = [], [], []
         with _progress_bar() as bar:
-            task = bar.add_task("front-end", total=len(frames))
-            for k, read in enumerate(frames):
-                start = time.perf_counter()
-                left, right = read()
-                read_ms.append((time.perf_counter() - start) * 1e3)
-                start = time.perf_counter()
-                if rectify is not None:
-                    left, right = rectify(left, right)
-                    tracker.times.add("rectify", start)
-                features.append(len(tracker(left, right, motions[k] if config.odometry_aided else None)))
-                frame.append((time.perf_counter() - start) * 1e3)
-                bar.update(task, completed=k + 1)
+            task = bar.add_task("front-end", total=len(stops))
+            # the run's own loop over the frames, so the bench times what `run` does
+            tracked = track_frames(stops, read_pair, tracker, lambda tracked, notes: tracked,
+                                   progress=lambda _, done, total: bar.update(task, completed=done),
+                                   camera_motion=camera_motion if config.odometry_aided else None)
     except PancamGraphError as exc:
         raise _fail(exc, bad_input=True) from None
-    frame = np.array(frame)
+    frame = frame_ms(tracker)
+    features = [len(s.stereo) for s in tracked]
     stages = tracker.times.summary()
     stages.pop("frame")
     print(json.dumps({
-        "source": source, "detector": config.detector, "frames": len(frames), "image_size": [size[1], size[0]],
+        "source": source, "detector": config.detector, "frames": len(tracked), "image_size": [size[1], size[0]],
         "frame_ms": {"median": float(np.median(frame)), "p95": float(np.percentile(frame, 95)),
                      "mean": float(frame.mean())},
         "stages_ms": stages, "image_read_ms_median": float(np.median(read_ms)),
@@ -629,25 +631,23 @@ def _bench_frontend(source: str | None, detector: str | None) -> None:
 
 
 def _stereo_frames(folder: Path, kind: str):
-    """(one reader of the raw pair per stereo frame, (height, width), the rectification or None,
-    the camera's motion since the previous frame from dead reckoning, per frame) of an image
-    source, as the source's own run reads and tracks them."""
+    """(the stops, a reader of stop k's raw pair, (height, width), the rectification or None,
+    the camera's motion from dead reckoning or None) of an image source."""
     if kind == "kitti_odometry":
         from .io.kitti import read_kitti_odometry
+        from .records import StereoObservations, Stop
 
         sequence = read_kitti_odometry(folder)
         cam = sequence.stereo.camera
-        return ([lambda k=k: sequence.stereo_pair(k) for k in range(len(sequence))], (cam.height, cam.width), None,
-                [None] * len(sequence))
+        stops = [Stop(k, float(sequence.times_s[k]), StereoObservations.empty()) for k in range(len(sequence))]
+        return stops, sequence.stereo_pair, (cam.height, cam.width), None, None
     from .io.observations import read_observations
     from .sources.image_folder import FramePairs, odometry_camera_motion
 
     obs = read_observations(folder)
     pairs = FramePairs(obs)
-    camera_motion = odometry_camera_motion(obs.traverse)
-    motions = [None if stop.dead_reckoning is None else camera_motion(stop.dead_reckoning.prev_T_curr)
-               for stop in obs.traverse.stops]
-    return [lambda k=k: pairs.read(k) for k in range(len(pairs))], pairs.size, pairs.rectify, motions
+    rectify = None if pairs.rectify is None else pairs.rectified
+    return obs.traverse.stops, pairs.read, pairs.size, rectify, odometry_camera_motion(obs.traverse)
 
 
 def _time_recorded_run(scenario, seed: int) -> float:

@@ -51,10 +51,14 @@ def track_frames(stops: Sequence[Stop], read_pair: ReadPair, tracker: StereoTrac
     return finish(tracked, notes)
 
 
-def median_frame_ms(tracker: StereoTracker) -> float:
-    """Median time per frame, rectification (when the source rectifies) included."""
+def frame_ms(tracker: StereoTracker) -> np.ndarray:
+    """Time per frame tracked, rectification (when the source rectifies) included."""
     frame = np.asarray(tracker.times.ms.get("frame", [np.nan]))
     rectify = tracker.times.ms.get("rectify")
     if rectify is not None and len(rectify) == len(frame):
         frame = frame + np.asarray(rectify)
-    return float(np.median(frame))
+    return frame
+
+
+def median_frame_ms(tracker: StereoTracker) -> float:
+    return float(np.median(frame_ms(tracker)))

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..config import FrontendConfig
 from ..errors import InputError
-from ..frontend.tracker import CameraMotion, StereoTracker
+from ..frontend.tracker import CameraMotion, StageTimes, StereoTracker
 from ..records import Stop, Traverse
 from ..results import SourceInfo
 from .base import SourceData
@@ -68,6 +68,13 @@ class FramePairs:
         left, right = self.frames[k]
         return read_gray(left, self.size), read_gray(right, self.size)
 
+    def rectified(self, pair: tuple[np.ndarray, np.ndarray], times: StageTimes) -> tuple[np.ndarray, np.ndarray]:
+        """A raw pair rectified, the time it took added to `times` (stage "rectify")."""
+        start = time.perf_counter()
+        rectified = self.rectify(*pair)
+        times.add("rectify", start)
+        return rectified
+
 
 def load(folder: Path, frontend: FrontendConfig | None = None,
          progress: Callable[[str, int, int], None] | None = None, skip_bad_frames: bool = False) -> SourceData:
@@ -81,13 +88,8 @@ def load(folder: Path, frontend: FrontendConfig | None = None,
     pairs = FramePairs(obs)
 
     def read_pair(k: int) -> tuple[np.ndarray, np.ndarray]:
-        left, right = pairs.read(k)
-        if pairs.rectify is None:
-            return left, right
-        start = time.perf_counter()
-        rectified = pairs.rectify(left, right)
-        tracker.times.add("rectify", start)
-        return rectified
+        pair = pairs.read(k)
+        return pair if pairs.rectify is None else pairs.rectified(pair, tracker.times)
 
     def finish(stops: list[Stop], notes: list[str]) -> SourceData:
         n = len(stops)
