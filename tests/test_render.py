@@ -183,3 +183,21 @@ def test_site_panoramas_and_hrc_frames_are_in_the_image_folder(tmp_path):
         assert image.shape == (camera.height, camera.width)
         assert image[image.shape[0] // 2:].std() > 10  # textured ground, not a blank frame
         assert (f.right is not None) == (f.camera == "wac")
+
+
+def test_bench_frontend_times_the_runs_own_loop_on_rendered_images(rendered):
+    import json
+
+    from typer.testing import CliRunner
+
+    from pancam_graph.cli import app
+
+    folder, n = rendered
+    result = CliRunner().invoke(app, ["bench", "frontend", str(folder)])
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.output[result.output.index("{"):])
+    assert report["frames"] == n // 2 and report["image_size"] == [1024, 1024]
+    # raw images: rectification is timed inside each frame, as in `run`
+    assert set(report["stages_ms"]) == {"rectify", "temporal", "detect", "stereo", "smoothness"}
+    assert report["frame_ms"]["median"] > report["stages_ms"]["rectify"]["median"] > 0
+    assert report["features_per_frame_median"] > 300
