@@ -15,6 +15,7 @@ import tomli_w
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from .errors import ConfigError, PancamGraphError
+from .text_files import read_text
 
 
 def _ordered(pair: tuple[float, float]) -> tuple[float, float]:
@@ -298,13 +299,7 @@ def load_toml_model(path: str | Path, model: type[M], what: str, error: type[Pan
     """Read and validate a TOML file against a pydantic model; every problem names the file and
     the field, raised as `error`."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")  # a byte-order mark is not TOML, but editors write it
-    except OSError as exc:
-        raise error(f"{path}: cannot read {what}: {exc.strerror}") from None
-    except UnicodeDecodeError as exc:
-        raise error(f"{path}: not UTF-8 text (byte {exc.start}: {exc.object[exc.start:exc.start + 4]!r}); "
-                    "TOML files are UTF-8") from None
+    text = read_text(path, what, error)
     try:
         data = tomllib.loads(text)
     except (tomllib.TOMLDecodeError, ValueError) as exc:  # ValueError: an integer of thousands of digits

@@ -85,11 +85,10 @@ class CameraMotion:
         p = triangulate_rectified(uv[:, 0], uv[:, 0] - disparity, uv[:, 1], self.camera, self.baseline_m)
         q = p @ self.current_T_previous[:3, :3].T + self.current_T_previous[:3, 3]
         ok = np.isfinite(q[:, 2]) & (q[:, 2] > 0.3)
-        z = np.where(ok, q[:, 2], 1.0)
-        c = self.camera
-        predicted = np.column_stack([c.fx * q[:, 0] / z + c.cx, c.fy * q[:, 1] / z + c.cy])
-        return np.where(ok[:, None], predicted, uv).astype(np.float32), (c.fx * self.baseline_m / z).astype(
-            np.float32), ok
+        q[~ok] = (0.0, 0.0, 1.0)  # behind the camera: searched where it was
+        predicted = np.where(ok[:, None], self.camera.project(q, distort=False), uv)
+        disparity = self.camera.fx * self.baseline_m / q[:, 2]
+        return predicted.astype(np.float32), disparity.astype(np.float32), ok
 
 
 class StereoTracker:

@@ -16,7 +16,7 @@ import yaml
 from ..errors import InputError
 from ..rig import Camera
 from ..stereo_pair import RectifiedStereo, StereoCalibration
-from .tables import read_text
+from ..text_files import read_text
 
 KALIBR_CAMERA_MODELS = ("pinhole",)
 KALIBR_DISTORTION_MODELS = ("radtan", "none")  # OpenCV's plumb-bob order (k1, k2, p1, p2)
@@ -36,7 +36,7 @@ def read_opencv_yaml(path: Path) -> StereoCalibration:
         raise InputError(f"{path}: no such calibration file")
     text = read_text(path, "calibration")
     if text.lstrip().startswith("<?xml"):
-        nodes = _opencv_xml_nodes(path)
+        nodes = _opencv_xml_nodes(path, text)
     else:
         nodes = _opencv_yaml_nodes(path, text)
 
@@ -86,9 +86,9 @@ def _opencv_yaml_nodes(path: Path, text: str) -> dict:
     return data
 
 
-def _opencv_xml_nodes(path: Path) -> dict:
+def _opencv_xml_nodes(path: Path, text: str) -> dict:
     """XML FileStorage through OpenCV (rarely used; the YAML form is parsed without it)."""
-    for key, value in re.findall(r"<(rows|cols)>\s*(\d+)", read_text(path, "calibration")):
+    for key, value in re.findall(r"<(rows|cols)>\s*(\d+)", text):
         if int(value) > 64:  # OpenCV allocates what the header says before reading the data
             raise InputError(f"{path}: a matrix with {key} = {value}: not a calibration's")
     try:
@@ -306,7 +306,7 @@ def read_raw_calibration(path: Path, right: Path | None = None,
         return None
     if path.suffix.lower() == ".mat":
         return read_matlab_stereo_parameters(path, image_size)
-    text = _read_text(path)
+    text = read_text(path, "calibration")
     if text.lstrip().startswith("%YAML") or text.lstrip().startswith("<?xml"):
         return read_opencv_yaml(path)
     if "cam0" in text:
@@ -315,13 +315,9 @@ def read_raw_calibration(path: Path, right: Path | None = None,
                      "Kalibr camchain with cam0/cam1, MATLAB stereoParameters .mat, or a camera_info pair)")
 
 
-def _read_text(path: Path) -> str:
-    return read_text(path, "calibration")
-
-
 def _yaml(path: Path) -> dict:
     try:
-        data = yaml.safe_load(_read_text(path))
+        data = yaml.safe_load(read_text(path, "calibration"))
     except (yaml.YAMLError, ValueError) as exc:  # ValueError: an integer of thousands of digits
         raise InputError(f"{path}: not valid YAML: {exc}") from None
     if not isinstance(data, dict):

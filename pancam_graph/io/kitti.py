@@ -26,8 +26,8 @@ from ..errors import InputError
 from ..geodesy import LocalFrame
 from ..records import GpsFix, OdometryTrack
 from ..stereo_pair import RectifiedStereo
+from ..text_files import read_text
 from .calibration import rectified_from_projections
-from .tables import read_text
 from .trajectories import read_kitti_poses
 
 OXTS_FIELDS = (

@@ -21,6 +21,7 @@ written with repr(), so a folder written from a traverse reads back bit for bit.
 from __future__ import annotations
 
 import csv
+import io
 from collections import defaultdict
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -46,7 +47,7 @@ from ..records import (
     Traverse,
 )
 from ..rig import Rig, rig_preset
-from .tables import read_text
+from ..text_files import read_text
 
 if TYPE_CHECKING:
     from ..stereo_pair import StereoCalibration
@@ -281,14 +282,11 @@ def read_observations(folder: Path) -> ObservationSet:
     stops = tuple(Stop(k, times[k], stereo[k], sites.get(k), panoramas.get(k, ()), hrc.get(k, ()), odometry.get(k),
                        dwells[k]) for k in range(n))
     o = manifest.origin
-    start = np.array(manifest.start_world_T_body, dtype=float)
-    if start.shape != (4, 4):
-        raise InputError(f"{folder / MANIFEST}: field 'start_world_T_body': expected 4x4, got {start.shape}")
+    start = np.array(manifest.start_world_T_body, dtype=float)  # 4x4: the manifest model checks shapes
     body_T_left = None
     if manifest.rig.body_T_left is not None:
         body_T_left = np.array(manifest.rig.body_T_left, dtype=float)
-        if body_T_left.shape != (4, 4) or not np.allclose(body_T_left[:3, :3] @ body_T_left[:3, :3].T, np.eye(3),
-                                                           atol=1e-6):
+        if not np.allclose(body_T_left[:3, :3] @ body_T_left[:3, :3].T, np.eye(3), atol=1e-6):
             raise InputError(f"{folder / MANIFEST}: [rig] body_T_left: expected a 4x4 rigid transform")
         body_T_left[:3, :3] = body_T_left[:3, :3] @ rig.rectification()  # body_T_left is the raw camera's
     traverse = Traverse(manifest.name, rig, LocalFrame(o.lat_deg, o.lon_deg, o.h_m), stops,
@@ -330,7 +328,7 @@ def _rig(folder: Path, source: RigSource) -> tuple[Rig, StereoCalibration | None
     rotation = None if raw is None or raw.is_rectified else tuple(stereo.raw_R_rectified.ravel().tolist())
     if source.rectification is not None:
         given = np.array(source.rectification, dtype=float)
-        if rotation is not None or given.shape != (3, 3) or not np.allclose(given @ given.T, np.eye(3), atol=1e-6):
+        if rotation is not None or not np.allclose(given @ given.T, np.eye(3), atol=1e-6):
             raise InputError(f"{folder / MANIFEST}: [rig] rectification: expected a 3x3 rotation, with a "
                              "calibration that is already rectified")
         rotation = tuple(given.ravel().tolist())
@@ -345,27 +343,19 @@ class _Table:
 
     def __init__(self, path: Path, columns: list[str], optional: list[str] = ()):
         self.path = path
+        reader = csv.reader(io.StringIO(read_text(path), newline=""))
         try:
-            f = path.open(encoding="utf-8-sig", newline="")  # spreadsheets write a byte-order mark
-        except OSError as exc:
-            raise InputError(f"{path}: cannot read: {exc.strerror}") from None
-        with f:
-            reader = csv.reader(f)
-            try:
-                header = [c.strip() for c in next(reader, [])]
-                missing = [c for c in columns if c not in header]
-                if missing:
-                    raise InputError(f"{path}: line 1: missing column(s) {', '.join(missing)} "
-                                     f"(expected {','.join(columns)})")
-                self.index = [header.index(c) for c in columns]
-                self.optional_index = {c: header.index(c) for c in optional if c in header}
-                self.columns = columns
-                self.rows = [(line, row) for line, row in enumerate(reader, start=2) if row]
-            except UnicodeDecodeError as exc:
-                raise InputError(f"{path}: not UTF-8 text (byte {exc.start} of a block: "
-                                 f"{exc.object[exc.start:exc.start + 4]!r})") from None
-            except csv.Error as exc:  # e.g. a field over the csv module's 131,072 characters
-                raise InputError(f"{path}: line {reader.line_num}: not a CSV row this reader takes ({exc})") from None
+            header = [c.strip() for c in next(reader, [])]
+            missing = [c for c in columns if c not in header]
+            if missing:
+                raise InputError(f"{path}: line 1: missing column(s) {', '.join(missing)} "
+                                 f"(expected {','.join(columns)})")
+            self.index = [header.index(c) for c in columns]
+            self.optional_index = {c: header.index(c) for c in optional if c in header}
+            self.columns = columns
+            self.rows = [(line, row) for line, row in enumerate(reader, start=2) if row]
+        except csv.Error as exc:  # e.g. a field over the csv module's 131,072 characters
+            raise InputError(f"{path}: line {reader.line_num}: not a CSV row this reader takes ({exc})") from None
 
     def values(self, line: int, row: list[str]) -> list[str]:
         if len(row) < max(self.index) + 1:
@@ -429,9 +419,9 @@ def _read_stereo(path: Path) -> tuple[list[float], list[float], list[StereoObser
         rows[k].append((table.track(line, track), table.number(line, "u_left", ul), table.number(line, "u_right", ur),
                         table.number(line, "v", v), line))
     n = len(times)
-    missing = next((k for k in range(n + 1) if k not in times), None)
-    if missing is not None and missing < n or n == 0:
-        raise InputError(f"{path}: stops must be numbered 0..N-1 with a row each; no row for stop {missing or 0}")
+    missing = next((k for k in range(max(n, 1)) if k not in times), None)
+    if missing is not None:
+        raise InputError(f"{path}: stops must be numbered 0..N-1 with a row each; no row for stop {missing}")
     observations = []
     for k in range(n):
         tracks = np.array([r[0] for r in rows[k]], dtype=np.int64)
