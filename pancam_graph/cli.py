@@ -28,6 +28,7 @@ from rich.text import Text
 from .errors import ConfigError, FolderInUse, FrameError, InputError, PancamGraphError, ViewerUnavailable
 
 if TYPE_CHECKING:  # the heavy imports wait until a command needs them: --help stays fast
+    from .pipeline import RunState
     from .results import RunOptions, RunResult
     from .sources import SourceData
 
@@ -160,8 +161,9 @@ def _parse_configs(text: str | None) -> tuple[str, ...] | None:
 
 @app.command("run")
 def run_command(
-    source: str = typer.Argument("denver_trail", help="bundled scenario name, a scenario TOML file, an "
-                                 "observation folder, a ROS bag or a KITTI raw drive folder"),
+    source: str | None = typer.Argument(None, help="bundled scenario name, a scenario TOML file, an "
+                                        "observation folder, a ROS bag or a KITTI raw drive folder "
+                                        "[default: denver_trail]"),
     out: Path | None = typer.Option(None, "--out", help="results folder (default: results/<name>-<time>)"),
     seed: int | None = typer.Option(None, "--seed", min=0, help="scenario: override its seed"),
     configs: str | None = typer.Option(None, "--configs", help="configurations to run, comma-separated: names "
@@ -184,6 +186,12 @@ def run_command(
     skip_bad_frames: bool = typer.Option(False, "--skip-bad-frames", help="image folder: a missing, truncated "
                                          "or wrong-sized image leaves its stop to the VO bridge (default: stop "
                                          "with a message naming the file)"),
+    resume: Path | None = typer.Option(None, "--resume", help="go on with a run that was killed (kill -9, power "
+                                       "loss, out of memory) from its last checkpoint: its <out>.partial folder; "
+                                       "the run keeps its own source and options"),
+    checkpoint_every: float = typer.Option(30.0, "--checkpoint-every", min=0.0, help="seconds between the "
+                                           "checkpoints saved for --resume (and at most 5 % of the run's time); "
+                                           "0: at every site and every 25 stops"),
 ) -> None:
     """Solve a traverse with iSAM2 and evaluate it: every source goes through the same back-end.
 
@@ -191,12 +199,33 @@ def run_command(
     observations; a ROS bag or a KITTI raw drive becomes a traverse with a stop at each GPS fix,
     scored on held-out fixes. Writes metrics.json, run.toml, trajectories (TUM, KITTI, WGS84 CSV,
     GeoJSON, KML), plots and report.md into the results folder; a failed run leaves
-    <out>.partial with what was done.
+    <out>.partial with what was done, which `--resume` continues.
     """
     from .pipeline import select_configurations
     from .results import RunOptions
     from .sources import SourceOptions
 
+    if resume is not None:
+        given = {"SOURCE": source, "--out": out, "--seed": seed, "--configs": configs, "--batch": batch or None,
+                 "--gps-topic": gps_topic, "--odom-topic": odom_topic, "--holdout-every": holdout_every,
+                 "--geoid-height": geoid_height, "--detector": detector, "--stereo-topics": stereo_topics,
+                 "--skip-bad-frames": skip_bad_frames or None}
+        try:
+            clash = [name for name, value in given.items() if value is not None]
+            if clash:
+                raise ConfigError(f"--resume goes on with the run's own source and options; drop {', '.join(clash)}")
+            target = _rerun_target(rerun, viewer_memory) if rerun is not None else None
+            partial, out = _partial_and_out(resume)
+            from .io.checkpoint import read_checkpoint
+
+            inputs, state = read_checkpoint(partial)
+        except PancamGraphError as exc:
+            raise _fail(exc, bad_input=True) from None
+        console.print(f"resuming {inputs.data.traverse.name} at stop {state.next_stop} of "
+                      f"{len(inputs.data.traverse.stops)} (from {partial})")
+        _run_source(inputs.data, inputs.options, out, target, quiet, checkpoint_every, resume=state)
+        return
+    source = source or "denver_trail"
     try:
         options = RunOptions(seed=seed, configs=_parse_configs(configs), batch=batch)
         target = _rerun_target(rerun, viewer_memory) if rerun is not None else None
@@ -213,7 +242,19 @@ def run_command(
         console.print(Text("fix left out: ", style="yellow") + Text(reason))
     if len(data.rejected) > 10:
         console.print(Text(f"... {len(data.rejected) - 10} more fixes left out", style="yellow"))
-    _run_source(data, options, out, target, quiet)
+    _run_source(data, options, out, target, quiet, checkpoint_every)
+
+
+def _partial_and_out(resume: Path) -> tuple[Path, Path]:
+    """(the killed run's staging folder, the results folder it was to become) from --resume,
+    which may name either."""
+    resume = Path(resume)
+    if resume.name.endswith(".partial"):
+        return resume, resume.with_name(resume.name.removesuffix(".partial"))
+    partial = resume.with_name(resume.name + ".partial")
+    if partial.is_dir():
+        return partial, resume
+    raise ConfigError(f"--resume {resume}: expected a killed run's <out>.partial folder")
 
 
 def _topics(text: str | None) -> tuple[str, str] | None:
@@ -276,7 +317,11 @@ def _check_out(out: Path | None) -> None:
         raise ConfigError(f"--out {out}: folder exists and is not empty; choose another --out")
 
 
-def _run_source(data: SourceData, options: RunOptions, out: Path | None, target, quiet: bool) -> None:
+def _run_source(data: SourceData, options: RunOptions, out: Path | None, target, quiet: bool,
+                checkpoint_every: float, resume: RunState | None = None) -> None:
+    """Run the back-end into a results folder; with `resume`, go on from that saved state in the
+    killed run's own staging folder."""
+    from .io.checkpoint import CheckpointWriter, RunInputs, remove_checkpoint
     from .io.results import results_folder, write_run
     from .pipeline import run_traverse
     from .viz.report import write_report
@@ -285,7 +330,9 @@ def _run_source(data: SourceData, options: RunOptions, out: Path | None, target,
     out = out or Path("results") / f"{data.traverse.name}-{label}{datetime.now():%Y%m%d-%H%M%S}"
     recording = folder = None
     try:
-        with results_folder(out) as folder:
+        with results_folder(out, resume=resume is not None) as folder:
+            checkpoints = CheckpointWriter(folder, RunInputs(data, options), checkpoint_every,
+                                           write_inputs=resume is None)
             listener = None
             if target is not None:
                 from dataclasses import replace
@@ -303,9 +350,11 @@ def _run_source(data: SourceData, options: RunOptions, out: Path | None, target,
             try:
                 result = _with_progress(data.traverse.name, quiet, lambda report: run_traverse(
                     data.traverse, data.truth, data.estimator, data.seed, options, report, listener,
-                    source=data.info, scenario=data.scenario, held_out=data.held_out))
+                    source=data.info, scenario=data.scenario, held_out=data.held_out, save=checkpoints,
+                    resume=resume))
                 write_run(result, folder)
                 report = write_report(result, folder)
+                remove_checkpoint(folder)
             finally:
                 if recording is not None:  # also on failure: keep what was recorded
                     recording.close()
@@ -317,7 +366,8 @@ def _run_source(data: SourceData, options: RunOptions, out: Path | None, target,
     sys.stdout.flush()
     for name, reason in result.skipped.items():
         console.print(Text(f"not run: {name} ({reason})", style="dim"))
-    console.print(f"wall {result.wall_s:.1f} s; results in {out} (report: {out / report.name})")
+    saved = f" ({checkpoints.saves} checkpoints saved in {checkpoints.save_s:.1f} s)" if checkpoints.saves else ""
+    console.print(f"wall {result.wall_s:.1f} s{saved}; results in {out} (report: {out / report.name})")
     if recording is not None and recording.target.mode == "save":
         path = recording.target.path
         shown = out / path.name if path.parent == folder else path

@@ -155,7 +155,7 @@ class Localizer:
             build = self.vo_factor
         start = self.smoother.pose(keys[0])
         if len(keys) == 2:
-            self.smoother.add(build(keys[0], keys[1], step, covariance))
+            self._add_motion_factor(build, keys[0], keys[1], step, covariance)
             self.smoother.insert(keys[1], start.compose(motion.prev_T_curr))
             return
         twist = gtsam.Pose3.Logmap(step)
@@ -163,8 +163,12 @@ class Localizer:
         bounds = [0.0, *fractions, 1.0]
         for key_a, key_b, a, b in zip(keys[:-1], keys[1:], bounds[:-1], bounds[1:], strict=True):
             piece = gtsam.Pose3.Expmap((b - a) * twist)
-            self.smoother.add(build(key_a, key_b, piece, (b - a) * covariance))
+            self._add_motion_factor(build, key_a, key_b, piece, (b - a) * covariance)
             self.smoother.insert(key_b, start.compose(gtsam.Pose3.Expmap(b * estimated_twist)))
+
+    def _add_motion_factor(self, build: MotionFactor, *arguments) -> None:
+        # a kind's motion factor may be a Python CustomFactor: its recipe goes with it (checkpoints)
+        self.smoother.add(build(*arguments), rebuild=(build, arguments))
 
     def pose_key_at(self, time_s: float) -> int:
         """The pose inserted at `time_s` in this step (see Kind.pose_times)."""

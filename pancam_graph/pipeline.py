@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -38,6 +39,21 @@ class RunListener(Protocol):
         """Everything up to `stop` must now survive a crash."""
 
     def finish(self, result: RunResult) -> None: ...
+
+
+@dataclass
+class RunState:
+    """All a run has done before stop `next_stop`: every configuration's graph and bookkeeping,
+    the motions and the per-stop results. Saved at checkpoints; a run given one goes on from it
+    and ends with the same estimate as one that was never stopped."""
+
+    next_stop: int
+    localizers: dict[str, Localizer]
+    motions: list[Motion | None]
+    dr_motions: list[Motion | None]
+    steps: dict[str, list[StepResult]]
+    vo_s: float = 0.0
+    elapsed_s: float = 0.0  # wall time spent on the run before this state
 
 
 class NullListener:
@@ -152,31 +168,38 @@ def run_traverse(
     scenario: Scenario | None = None,
     held_out: tuple[GpsFix, ...] = (),
     started: float | None = None,
+    save: Callable[[RunState], None] | None = None,
+    resume: RunState | None = None,
 ) -> RunResult:
     """Estimate the motion of every stop once, feed every configuration's localizer stop by
-    stop, then evaluate each against the reference (when there is one) and GPS."""
+    stop, then evaluate each against the reference (when there is one) and GPS. At every
+    checkpoint `save` gets the run's state; a run given `resume` goes on from that state."""
     start = time.perf_counter() if started is None else started
     source = source or SourceInfo("traverse", traverse.name, "truth" if truth is not None else "none")
     listener = listener or NullListener()
     n = len(traverse.stops)
     chosen, skipped = select_configurations(estimator, traverse, options.configs)
-    localizers = {name: Localizer(traverse, kinds, estimator, seed=seed) for name, kinds in chosen.items()}
+    if resume is None:
+        localizers = {name: Localizer(traverse, kinds, estimator, seed=seed) for name, kinds in chosen.items()}
+        state = RunState(0, localizers, [None], [None], {name: [] for name in localizers})
+    else:
+        state = resume
+        localizers = state.localizers
+        start -= state.elapsed_s
     any_vo = any(loc.uses_vo for loc in localizers.values())
     vo = StereoVO.for_traverse(traverse, estimator) if any_vo else None
     listener.start(traverse, truth, localizers)
 
     slip = traverse.wheel_slip
-    motions: list[Motion | None] = [None]
-    dr_motions: list[Motion | None] = [None]
-    steps: dict[str, list[StepResult]] = {name: [] for name in localizers}
-    vo_s = 0.0
-    for k, stop in enumerate(traverse.stops):
+    motions, dr_motions, steps = state.motions, state.dr_motions, state.steps
+    for k in range(state.next_stop, n):
+        stop = traverse.stops[k]
         if k > 0:
             dr_motions.append(dead_reckoning_motion(stop, dr_motions[-1], slip))
             if vo is not None:
                 t0 = time.perf_counter()
                 motions.append(motion_between(vo, traverse.stops[k - 1], stop, motions[-1], slip))
-                vo_s += time.perf_counter() - t0
+                state.vo_s += time.perf_counter() - t0
             else:
                 motions.append(dr_motions[-1])
         now = {name: localizer.step(stop, motions[k] if localizer.uses_vo else dr_motions[k])
@@ -185,6 +208,9 @@ def run_traverse(
             steps[name].append(step)
         listener.step(stop, motions[k], now)
         if stop.is_site or (k + 1) % CHECKPOINT_EVERY_STOPS == 0:
+            state.next_stop, state.elapsed_s = k + 1, time.perf_counter() - start
+            if save is not None and k + 1 < n:
+                save(state)
             listener.checkpoint(stop)
         if progress is not None:
             progress("stops", k + 1, n)
@@ -228,6 +254,6 @@ def run_traverse(
             holdout=holdout_score(traverse, poses, held_out),
         )
     result = RunResult(source, scenario, estimator, options, seed, traverse, truth, tuple(held_out), motions,
-                       results, skipped, time.perf_counter() - start, vo_s)
+                       results, skipped, time.perf_counter() - start, state.vo_s)
     listener.finish(result)
     return result

@@ -40,11 +40,15 @@ def _assert_usage_error(result: subprocess.CompletedProcess, *words: str) -> Non
     (["analyze", "--out", "full_folder"], ["--out full_folder", "not empty"]),
     (["simulate", "short_trail", "--out", "full_folder"], ["full_folder", "not empty"]),
     (["run", "bracket[/x].toml"], ["bracket[/x].toml"]),
+    (["run", "short_trail", "--resume", "full_folder"], ["--resume goes on with the run's own source", "SOURCE"]),
+    (["run", "--resume", "full_folder"], ["--resume full_folder", "<out>.partial"]),
+    (["run", "--resume", "empty.partial"], ["empty.partial: has no checkpoint", "start the run again"]),
 ])
 def test_mistake_exits_2_names_the_argument_and_writes_nothing(tmp_path, args, words):
     (tmp_path / "a_file").write_text("not a folder")
     (tmp_path / "full_folder").mkdir()
     (tmp_path / "full_folder" / "keep.txt").write_text("mine")
+    (tmp_path / "empty.partial").mkdir()
     before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
     result = _cli(*args, cwd=tmp_path, env={"DISPLAY": ""})
     _assert_usage_error(result, *words)

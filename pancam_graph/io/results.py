@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import fcntl
 import json
 import os
+import shutil
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,35 +27,36 @@ if TYPE_CHECKING:
     from ..results import RunResult
 
 
-LOCK_FILE = ".lock"  # in a staging folder: the PID of the run that owns it
+LOCK_FILE = ".lock"  # in a staging folder: locked (flock) by the run that owns it, which writes its PID
 
 
 @contextlib.contextmanager
-def results_folder(out: Path) -> Iterator[Path]:
+def results_folder(out: Path, resume: bool = False) -> Iterator[Path]:
     """Yield a staging folder that this run owns exclusively; on success it becomes `out`, on
     failure it is kept beside it as `<out>.partial` so nothing computed is lost.
 
-    The staging folder is created atomically (mkdir), so of two runs started on one `--out`
-    exactly one gets it; the other fails at once with FolderInUse. A `.partial` left by an
-    earlier run that died is kept, renamed `<out>.partial.<n>`."""
+    Ownership is a kernel lock on the staging folder's lock file, which dies with its process
+    (a kill -9 included). A new run creates the staging folder atomically (mkdir), so of two runs
+    started on one `--out` exactly one gets it; the other fails at once with FolderInUse. A
+    `.partial` left by an earlier run that died is kept, renamed `<out>.partial.<n>`, unless
+    `resume`: then this run takes that folder over and goes on in it."""
     out = Path(out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise ResultsError(f"{out}: results folder exists and is not empty; choose another --out")
     staging = out.with_name(out.name + ".partial")
-    _set_aside_dead_partial(staging)
-    try:
-        staging.parent.mkdir(parents=True, exist_ok=True)
-        staging.mkdir()
-    except FileExistsError:
-        raise FolderInUse(f"{out}: in use by another run ({staging} exists); choose another --out") from None
-    except OSError as exc:
-        raise ResultsError(f"{staging}: cannot create results folder: {exc.strerror}") from None
-    (staging / LOCK_FILE).write_text(f"{os.getpid()}\n", encoding="utf-8")
+    if resume:
+        if not staging.is_dir():
+            raise ResultsError(f"{staging}: no such folder: nothing to resume")
+        lock = _lock(staging, out)
+    else:
+        _set_aside_dead_partial(staging, out)
+        lock = _create_locked(staging, out)
     try:
         yield staging
     finally:  # done or failed, this run no longer owns it (a failed run's folder stays as .partial)
-        (staging / LOCK_FILE).unlink(missing_ok=True)
+        os.close(lock)
     try:
+        (staging / LOCK_FILE).unlink(missing_ok=True)
         if out.exists():
             out.rmdir()  # empty (checked above): the rename below takes its place
         os.replace(staging, out)
@@ -62,32 +65,52 @@ def results_folder(out: Path) -> Iterator[Path]:
                            f"they are complete in {staging}") from None
 
 
-def _set_aside_dead_partial(staging: Path) -> None:
-    """A staging folder whose owner is alive means the folder is in use; one whose owner died is
+def _create_locked(staging: Path, out: Path) -> int:
+    """Create the staging folder already locked: made and locked under a private name, then
+    renamed into place, which fails if another run's (never empty) folder is there."""
+    private = staging.with_name(f"{staging.name}.new-{os.getpid()}")
+    try:
+        staging.parent.mkdir(parents=True, exist_ok=True)
+        private.mkdir()
+    except OSError as exc:
+        raise ResultsError(f"{staging}: cannot create results folder: {exc.strerror}") from None
+    lock = _lock(private, out)
+    try:
+        os.rename(private, staging)
+    except OSError:
+        os.close(lock)
+        shutil.rmtree(private, ignore_errors=True)
+        raise FolderInUse(f"{out}: in use by another run ({staging} exists); choose another --out") from None
+    return lock
+
+
+def _lock(staging: Path, out: Path) -> int:
+    """Lock the staging folder for this process (FolderInUse if a live run holds it)."""
+    try:
+        fd = os.open(staging / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:
+        raise ResultsError(f"{staging}: cannot create its lock file: {exc.strerror}") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        owner = os.read(fd, 32).decode("ascii", "replace").strip() or "?"
+        os.close(fd)
+        raise FolderInUse(f"{out}: in use by run {owner} ({staging}); choose another --out") from None
+    os.ftruncate(fd, 0)
+    os.write(fd, f"{os.getpid()}\n".encode())
+    return fd
+
+
+def _set_aside_dead_partial(staging: Path, out: Path) -> None:
+    """A staging folder that a live run holds means the folder is in use; one whose owner died is
     renamed out of the way, never deleted."""
     if not staging.exists():
         return
-    lock = staging / LOCK_FILE
-    try:
-        pid = int(lock.read_text(encoding="utf-8").strip())
-    except (OSError, ValueError):
-        pid = None
-    if pid is not None and _alive(pid):
-        raise FolderInUse(f"{staging.with_suffix('')}: in use by run {pid} ({staging}); choose another --out")
+    os.close(_lock(staging, out))  # raises if a live run holds it
     n = 1
     while staging.with_name(f"{staging.name}.{n}").exists():
         n += 1
     staging.rename(staging.with_name(f"{staging.name}.{n}"))
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 LOCAL_FRAME_FILE = "local_frame.json"  # the ENU origin of every trajectory in a results folder

@@ -68,6 +68,15 @@ class Sites(Kind):
         self.rejected_tie_views = 0  # later sites' views of a landmark that disagree with it
         self.hrc = None  # the HRC kind, when the configuration has it, adds its views of landmarks
 
+    def __getstate__(self) -> dict:
+        # A pickled Cal3_S2Stereo aborts the process when it is loaded (GTSAM 4.3's bindings);
+        # the rig makes it again.
+        return {k: v for k, v in vars(self).items() if k != "stereo_calibration"}
+
+    def __setstate__(self, state: dict) -> None:
+        vars(self).update(state)
+        self.stereo_calibration = self.rig.stereo_calibration()
+
     def add(self, stop: Stop, counts) -> None:
         if stop.is_site:
             counts.new_landmarks, counts.rejected_ties = self._add_site(stop)

@@ -1,0 +1,154 @@
+"""A run's checkpoints in its staging folder, so a killed run can go on (`run --resume`).
+
+The run's inputs are written once; its state (pipeline.RunState) at checkpoints. Each file is
+written whole under a temporary name and renamed into place, so a kill at any moment leaves
+the last complete checkpoint. The state refers to the inputs' traverse, stops and truth by
+name instead of copying them (pickle's persistent ids): a checkpoint holds only what the run
+built. Saving costs time that grows with the graph, so a state is saved at most every
+`min_interval_s` and never more than `max_overhead` of the run's time (0: at every checkpoint).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import pickle
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from ..errors import ResultsError
+
+if TYPE_CHECKING:
+    from ..pipeline import RunState
+    from ..results import RunOptions
+    from ..sources.base import SourceData
+
+CHECKPOINT_DIR = "checkpoint"
+INPUTS_FILE = "inputs.pkl"
+STATE_FILE = "state.pkl"
+FORMAT = 1  # a checkpoint of another format is refused, not misread
+
+
+@dataclass(frozen=True)
+class RunInputs:
+    """What the run was started with: the source's data and the run options."""
+
+    data: SourceData
+    options: RunOptions
+    format: int = FORMAT
+
+
+class CheckpointWriter:
+    """Called by the run loop at every checkpoint with the run's state."""
+
+    def __init__(self, folder: Path, inputs: RunInputs, min_interval_s: float = 30.0, max_overhead: float = 0.05,
+                 write_inputs: bool = True):
+        self.folder = Path(folder) / CHECKPOINT_DIR
+        self.inputs = inputs
+        self.min_interval_s = min_interval_s
+        self.max_overhead = max_overhead
+        self.saved_stop: int | None = None  # the stop a resumed run would go on from
+        self.saves = 0
+        self.save_s = 0.0
+        self._last_end = time.perf_counter()
+        self._last_cost = 0.0
+        try:
+            self.folder.mkdir(exist_ok=True)
+        except OSError as exc:
+            raise ResultsError(f"{self.folder}: cannot create the checkpoint folder: {exc.strerror}") from None
+        if write_inputs:  # a resumed run's are there already
+            _write_atomically(self.folder / INPUTS_FILE, _dumps(inputs, {}))
+
+    def __call__(self, state: RunState) -> None:
+        since = time.perf_counter() - self._last_end
+        if self.min_interval_s > 0 and since < max(self.min_interval_s, self._last_cost / self.max_overhead):
+            return
+        start = time.perf_counter()
+        _write_atomically(self.folder / STATE_FILE, _dumps(state, _shared(self.inputs)))
+        self._last_end = time.perf_counter()
+        self._last_cost = self._last_end - start
+        self.saved_stop = state.next_stop
+        self.saves += 1
+        self.save_s += self._last_cost
+
+
+def read_checkpoint(folder: Path) -> tuple[RunInputs, RunState]:
+    """The inputs and last saved state of the run whose staging folder is `folder`."""
+    where = Path(folder) / CHECKPOINT_DIR
+    inputs_path, state_path = where / INPUTS_FILE, where / STATE_FILE
+    if not state_path.is_file():
+        saved = "has its inputs but no state yet (killed before its first checkpoint was saved)" \
+            if inputs_path.is_file() else "has no checkpoint"
+        raise ResultsError(f"{folder}: {saved}; start the run again")
+    inputs = _loads(inputs_path, {})
+    if not isinstance(inputs, RunInputs) or inputs.format != FORMAT:
+        raise ResultsError(f"{inputs_path}: not a checkpoint of this version of pancam-graph")
+    state = _loads(state_path, _shared(inputs))
+    return inputs, state
+
+
+def remove_checkpoint(folder: Path) -> None:
+    """A finished run's checkpoint is of no more use (and would be the largest file of its results)."""
+    shutil.rmtree(Path(folder) / CHECKPOINT_DIR, ignore_errors=True)
+
+
+def _shared(inputs: RunInputs) -> dict[str, Any]:
+    """The input objects a state refers to, by name."""
+    data = inputs.data
+    named: dict[str, Any] = {"traverse": data.traverse, "truth": data.truth}
+    for k, stop in enumerate(data.traverse.stops):
+        named[f"stop/{k}"] = stop
+    return {name: obj for name, obj in named.items() if obj is not None}
+
+
+class _Pickler(pickle.Pickler):
+    def __init__(self, file, shared: dict[str, Any]):
+        super().__init__(file, protocol=pickle.HIGHEST_PROTOCOL)
+        self._names = {id(obj): name for name, obj in shared.items()}
+
+    def persistent_id(self, obj):
+        return self._names.get(id(obj))
+
+
+class _Unpickler(pickle.Unpickler):
+    def __init__(self, file, shared: dict[str, Any]):
+        super().__init__(file)
+        self._shared = shared
+
+    def persistent_load(self, pid):
+        try:
+            return self._shared[pid]
+        except KeyError:
+            raise pickle.UnpicklingError(f"refers to {pid!r}, which the run's inputs do not have") from None
+
+
+def _dumps(obj, shared: dict[str, Any]) -> bytes:
+    buffer = io.BytesIO()
+    _Pickler(buffer, shared).dump(obj)
+    return buffer.getvalue()
+
+
+def _loads(path: Path, shared: dict[str, Any]):
+    try:
+        with path.open("rb") as f:
+            return _Unpickler(f, shared).load()
+    except OSError as exc:
+        raise ResultsError(f"{path}: cannot read the checkpoint: {exc.strerror}") from None
+    except Exception as exc:  # a truncated or foreign file: pickle raises many kinds of errors
+        raise ResultsError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {exc})") from None
+
+
+def _write_atomically(path: Path, payload: bytes) -> None:
+    temporary = path.with_name(path.name + ".tmp")
+    try:
+        with temporary.open("wb") as f:
+            f.write(payload)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(temporary, path)
+    except OSError as exc:
+        temporary.unlink(missing_ok=True)
+        raise ResultsError(f"{path}: cannot write the checkpoint: {exc.strerror}") from None

@@ -1,0 +1,63 @@
+"""A run killed with SIGKILL goes on from its last checkpoint (`run --resume`) and ends with
+exactly the estimate of a run that was never stopped (issue 15). Real processes, as a user
+would run them."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pancam_graph.io.checkpoint import read_checkpoint
+from pancam_graph.io.trajectories import read_tum
+
+EXE = Path(sys.executable).parent / "pancam-graph"
+CONFIGS = ("dead_reckoning", "vo", "vo_sites_hrc", "full")  # wheel slip, VO, site landmarks and HRC, GPS
+
+
+def _run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([str(EXE), *args], cwd=cwd, capture_output=True, text=True, timeout=300)
+
+
+def _start_until_first_checkpoint(tmp_path: Path) -> subprocess.Popen:
+    """A run of short_trail saving at every checkpoint, once its first state is saved."""
+    run = subprocess.Popen([str(EXE), "run", "short_trail", "--out", "res", "--quiet", "--checkpoint-every", "0"],
+                           cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    state = tmp_path / "res.partial" / "checkpoint" / "state.pkl"
+    deadline = time.time() + 120
+    while not state.is_file() and run.poll() is None and time.time() < deadline:
+        time.sleep(0.01)
+    return run
+
+
+def test_a_killed_run_resumes_to_the_same_estimate(tmp_path):
+    whole = _run("run", "short_trail", "--out", "whole", "--quiet", cwd=tmp_path)
+    assert whole.returncode == 0, whole.stderr
+
+    killed = _start_until_first_checkpoint(tmp_path)
+    assert killed.poll() is None, "the run ended before it could be killed"
+    os.kill(killed.pid, signal.SIGKILL)
+    killed.wait()
+    _, saved = read_checkpoint(tmp_path / "res.partial")
+    stops = len(saved.localizers["vo"].traverse.stops)
+    assert 0 < saved.next_stop < stops  # killed midway
+
+    resumed = _run("run", "--resume", "res.partial", "--quiet", cwd=tmp_path)
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"resuming short_trail at stop {saved.next_stop} of {stops}" in resumed.stderr
+    assert not (tmp_path / "res.partial").exists() and not (tmp_path / "res" / "checkpoint").exists()
+    for name in CONFIGS:
+        a, b = (read_tum(tmp_path / folder / f"trajectory_{name}.tum") for folder in ("whole", "res"))
+        assert len(b.times_s) == stops
+        np.testing.assert_array_equal(a.world_T_body, b.world_T_body)
+
+
+def test_a_live_runs_folder_cannot_be_resumed(tmp_path):
+    live = _start_until_first_checkpoint(tmp_path)
+    second = _run("run", "--resume", "res.partial", "--quiet", cwd=tmp_path)
+    assert live.wait(timeout=300) == 0
+    assert second.returncode == 2 and "in use by run" in second.stderr, second.stderr
+    assert (tmp_path / "res" / "metrics.json").is_file()  # the live run finished undisturbed
