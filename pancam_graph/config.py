@@ -234,7 +234,9 @@ class FrontendConfig(_Strict):
     detector: Literal["gftt", "orb", "sift"] = "gftt"
     max_features: int = Field(1500, ge=20, le=20000, description="features kept per frame")
     min_distance_px: int = Field(8, ge=1, le=100, description="between corners")
-    gftt_quality: float = Field(0.001, gt=0.0, lt=1.0)
+    gftt_quality: float = Field(0.001, gt=0.0, lt=1.0, description="of a cell's strongest corner")
+    detection_grid: int = Field(1, ge=1, le=16, description="corners are found in grid x grid cells, and new ones "
+                                "go first to the cells with the fewest tracks")
     klt_window_px: int = Field(11, ge=5, le=101, description="11 px: more accurate and 2x faster than 21 "
                                "on the real KITTI frames (docs/frontend.md)")
     klt_levels: int = Field(3, ge=0, le=6)

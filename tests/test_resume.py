@@ -61,3 +61,19 @@ def test_a_live_runs_folder_cannot_be_resumed(tmp_path):
     assert live.wait(timeout=300) == 0
     assert second.returncode == 2 and "in use by run" in second.stderr, second.stderr
     assert (tmp_path / "res" / "metrics.json").is_file()  # the live run finished undisturbed
+
+
+def test_a_full_disk_is_one_line_exit_1_and_the_partial_folder_stays(tmp_path):
+    """Files over 400 kB cannot be written (RLIMIT_FSIZE: the write fails as on a full disk)."""
+    import resource
+
+    def small_files():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (400_000, 400_000))
+
+    result = subprocess.run([str(EXE), "run", "short_trail", "--out", "res", "--quiet"], cwd=tmp_path,
+                            capture_output=True, text=True, timeout=300, preexec_fn=small_files)
+    assert result.returncode == 1
+    assert "Traceback" not in result.stderr
+    assert result.stderr.strip().splitlines() == [
+        "error: res.partial/checkpoint/inputs.pkl: cannot write the checkpoint: File too large"]
+    assert (tmp_path / "res.partial").is_dir() and not (tmp_path / "res").exists()

@@ -10,7 +10,8 @@ disagrees by more than `smoothness_px` and `smoothness_fraction`). Matches are s
 
 Three detectors (`FrontendConfig.detector`):
 - `gftt`: Shi-Tomasi corners, stereo and temporal matching by Lucas-Kanade optical flow with a
-  forward-backward check (the default: see docs/frontend.md for the comparison). Given the
+  forward-backward check (the default: see docs/frontend.md for the comparison), optionally
+  found cell by cell (`detection_grid`, as MER's VO picks its corners). Given the
   camera's motion since the last frame (`CameraMotion`, from wheel odometry), each track's
   search starts where its triangulated point reprojects, and a track whose offset from that
   prediction strays from the others' is dropped;
@@ -142,8 +143,7 @@ class StereoTracker:
         uv, ids, disparity = self._last.uv, self._last.ids, self._last.disparity
         # Corners are found on the whole image while the tracks are followed (the two keep both
         # cores busy); those too near a followed track are dropped afterwards.
-        corners = self._detection.submit(cv2.goodFeaturesToTrack, left, c.max_features + len(uv),
-                                         c.gftt_quality, c.min_distance_px, blockSize=7)
+        corners = self._detection.submit(self._corners, left, c.max_features + len(uv))
         if self._previous_left is not None and len(uv):
             guess = uv
             if motion is not None:
@@ -166,17 +166,49 @@ class StereoTracker:
         self.times.add("stereo", t)
         return uv[ok], ids[ok], disparity[ok]
 
-    def _fresh_corners(self, image, found: np.ndarray | None, tracked: np.ndarray, count: int) -> np.ndarray:
-        """The strongest `count` corners at least `min_distance_px` from every tracked feature,
-        refined to sub-pixel."""
+    def _cells(self, shape: tuple[int, int]) -> list[tuple[int, int, int, int]]:
+        """The detection grid's cells (x0, y0, x1, y1), row by row."""
+        h, w = shape
+        g = self.config.detection_grid
+        return [(w * j // g, h * i // g, w * (j + 1) // g, h * (i + 1) // g) for i in range(g) for j in range(g)]
+
+    def _corners(self, image: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+        """Shi-Tomasi corners cell by cell, each cell's strongest first, and each corner's cell.
+        The quality threshold is relative to the strongest corner of its own cell, so a
+        low-contrast stretch of ground keeps corners beside a field of sharp rocks."""
         c = self.config
-        if found is None or count <= 0:
+        cells = self._cells(image.shape)
+        per_cell = -(-count // len(cells))
+        found, cell = [np.zeros((0, 2), np.float32)], [np.zeros(0, int)]
+        for k, (x0, y0, x1, y1) in enumerate(cells):
+            f = cv2.goodFeaturesToTrack(image[y0:y1, x0:x1], per_cell, c.gftt_quality, c.min_distance_px,
+                                        blockSize=7)
+            if f is not None:
+                found.append(f.reshape(-1, 2) + np.float32((x0, y0)))
+                cell.append(np.full(len(f), k))
+        return np.concatenate(found), np.concatenate(cell)
+
+    def _fresh_corners(self, image, found: tuple[np.ndarray, np.ndarray], tracked: np.ndarray,
+                       count: int) -> np.ndarray:
+        """`count` corners at least `min_distance_px` from every tracked feature, spread over the
+        detection grid: a cell's k-th strongest fresh corner ranks with its tracked features
+        counted first, so sparse cells fill up before crowded ones; refined to sub-pixel."""
+        c = self.config
+        found, cell = found
+        if not len(found) or count <= 0:
             return np.zeros((0, 2), np.float32)
-        found = found.reshape(-1, 2)
         if len(tracked):
             distance, _ = cKDTree(tracked).query(found, distance_upper_bound=c.min_distance_px)
-            found = found[distance > c.min_distance_px]  # inf when no track is that near
-        found = found[:count]  # goodFeaturesToTrack returns the strongest first
+            far = distance > c.min_distance_px  # inf when no track is that near
+            found, cell = found[far], cell[far]
+        cells = self._cells(image.shape)
+        g = c.detection_grid
+        h, w = image.shape
+        tracked_cell = (np.clip(tracked[:, 1] * g // h, 0, g - 1) * g + np.clip(tracked[:, 0] * g // w, 0, g - 1))
+        already = np.bincount(tracked_cell.astype(int), minlength=len(cells))
+        first = np.searchsorted(cell, np.arange(len(cells)))  # corners come cell by cell, strongest first
+        rank = np.arange(len(found)) - first[cell] + already[cell]
+        found = found[np.argsort(rank, kind="stable")[:count]]
         if not len(found):
             return np.zeros((0, 2), np.float32)
         return cv2.cornerSubPix(image, found.reshape(-1, 1, 2).copy(), (5, 5), (-1, -1),
