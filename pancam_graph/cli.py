@@ -9,7 +9,7 @@ import time
 from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NoReturn
 
 import typer
 from rich.console import Console
@@ -39,6 +39,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=N
 console = Console(stderr=True)
 EXIT_USAGE = 2  # bad input: a file, a folder, an option
 EXIT_FAILURE = 1  # the run itself failed
+EXIT_INTERRUPTED = 130  # Ctrl-C (128 + SIGINT)
 _USAGE_ERRORS = (ConfigError, InputError, FolderInUse)
 
 
@@ -328,7 +329,7 @@ def _run_source(data: SourceData, options: RunOptions, out: Path | None, target,
 
     label = f"seed{data.seed}-" if data.scenario is not None else ""
     out = out or Path("results") / f"{data.traverse.name}-{label}{datetime.now():%Y%m%d-%H%M%S}"
-    recording = folder = None
+    recording = folder = checkpoints = None
     try:
         with results_folder(out, resume=resume is not None) as folder:
             checkpoints = CheckpointWriter(folder, RunInputs(data, options), checkpoint_every,
@@ -360,6 +361,12 @@ def _run_source(data: SourceData, options: RunOptions, out: Path | None, target,
                     recording.close()
     except PancamGraphError as exc:
         raise _fail(exc) from None
+    except KeyboardInterrupt:
+        partial = out.with_name(out.name + ".partial")
+        saved = checkpoints.saved_stop if checkpoints is not None else None
+        goes_on = (f"`pancam-graph run --resume {partial}` goes on from stop {saved}" if saved is not None
+                   else "no checkpoint was saved yet")
+        _interrupted(f"what was done is in {partial}; {goes_on}")
     import sys
 
     Console(width=80).print(_summary_table(result))
@@ -803,13 +810,28 @@ def scenarios_command() -> None:
         print(f"{name:16s} {description}")
 
 
+_interrupt_reported = False
+
+
+def _interrupted(what: str) -> NoReturn:
+    """Ctrl-C in a command that has something to say about it (exit 130)."""
+    global _interrupt_reported
+    console.print(Text("interrupted: ", style="bold red") + Text(what), soft_wrap=True)
+    _interrupt_reported = True
+    raise SystemExit(EXIT_INTERRUPTED)
+
+
 def main() -> None:
     """The console script: the one place that turns what escapes a command into an exit code."""
     try:
         app()
     except KeyboardInterrupt:
         console.print(Text("interrupted", style="bold red"))
-        raise SystemExit(130) from None
+        raise SystemExit(EXIT_INTERRUPTED) from None
+    except SystemExit as exc:  # typer turns Ctrl-C into a silent exit 130
+        if exc.code == EXIT_INTERRUPTED and not _interrupt_reported:
+            console.print(Text("interrupted", style="bold red"))
+        raise
     except PancamGraphError as exc:  # a command that forgot to catch its own
         console.print(Text("error: ", style="bold red") + Text(str(exc)))
         raise SystemExit(EXIT_USAGE if isinstance(exc, _USAGE_ERRORS) else EXIT_FAILURE) from None

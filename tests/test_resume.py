@@ -25,7 +25,7 @@ def _run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 def _start_until_first_checkpoint(tmp_path: Path) -> subprocess.Popen:
     """A run of short_trail saving at every checkpoint, once its first state is saved."""
     run = subprocess.Popen([str(EXE), "run", "short_trail", "--out", "res", "--quiet", "--checkpoint-every", "0"],
-                           cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                           cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     state = tmp_path / "res.partial" / "checkpoint" / "state.pkl"
     deadline = time.time() + 120
     while not state.is_file() and run.poll() is None and time.time() < deadline:
@@ -77,3 +77,17 @@ def test_a_full_disk_is_one_line_exit_1_and_the_partial_folder_stays(tmp_path):
     assert result.stderr.strip().splitlines() == [
         "error: res.partial/checkpoint/inputs.pkl: cannot write the checkpoint: File too large"]
     assert (tmp_path / "res.partial").is_dir() and not (tmp_path / "res").exists()
+
+
+def test_ctrl_c_says_where_the_work_is_and_the_run_resumes_from_there(tmp_path):
+    """SIGINT used to stop a run silently (typer turns it into a bare exit 130)."""
+    interrupted = _start_until_first_checkpoint(tmp_path)
+    interrupted.send_signal(signal.SIGINT)
+    _, err = interrupted.communicate(timeout=60)
+    assert interrupted.returncode == 130
+    _, saved = read_checkpoint(tmp_path / "res.partial")
+    assert err == ("interrupted: what was done is in res.partial; `pancam-graph run --resume res.partial` goes on "
+                   f"from stop {saved.next_stop}\n")
+    resumed = _run("run", "--resume", "res.partial", "--quiet", cwd=tmp_path)
+    assert resumed.returncode == 0, resumed.stderr
+    assert (tmp_path / "res" / "trajectory_full.tum").is_file()
