@@ -251,6 +251,11 @@ class FrontendConfig(_Strict):
     max_motion_px: float = Field(150.0, gt=0.0, description="descriptor detectors: image motion between frames")
     odometry_aided: bool = Field(True, description="image folders with dead reckoning: search each track where "
                                  "the odometry says it went (MER's VO does the same)")
+    ground_warp: bool = Field(True, description="with the motion known: track features on the ground from the "
+                              "previous image warped by the ground's homography (no perspective bias: "
+                              "docs/frontend.md)")
+    ground_warp_range_m: float = Field(25.0, gt=0.0, description="ground plane fitted to features nearer than this")
+    ground_warp_tolerance_m: float = Field(0.15, gt=0.0, description="a feature this near the plane is on it")
     prediction_gate_px: float = Field(
         20.0, gt=0.0, description="with the motion since the last frame known (wheel odometry): a track whose "
         "offset from its predicted position differs from the median offset by more is dropped")

@@ -220,3 +220,35 @@ def test_the_odometry_prediction_puts_a_feature_where_the_moved_camera_sees_it()
     assert ok.all() and np.abs(uv1 - uv0).max() > 100  # the features really moved
     np.testing.assert_allclose(predicted, uv1, atol=1e-2)
     np.testing.assert_allclose(disparity, d1, rtol=1e-5)
+
+
+def test_the_ground_homography_maps_ground_points_and_leaves_out_rocks():
+    """The plane fitted to the near features, with the odometry's motion, carries every ground
+    point of the previous image onto where the moved camera sees it; points off the ground
+    (rocks) are not counted on it."""
+    import gtsam
+
+    from pancam_graph.frontend.tracker import CameraMotion
+    from pancam_graph.rig import rig_preset
+
+    rig = rig_preset("exomars")
+    body_T_camera = rig.body_T_left(0.0, -0.3).matrix()
+    body_step = gtsam.Pose3(gtsam.Rot3.Yaw(np.radians(4.0)), np.array([1.5, 0.1, 0.0])).matrix()
+    rng = np.random.default_rng(1)
+    ground = np.column_stack([rng.uniform(4.0, 20.0, 60), rng.uniform(-4.0, 4.0, 60), np.zeros(60)])
+    rocks = np.column_stack([rng.uniform(5.0, 15.0, 8), rng.uniform(-3.0, 3.0, 8), np.full(8, 0.4)])
+    points = np.vstack([ground, rocks])
+
+    def seen(world_T_body):
+        camera = np.linalg.inv(world_T_body @ body_T_camera)
+        p = points @ camera[:3, :3].T + camera[:3, 3]
+        return rig.wac.project(p, distort=False), rig.wac.fx * rig.baseline_m / p[:, 2]
+
+    uv0, d0 = seen(np.eye(4))
+    uv1, _ = seen(body_step)
+    motion = CameraMotion.from_body_motion(body_step, body_T_camera, rig.wac, rig.baseline_m)
+    homography, on_plane = motion.ground_homography(uv0, d0, max_range_m=25.0, tolerance_m=0.15)
+    assert on_plane[:60].all() and not on_plane[60:].any()
+    mapped = cv2.perspectiveTransform(uv0[:60].reshape(-1, 1, 2), homography).reshape(-1, 2)
+    assert np.abs(uv1[:60] - uv0[:60]).max() > 50  # the ground really moved in the image
+    np.testing.assert_allclose(mapped, uv1[:60], atol=1e-3)

@@ -13,8 +13,9 @@ Three detectors (`FrontendConfig.detector`):
   forward-backward check (the default: see docs/frontend.md for the comparison), optionally
   found cell by cell (`detection_grid`, as MER's VO picks its corners). Given the
   camera's motion since the last frame (`CameraMotion`, from wheel odometry), each track's
-  search starts where its triangulated point reprojects, and a track whose offset from that
-  prediction strays from the others' is dropped;
+  search starts where its triangulated point reprojects, features on the ground are tracked
+  from the previous image warped by the ground's homography (`ground_warp`), and a track
+  whose offset from its prediction strays from the others' is dropped;
 - `orb`, `sift`: keypoints and descriptors, stereo matching by descriptor along the row,
   temporal matching by descriptor near the previous position, both mutual; the disparity is
   then refined to sub-pixel by Lucas-Kanade.
@@ -79,6 +80,42 @@ class CameraMotion:
         """From the body's motion (previous_T_current, 4x4) and the camera's mount on the body."""
         camera_motion = np.linalg.inv(body_T_camera) @ previous_T_current @ body_T_camera
         return CameraMotion(np.linalg.inv(camera_motion), camera, baseline_m)
+
+    def ground_homography(self, uv: np.ndarray, disparity: np.ndarray, max_range_m: float,
+                          tolerance_m: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """The homography that the ground near the camera induces between the previous and the
+        current image (previous pixels -> current pixels), and which features lie on it: a plane
+        fitted (RANSAC) to the previous frame's triangulated features nearer than `max_range_m`.
+        None when too few near features agree on a plane."""
+        p = triangulate_rectified(uv[:, 0], uv[:, 0] - disparity, uv[:, 1], self.camera, self.baseline_m)
+        near = np.flatnonzero(np.isfinite(p[:, 2]) & (p[:, 2] < max_range_m))
+        if len(near) < 20:
+            return None
+        # RANSAC over 100 planes through three near features at once
+        q = p[near]
+        a, b, c = q[np.random.default_rng(0).integers(0, len(q), (3, 100))]
+        normals = np.cross(b - a, c - a)
+        length = np.linalg.norm(normals, axis=1)
+        normals, a = normals[length > 1e-9] / length[length > 1e-9, None], a[length > 1e-9]
+        if not len(normals):
+            return None
+        counts = (np.abs(q @ normals.T - np.einsum("ij,ij->i", normals, a)) < tolerance_m).sum(axis=0)
+        best = int(np.argmax(counts))
+        if counts[best] < 20:
+            return None
+        on = np.abs(q @ normals[best] - normals[best] @ a[best]) < tolerance_m
+        # least squares over the plane's inliers: n . X = d with |n| = 1 (the scatter's smallest axis)
+        points = q[on] - q[on].mean(axis=0)
+        centre = q[on].mean(axis=0)
+        normal = np.linalg.eigh(points.T @ points)[1][:, 0]
+        offset = float(normal @ centre)
+        if abs(offset) < 0.3:  # the camera on the plane: no homography
+            return None
+        on_plane = np.zeros(len(uv), bool)
+        on_plane[near] = np.abs(p[near] @ normal - offset) < tolerance_m
+        R, t = self.current_T_previous[:3, :3], self.current_T_previous[:3, 3]
+        K = self.camera.matrix()
+        return K @ (R + np.outer(t, normal) / offset) @ np.linalg.inv(K), on_plane
 
     def predict(self, uv: np.ndarray, disparity: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Predicted pixel positions and disparities of features (uv, disparity) of the previous
@@ -146,9 +183,15 @@ class StereoTracker:
         corners = self._detection.submit(self._corners, left, c.max_features + len(uv))
         if self._previous_left is not None and len(uv):
             guess = uv
+            warp = None
             if motion is not None:
+                if c.ground_warp:
+                    warp = motion.ground_homography(uv, disparity, c.ground_warp_range_m, c.ground_warp_tolerance_m)
                 guess, disparity, _ = motion.predict(uv, disparity)  # disparity: where stereo starts
-            moved, ok = self._flow(self._previous_left, left, uv, guess)
+            if warp is None:
+                moved, ok = self._flow(self._previous_left, left, uv, guess)
+            else:
+                moved, ok = self._flow_over_ground(self._previous_left, left, uv, guess, *warp)
             if motion is not None and ok.sum() > 2:
                 # The odometry's heading error moves every track alike; a track that strays from
                 # the others' offset has locked onto another texture element.
@@ -235,6 +278,21 @@ class StereoTracker:
             ok[check] = (status.ravel() == 1) & (
                 np.linalg.norm(back.reshape(-1, 2) - points[check], axis=1) < self.config.mutual_max_px)
         return p1, ok
+
+    def _flow_over_ground(self, previous, current, uv, guess, homography, on_plane):
+        """Optical flow with the ground's perspective change taken out: a near ground patch grows
+        10-30 % from one stop to the next, which biases translation-only Lucas-Kanade by pixels
+        (docs/frontend.md). Features on the ground are tracked from the previous image warped
+        into the current view by the ground's homography; the others from the image as it is."""
+        moved, ok = np.zeros_like(uv), np.zeros(len(uv), bool)
+        rest = ~on_plane
+        moved[rest], ok[rest] = self._flow(previous, current, uv[rest], guess[rest])
+        h, w = previous.shape
+        warped = cv2.warpPerspective(previous, homography, (w, h), flags=cv2.INTER_LINEAR)
+        there = cv2.perspectiveTransform(uv[on_plane].reshape(-1, 1, 2).astype(np.float64), homography)
+        moved[on_plane], ok[on_plane] = self._flow(warped, current, there.reshape(-1, 2).astype(np.float32),
+                                                   guess[on_plane])
+        return moved, ok
 
     def _stereo_flow(self, left, right, uv, disparity) -> tuple[np.ndarray, np.ndarray]:
         """Right-image positions by optical flow from the left, started at the last disparity
