@@ -549,6 +549,66 @@ def eval_command(
         print(json.dumps(document, indent=2))
 
 
+@app.command("sweep")
+def sweep_command(
+    spec: Path = typer.Argument(..., help="sweep specification (TOML): scenarios, seeds, rigs, estimator variants"),
+    out: Path = typer.Option(..., "--out", help="sweep folder: a results folder per run under runs/, and the tables; "
+                             "run again on the same folder, it skips the runs already done"),
+    workers: int = typer.Option(2, "--workers", min=1, help="local Dask cluster of this many workers"),
+    scheduler: str | None = typer.Option(None, "--scheduler", help="an existing Dask cluster's scheduler address "
+                                         "(tcp://host:8786) instead of a local one; its workers need "
+                                         "pancam-graph and --out on a shared file system"),
+    quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
+) -> None:
+    """Run every combination of scenarios x rigs x estimator variants x seeds on Dask, one task
+    per run, each writing its own results folder; then read their metrics into runs.csv and
+    summary.csv (efficiency and ANEES over the seeds, as `bench --monte-carlo`). A run that
+    fails or times out is recorded (runs_status.csv) and the others go on."""
+    from .sweep.runner import run_sweep
+    from .sweep.spec import load_spec, plan
+    from .sweep.table import run_rows, summarize, write_tables
+
+    try:
+        sweep = load_spec(spec)
+        runs = plan(sweep, out, spec.parent)
+        (out / "sweep.toml").write_text(spec.read_text(encoding="utf-8"), encoding="utf-8")
+    except PancamGraphError as exc:
+        raise _fail(exc, bad_input=True) from None
+    start = time.perf_counter()
+    with _progress_bar(quiet) as bar:
+        task = bar.add_task(f"{escape(spec.stem)}: runs", total=len(runs))
+
+        def report(record, done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total)
+            if record.status in ("failed", "timeout"):
+                bar.console.print(Text(f"{record.run.name}: {record.status}: {record.message}", style="yellow"))
+
+        try:
+            records = run_sweep(runs, sweep.timeout_s, workers, scheduler, report)
+        except PancamGraphError as exc:
+            raise _fail(exc) from None
+    try:
+        rows = run_rows(records)
+        summary = summarize(rows)
+        write_tables(out, records, rows, summary)
+    except PancamGraphError as exc:
+        raise _fail(exc) from None
+    table = Table(title=f"{escape(spec.stem)}: {len(runs)} runs", box=None, padding=(0, 1))
+    for column in ("scenario", "rig", "variant", "config", "runs", "closure %", "ATE m", "efficiency", "ANEES"):
+        table.add_column(column)
+    for row in summary:
+        table.add_row(escape(row.scenario), row.rig, escape(row.variant), escape(row.config), str(row.runs),
+                      f"{row.closure_pct_mean:.3f}", f"{row.ate_m_mean:.2f}",
+                      "-" if row.efficiency is None else f"{row.efficiency:.2f}",
+                      "-" if row.anees is None else f"{row.anees:.2f} ({row.covariance})")
+    Console(width=120).print(table)
+    counts = {status: sum(r.status == status for r in records) for status in ("done", "skipped", "failed", "timeout")}
+    console.print(f"wall {time.perf_counter() - start:.1f} s; " + ", ".join(f"{n} {k}" for k, n in counts.items())
+                  + f"; tables in {out} (runs.csv, summary.csv, runs_status.csv)")
+    if counts["failed"] or counts["timeout"]:
+        raise typer.Exit(EXIT_FAILURE)
+
+
 @app.command("bench")
 def bench_command(
     scenario: str = typer.Argument("denver_trail", help="bundled scenario name or path to a TOML file, or "

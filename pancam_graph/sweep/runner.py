@@ -1,0 +1,86 @@
+"""Runs a sweep's runs on a Dask cluster: one task per run, each a `pancam-graph run` process
+of its own (a crash or a hang of one run cannot take a worker or the sweep with it, and a
+timeout can stop it), writing its own results folder. Runs already done are skipped."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal
+
+from ..errors import ConfigError
+from .spec import SweepRun
+
+Status = Literal["done", "skipped", "failed", "timeout"]
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """How one run of a sweep ended."""
+
+    run: SweepRun
+    status: Status
+    wall_s: float
+    message: str = ""
+
+
+def run_one(run: SweepRun, timeout_s: float) -> RunRecord:
+    """One run as its own `pancam-graph run` process (the task a worker executes)."""
+    command = [sys.executable, "-m", "pancam_graph", "run", str(run.scenario_file), "--seed", str(run.seed),
+               "--out", str(run.folder), "--quiet"]
+    if run.configs:
+        command += ["--configs", ",".join(run.configs)]
+    start = time.perf_counter()
+    try:
+        finished = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        return RunRecord(run, "timeout", time.perf_counter() - start, f"stopped after {timeout_s:g} s")
+    wall = time.perf_counter() - start
+    if finished.returncode != 0:
+        lines = [line for line in finished.stderr.splitlines() if line.strip()]
+        why = lines[-1] if lines else f"exit {finished.returncode}"
+        return RunRecord(run, "failed", wall, f"exit {finished.returncode}: {why}")
+    return RunRecord(run, "done", wall)
+
+
+def run_sweep(runs: list[SweepRun], timeout_s: float, workers: int = 2, scheduler: str | None = None,
+              progress: Callable[[RunRecord, int, int], None] | None = None) -> list[RunRecord]:
+    """Every run not done yet, on a local Dask cluster of `workers` (or the cluster at
+    `scheduler`); a run that fails, crashes or times out is recorded and the others go on."""
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    records = [RunRecord(r, "skipped", 0.0, "done by an earlier invocation") for r in runs if r.done]
+    todo = [r for r in runs if not r.done]
+    if progress is not None:
+        for record in records:
+            progress(record, len(records), len(runs))
+    if not todo:
+        return records
+    if scheduler is None:
+        # The tasks are processes of their own, so threads are enough to drive them.
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=False, dashboard_address=None)
+    else:
+        cluster = None
+    try:
+        client = Client(cluster if cluster is not None else scheduler, timeout="30s")
+    except OSError as exc:
+        raise ConfigError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+    try:
+        futures = {client.submit(run_one, run, timeout_s, key=f"run-{run.name}", pure=False): run for run in todo}
+        for future in as_completed(futures):
+            run = futures[future]
+            try:
+                record = future.result()
+            except Exception as exc:  # the worker itself failed (killed, lost): the run is recorded
+                record = RunRecord(run, "failed", 0.0, f"{type(exc).__name__}: {exc}")
+            records.append(record)
+            if progress is not None:
+                progress(record, len(records), len(runs))
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    return records

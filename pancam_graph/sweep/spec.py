@@ -1,0 +1,103 @@
+"""A sweep specification (TOML) and the runs it expands to."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pydantic import Field, ValidationError, model_validator
+
+from ..config import Scenario, _Strict, dump_scenario, load_scenario, load_toml_model, resolve_scenario
+from ..errors import ConfigError
+
+RUN_TIMEOUT_S = 3600.0
+
+
+class SweepVariant(_Strict):
+    """A named set of estimator options applied on top of each scenario's own."""
+
+    name: str = Field(pattern=r"^[A-Za-z0-9_.-]{1,40}$")
+    estimator: dict[str, Any] = Field(default_factory=dict)
+
+
+class SweepSpec(_Strict):
+    """Every run of the grid scenarios x rigs x variants x seeds."""
+
+    scenarios: list[str] = Field(min_length=1, description="bundled names or scenario TOML files")
+    seeds: int = Field(1, ge=1, le=100_000, description="this many consecutive seeds per combination")
+    first_seed: int = Field(0, ge=0)
+    rigs: list[str] = Field(default_factory=list, description="rig presets; empty: each scenario's own")
+    configs: list[str] | None = Field(None, min_length=1, description="configurations to run (default: all)")
+    variants: list[SweepVariant] = Field(default_factory=lambda: [SweepVariant(name="default")], min_length=1)
+    timeout_s: float = Field(RUN_TIMEOUT_S, gt=0.0, le=7 * 86400.0, description="a run longer than this is "
+                             "stopped and recorded as timed out")
+
+    @model_validator(mode="after")
+    def _names_unique(self) -> SweepSpec:
+        names = [v.name for v in self.variants]
+        if len(set(names)) != len(names):
+            raise ValueError(f"variant names must differ: {names}")
+        return self
+
+
+@dataclass(frozen=True)
+class SweepRun:
+    """One run of a sweep: a resolved scenario file, a seed and where its results go."""
+
+    scenario: str
+    rig: str
+    variant: str
+    seed: int
+    scenario_file: Path
+    folder: Path
+    configs: tuple[str, ...] | None
+
+    @property
+    def name(self) -> str:
+        return self.folder.name
+
+    @property
+    def done(self) -> bool:
+        return (self.folder / "metrics.json").is_file()
+
+
+def load_spec(path: Path) -> SweepSpec:
+    return load_toml_model(path, SweepSpec, "sweep specification")
+
+
+def plan(spec: SweepSpec, out: Path, spec_folder: Path = Path(".")) -> list[SweepRun]:
+    """Write each combination's resolved scenario into `out/scenarios/` (checked now, not in a
+    worker) and list every run. A scenario file is found relative to the spec's folder."""
+    scenario_folder = Path(out) / "scenarios"
+    try:
+        scenario_folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"--out {out}: cannot create the sweep folder: {exc.strerror}") from None
+    runs = []
+    for name in spec.scenarios:
+        beside = spec_folder / name
+        base = load_scenario(beside if name.endswith(".toml") and beside.is_file() else resolve_scenario(name))
+        for rig in spec.rigs or [base.rig]:
+            for variant in spec.variants:
+                scenario = _combined(base, rig, variant, name)
+                label = f"{scenario.name}-{rig}-{variant.name}"
+                path = scenario_folder / f"{label}.toml"
+                path.write_text(dump_scenario(scenario), encoding="utf-8")
+                for seed in range(spec.first_seed, spec.first_seed + spec.seeds):
+                    runs.append(SweepRun(scenario.name, rig, variant.name, seed, path,
+                                         Path(out) / "runs" / f"{label}-seed{seed}",
+                                         tuple(spec.configs) if spec.configs else None))
+    return runs
+
+
+def _combined(base: Scenario, rig: str, variant: SweepVariant, name: str) -> Scenario:
+    data = base.model_dump(mode="json")
+    data["rig"] = rig
+    data["estimator"] = {**data["estimator"], **variant.estimator}
+    try:
+        scenario = Scenario.model_validate(data)
+    except ValidationError as exc:
+        problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+        raise ConfigError(f"sweep: scenario {name} with rig {rig} and variant {variant.name}: {problems}") from None
+    return scenario

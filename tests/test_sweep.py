@@ -1,0 +1,77 @@
+"""`pancam-graph sweep` on a local Dask cluster (issue 16): one results folder per run, a run
+that fails is recorded while the others finish, a second invocation skips what is done, and
+the reducer's efficiency and ANEES are bench --monte-carlo's."""
+
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from pancam_graph.config import resolve_scenario
+from pancam_graph.evaluation.consistency import monte_carlo_summary
+from pancam_graph.pipeline import RunOptions, run
+
+EXE = Path(sys.executable).parent / "pancam-graph"
+SPEC = """
+scenarios = ["short_trail", "no_sites.toml"]
+seeds = 2
+configs = ["vo_sites"]
+"""
+
+
+def _sweep(tmp_path: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([str(EXE), "sweep", "spec.toml", "--out", "sweep", "--workers", "2", "--quiet"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=600)
+
+
+def _rows(path: Path) -> list[dict]:
+    with path.open(encoding="utf-8") as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.fixture(scope="module")
+def swept(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("sweep")
+    (folder / "spec.toml").write_text(SPEC)
+    # a scenario without sites: its vo_sites runs fail ("this traverse cannot feed it")
+    no_sites = resolve_scenario("short_trail").read_text().replace('name = "short_trail"', 'name = "no_sites"')
+    (folder / "no_sites.toml").write_text(no_sites + "\n[sites]\nenabled = false\n")
+    return folder, _sweep(folder)
+
+
+def test_a_failing_run_is_recorded_and_the_others_finish(swept):
+    folder, first = swept
+    assert first.returncode == 1, first.stderr
+    assert "2 done, 0 skipped, 2 failed" in first.stderr
+    status = {r["run"]: r for r in _rows(folder / "sweep" / "runs_status.csv")}
+    assert {r["status"] for n, r in status.items() if n.startswith("short_trail")} == {"done"}
+    for name in ("no_sites-exomars-default-seed0", "no_sites-exomars-default-seed1"):
+        assert status[name]["status"] == "failed" and "cannot feed it" in status[name]["message"]
+    for seed in (0, 1):
+        assert (folder / "sweep" / "runs" / f"short_trail-exomars-default-seed{seed}" / "metrics.json").is_file()
+
+
+def test_the_summary_is_bench_monte_carlos(swept, short_scenario):
+    folder, _ = swept
+    (summary,) = _rows(folder / "sweep" / "summary.csv")
+    assert (summary["scenario"], summary["config"], summary["runs"]) == ("short_trail", "vo_sites", "2")
+    serial = monte_carlo_summary([run(short_scenario, RunOptions(seed=s, configs=("vo_sites",)))
+                                  .configurations["vo_sites"].consistency for s in (0, 1)])
+    assert float(summary["efficiency"]) == pytest.approx(serial["efficiency"], rel=1e-9)
+    assert float(summary["anees"]) == pytest.approx(serial["anees"], rel=1e-9)
+
+
+def test_a_second_invocation_skips_the_runs_done(swept):
+    folder, _ = swept
+    again = _sweep(folder)
+    assert "0 done, 2 skipped, 2 failed" in again.stderr, again.stderr
+    assert len(_rows(folder / "sweep" / "runs.csv")) == 2  # the two done runs, read back
+
+
+def test_a_bad_spec_names_the_field(tmp_path):
+    (tmp_path / "spec.toml").write_text('scenarios = ["short_trail"]\nseeds = 0\n')
+    result = _sweep(tmp_path)
+    assert result.returncode == 2 and "spec.toml: invalid sweep specification" in result.stderr
+    assert "field 'seeds'" in result.stderr and "Traceback" not in result.stderr
