@@ -190,6 +190,7 @@ def run_command(
     resume: Path | None = typer.Option(None, "--resume", help="go on with a run that was killed (kill -9, power "
                                        "loss, out of memory) from its last checkpoint: its <out>.partial folder; "
                                        "the run keeps its own source and options"),
+    no_plots: bool = typer.Option(False, "--no-plots", help="no PNG figures (1-2 s per run: sweeps skip them)"),
     checkpoint_every: float = typer.Option(30.0, "--checkpoint-every", min=0.0, help="seconds between the "
                                            "checkpoints saved for --resume (and at most 5 % of the run's time); "
                                            "0: at every site and every 25 stops"),
@@ -224,7 +225,7 @@ def run_command(
             raise _fail(exc, bad_input=True) from None
         console.print(f"resuming {inputs.data.traverse.name} at stop {state.next_stop} of "
                       f"{len(inputs.data.traverse.stops)} (from {partial})")
-        _run_source(inputs.data, inputs.options, out, target, quiet, checkpoint_every, resume=state)
+        _run_source(inputs.data, inputs.options, out, target, quiet, checkpoint_every, not no_plots, resume=state)
         return
     source = source or "denver_trail"
     try:
@@ -243,7 +244,7 @@ def run_command(
         console.print(Text("fix left out: ", style="yellow") + Text(reason))
     if len(data.rejected) > 10:
         console.print(Text(f"... {len(data.rejected) - 10} more fixes left out", style="yellow"))
-    _run_source(data, options, out, target, quiet, checkpoint_every)
+    _run_source(data, options, out, target, quiet, checkpoint_every, not no_plots)
 
 
 def _partial_and_out(resume: Path) -> tuple[Path, Path]:
@@ -319,7 +320,7 @@ def _check_out(out: Path | None) -> None:
 
 
 def _run_source(data: SourceData, options: RunOptions, out: Path | None, target, quiet: bool,
-                checkpoint_every: float, resume: RunState | None = None) -> None:
+                checkpoint_every: float, figures: bool = True, resume: RunState | None = None) -> None:
     """Run the back-end into a results folder; with `resume`, go on from that saved state in the
     killed run's own staging folder."""
     from .io.checkpoint import CheckpointWriter, RunInputs, remove_checkpoint
@@ -354,7 +355,7 @@ def _run_source(data: SourceData, options: RunOptions, out: Path | None, target,
                     source=data.info, scenario=data.scenario, held_out=data.held_out, save=checkpoints,
                     resume=resume))
                 write_run(result, folder)
-                report = write_report(result, folder)
+                report = write_report(result, folder, figures)
                 remove_checkpoint(folder)
             finally:
                 if recording is not None:  # also on failure: keep what was recorded

@@ -50,7 +50,9 @@ def test_a_failing_run_is_recorded_and_the_others_finish(swept):
     for name in ("no_sites-exomars-default-seed0", "no_sites-exomars-default-seed1"):
         assert status[name]["status"] == "failed" and "cannot feed it" in status[name]["message"]
     for seed in (0, 1):
-        assert (folder / "sweep" / "runs" / f"short_trail-exomars-default-seed{seed}" / "metrics.json").is_file()
+        run = folder / "sweep" / "runs" / f"short_trail-exomars-default-seed{seed}"
+        assert (run / "metrics.json").is_file() and (run / "report.md").is_file()
+        assert not list(run.glob("*.png"))  # sweep runs skip the figures (--no-plots)
 
 
 def test_the_summary_is_bench_monte_carlos(swept, short_scenario):

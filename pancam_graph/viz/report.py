@@ -21,16 +21,18 @@ FIGURES = (
 )
 
 
-def write_report(result: RunResult, folder: Path) -> Path:
-    """Write the PNG figures and `report.md` into `folder`; return the report's path."""
-    for filename, plot, _ in FIGURES:
-        plot(result, folder / filename)
+def write_report(result: RunResult, folder: Path, figures: bool = True) -> Path:
+    """Write `report.md` and (unless `figures` is False) its PNG figures into `folder`; return
+    the report's path."""
+    if figures:
+        for filename, plot, _ in FIGURES:
+            plot(result, folder / filename)
     path = folder / "report.md"
-    path.write_text(report_markdown(result), encoding="utf-8")
+    path.write_text(report_markdown(result, figures), encoding="utf-8")
     return path
 
 
-def report_markdown(result: RunResult) -> str:
+def report_markdown(result: RunResult, figures: bool = True) -> str:
     tr = result.traverse
     stops = tr.stops
     length = plots.reference_distance(result)[-1]
@@ -76,9 +78,9 @@ def report_markdown(result: RunResult) -> str:
         "a GPS outlier is a fix failing the chi-square test at the estimate after its update; held-out fixes are "
         "never in any graph.",
         "",
-        "## Figures",
-        "",
     ]
-    for filename, _, caption in FIGURES:
-        lines += [f"![{filename}]({filename})", "", caption, ""]
+    if figures:
+        lines += ["## Figures", ""]
+        for filename, _, caption in FIGURES:
+            lines += [f"![{filename}]({filename})", "", caption, ""]
     return "\n".join(lines)
