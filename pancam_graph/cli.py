@@ -25,7 +25,7 @@ from rich.progress import (
 from rich.table import Table
 from rich.text import Text
 
-from .errors import ConfigError, FolderInUse, FrameError, InputError, PancamGraphError, ViewerUnavailable
+from .errors import ConfigError, FolderInUse, FrameError, InputError, PancamGraphError, ResultsError, ViewerUnavailable
 
 if TYPE_CHECKING:  # the heavy imports wait until a command needs them: --help stays fast
     from .pipeline import RunState
@@ -622,6 +622,8 @@ def bench_command(
                                                       "and report the overhead"),
     monte_carlo: int = typer.Option(0, "--monte-carlo", min=0, help="run this many seeds and report each "
                                     "configuration's efficiency (RMSE / CRLB) and ANEES with its chi-square band"),
+    workers: int = typer.Option(0, "--workers", min=0, help="with --monte-carlo: run the seeds as a sweep on a "
+                                "local Dask cluster of this many workers (0: one after another in this process)"),
 ) -> None:
     """Time full runs (all configurations) and print one JSON object; `bench frontend SOURCE`
     times the image front-end per stage."""
@@ -637,6 +639,9 @@ def bench_command(
         raise _fail(ConfigError("SOURCE and --detector go with 'bench frontend' only"), bad_input=True)
     if monte_carlo:
         seeds = max(seeds, monte_carlo)
+        if workers:
+            _bench_monte_carlo_sweep(scenario, seed, seeds, workers)
+            return
     try:
         sc = _load(scenario)
         first = sc.seed if seed is None else seed
@@ -693,6 +698,36 @@ def bench_command(
         report["monte_carlo"] = {n: monte_carlo_summary([r.configurations[n].consistency for r in results])
                                  for n in results[0].configurations
                                  if all(r.configurations[n].consistency is not None for r in results)}
+    print(json.dumps(report, indent=2))
+
+
+def _bench_monte_carlo_sweep(scenario: str, seed: int | None, seeds: int, workers: int) -> None:
+    """bench --monte-carlo as a sweep: the same summary, the runs on a local Dask cluster."""
+    import tempfile
+
+    from .config import resolve_scenario
+    from .sweep.runner import run_sweep
+    from .sweep.spec import SweepSpec, plan
+    from .sweep.table import monte_carlo, run_rows
+
+    try:
+        sc = _load(scenario)
+        first = sc.seed if seed is None else seed
+        spec = SweepSpec(scenarios=[str(resolve_scenario(scenario).resolve())], seeds=seeds, first_seed=first)
+        start = time.perf_counter()
+        with tempfile.TemporaryDirectory(prefix="pancam-graph-bench-") as folder:
+            records = run_sweep(plan(spec, Path(folder)), spec.timeout_s, workers)
+            failed = [r for r in records if r.status != "done"]
+            if failed:
+                raise ResultsError(f"{len(failed)} of {len(records)} runs failed; first: {failed[0].run.name}: "
+                                   f"{failed[0].message}")
+            rows = run_rows(records)
+    except PancamGraphError as exc:
+        raise _fail(exc) from None
+    configs = dict.fromkeys(row["config"] for row in rows)
+    report = {"scenario": sc.name, "seeds": list(range(first, first + seeds)), "workers": workers,
+              "wall_s": time.perf_counter() - start,
+              "monte_carlo": {c: mc for c in configs if (mc := monte_carlo([r for r in rows if r["config"] == c]))}}
     print(json.dumps(report, indent=2))
 
 

@@ -3,6 +3,7 @@ that fails is recorded while the others finish, a second invocation skips what i
 the reducer's efficiency and ANEES are bench --monte-carlo's."""
 
 import csv
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -55,14 +56,29 @@ def test_a_failing_run_is_recorded_and_the_others_finish(swept):
         assert not list(run.glob("*.png"))  # sweep runs skip the figures (--no-plots)
 
 
-def test_the_summary_is_bench_monte_carlos(swept, short_scenario):
+@pytest.fixture(scope="module")
+def serial(short_scenario):
+    """vo_sites over seeds 0 and 1, run one after another in this process."""
+    return monte_carlo_summary([run(short_scenario, RunOptions(seed=s, configs=("vo_sites",)))
+                                .configurations["vo_sites"].consistency for s in (0, 1)])
+
+
+def test_the_summary_is_bench_monte_carlos(swept, serial):
     folder, _ = swept
     (summary,) = _rows(folder / "sweep" / "summary.csv")
     assert (summary["scenario"], summary["config"], summary["runs"]) == ("short_trail", "vo_sites", "2")
-    serial = monte_carlo_summary([run(short_scenario, RunOptions(seed=s, configs=("vo_sites",)))
-                                  .configurations["vo_sites"].consistency for s in (0, 1)])
     assert float(summary["efficiency"]) == pytest.approx(serial["efficiency"], rel=1e-9)
     assert float(summary["anees"]) == pytest.approx(serial["anees"], rel=1e-9)
+
+
+def test_bench_monte_carlo_runs_as_a_sweep_with_workers(tmp_path, serial):
+    result = subprocess.run([str(EXE), "bench", "short_trail", "--monte-carlo", "2", "--workers", "2"], cwd=tmp_path,
+                            capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    assert report["seeds"] == [0, 1] and report["workers"] == 2
+    assert report["monte_carlo"]["vo_sites"]["efficiency"] == pytest.approx(serial["efficiency"], rel=1e-9)
+    assert report["monte_carlo"]["vo_sites"]["anees"] == pytest.approx(serial["anees"], rel=1e-9)
 
 
 def test_a_second_invocation_skips_the_runs_done(swept):

@@ -63,9 +63,7 @@ def summarize(rows: list[dict]) -> list[ConfigSummary]:
     for (scenario, rig, variant, config), group in sorted(groups.items()):
         closure = [r["relative_closure_pct"] for r in group if r.get("relative_closure_pct") is not None]
         ate = [r["ate_rmse_m"] for r in group if r.get("ate_rmse_m") is not None]
-        consistency = [Consistency(r["rmse_m"], r["crlb_rms_m"], r["efficiency"], r["anees"], (0.0, 0.0))
-                       for r in group if r.get("anees") is not None and r.get("crlb_rms_m") is not None]
-        mc = monte_carlo_summary(consistency) if len(consistency) == len(group) else None
+        mc = monte_carlo(group)
         out.append(ConfigSummary(
             scenario, rig, variant, config, len(group),
             float(np.mean(closure)) if closure else float("nan"), float(np.max(closure)) if closure else float("nan"),
@@ -73,6 +71,14 @@ def summarize(rows: list[dict]) -> list[ConfigSummary]:
             mc["efficiency"] if mc else None, mc["anees"] if mc else None,
             tuple(mc["anees_band"]) if mc else None, mc["covariance"] if mc else ""))
     return out
+
+
+def monte_carlo(rows: list[dict]) -> dict | None:
+    """bench --monte-carlo's summary of one configuration's runs; None unless every run has
+    truth (efficiency and ANEES need it)."""
+    consistency = [Consistency(r["rmse_m"], r["crlb_rms_m"], r["efficiency"], r["anees"], (0.0, 0.0))
+                   for r in rows if r.get("anees") is not None and r.get("crlb_rms_m") is not None]
+    return monte_carlo_summary(consistency) if rows and len(consistency) == len(rows) else None
 
 
 def write_tables(out: Path, records: list[RunRecord], rows: list[dict], summary: list[ConfigSummary]) -> None:
