@@ -160,8 +160,9 @@ def test_bench_prints_json():
 def test_scenarios_lists_bundled_files():
     result = runner.invoke(app, ["scenarios"])
     assert result.exit_code == 0
-    for name in ("denver_trail", "straight_500m", "gps_multipath", "short_trail"):
+    for name in ("denver_trail", "straight_500m", "gps_multipath", "short_trail", "long_traverse"):
         assert name in result.output
+    assert "(invalid" not in result.output
 
 
 def test_the_reproduce_line_reproduces_the_run(tmp_path, monkeypatch):
