@@ -128,6 +128,22 @@ def percentiles(ms: np.ndarray) -> dict[str, float]:
     return {"median": float(np.median(ms)), "p99": float(np.percentile(ms, 99)), "max": float(ms.max())}
 
 
+def cost_along(result: RunResult, window_m: float = 1000.0) -> dict[str, list[dict]]:
+    """Per configuration, the iSAM2 update time in windows of `window_m` of the path (reference
+    distance when there is truth, else the configuration's own): is the cost flat along the
+    traverse?"""
+    out = {}
+    for name, c in result.configurations.items():
+        positions = result.truth.positions if result.truth is not None else c.world_T_body[:, :3, 3]
+        distance = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))]
+        stops = np.array([s.stop for s in c.steps], dtype=int)
+        window = (distance[stops] // window_m).astype(int)
+        ms = c.update_ms
+        out[name] = [{"from_m": w * window_m, "updates": int((window == w).sum()), **percentiles(ms[window == w])}
+                     for w in range(int(window.max()) + 1) if (window == w).any()]
+    return out
+
+
 def metrics_document(result: RunResult) -> dict:
     """The content of metrics.json."""
     vo_motions = [m for m in result.motions[1:] if m is not None]

@@ -155,6 +155,11 @@ def test_bench_prints_json():
     assert report["isam2_update_ms"]["median"] > 0
     assert report["isam2_update_ms"]["p99"] >= report["isam2_update_ms"]["median"]
     assert report["wall_s"] > 0 and report["peak_rss_mb"] > 0
+    # cost along the path, per 1 km window (short_trail: one window holding every stop's update)
+    assert [w["updates"] for w in report["isam2_update_ms_per_km"]["vo"]] == [report["stops"][0]]
+    along = report["peak_rss_mb_along_path"]
+    assert len(along) >= 2 and along[-1]["at_m"] > along[0]["at_m"]
+    assert along[-1]["peak_rss_mb"] >= along[0]["peak_rss_mb"] > 0
 
 
 def test_scenarios_lists_bundled_files():
