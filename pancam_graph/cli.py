@@ -624,6 +624,8 @@ def bench_command(
                                     "configuration's efficiency (RMSE / CRLB) and ANEES with its chi-square band"),
     workers: int = typer.Option(0, "--workers", min=0, help="with --monte-carlo: run the seeds as a sweep on a "
                                 "local Dask cluster of this many workers (0: one after another in this process)"),
+    plot: Path | None = typer.Option(None, "--plot", help="also draw the first seed's cost along the path (iSAM2 "
+                                     "update per km, peak memory) into this PNG"),
 ) -> None:
     """Time full runs (all configurations) and print one JSON object; `bench frontend SOURCE`
     times the image front-end per stage."""
@@ -675,6 +677,15 @@ def bench_command(
     # the first seed's cost along the path: flat, or growing with the traverse?
     report["isam2_update_ms_per_km"] = cost_along(results[0], 1000.0)
     report["peak_rss_mb_along_path"] = memory.along(results[0])
+    if plot is not None:
+        from .viz.plots import plot_cost_along
+
+        try:
+            plot_cost_along(report["isam2_update_ms_per_km"], report["peak_rss_mb_along_path"],
+                            f"{sc.name} seed {first}", plot)
+        except OSError as exc:
+            raise _fail(ResultsError(f"--plot {plot}: cannot write it: {exc.strerror}")) from None
+        report["plot"] = str(plot)
     if rerun:
         ratios = np.array(recorded_walls) / np.array(walls)
         report["rerun_save"] = {

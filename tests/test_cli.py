@@ -148,8 +148,8 @@ def test_bad_rerun_option_is_a_usage_error_and_writes_nothing(tmp_path):
     assert not out.exists() and not (tmp_path / "out.partial").exists()
 
 
-def test_bench_prints_json():
-    result = runner.invoke(app, ["bench", "short_trail"])
+def test_bench_prints_json(tmp_path):
+    result = runner.invoke(app, ["bench", "short_trail", "--plot", str(tmp_path / "cost.png")])
     assert result.exit_code == 0, result.output
     report = json.loads(result.stdout)
     assert report["isam2_update_ms"]["median"] > 0
@@ -160,6 +160,7 @@ def test_bench_prints_json():
     along = report["peak_rss_mb_along_path"]
     assert len(along) >= 2 and along[-1]["at_m"] > along[0]["at_m"]
     assert along[-1]["peak_rss_mb"] >= along[0]["peak_rss_mb"] > 0
+    assert (tmp_path / "cost.png").stat().st_size > 10_000
 
 
 def test_scenarios_lists_bundled_files():

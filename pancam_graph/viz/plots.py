@@ -178,3 +178,20 @@ def evaluation_plot(evaluation: Evaluation, path: Path) -> None:
     _label(err, "distance along the reference (m)", "position error (m)",
            f"ATE RMSE {evaluation.metrics.ate_rmse_m:.3f} m")
     _save(fig, path)
+
+
+def plot_cost_along(per_km: dict[str, list[dict]], memory: list[dict], title: str, path: Path) -> None:
+    """bench's cost against distance: each configuration's iSAM2 update median (line) and p99
+    (dashed) per window of path, and the process's peak memory along the path. Flat is bounded."""
+    fig, (ax, mem) = plt.subplots(2, 1, figsize=(9, 7), dpi=110, sharex=True, height_ratios=[2, 1])
+    for name, windows in per_km.items():
+        km = [(w["from_m"] + 500.0) / 1000.0 for w in windows]
+        colour = _COLOURS.get(name)
+        ax.plot(km, [w["median"] for w in windows], "-o", ms=3, color=colour, label=f"{name} median")
+        ax.plot(km, [w["p99"] for w in windows], "--", color=colour, alpha=0.6)
+    ax.set_yscale("log")
+    _label(ax, "", "iSAM2 update per stop (ms)", f"{title}: cost along the traverse (dashed: p99)")
+    mem.plot([m["at_m"] / 1000.0 for m in memory], [m["peak_rss_mb"] for m in memory], color="k",
+             label="peak resident memory so far")
+    _label(mem, "distance along the path (km)", "peak RSS (MB)", "")
+    _save(fig, path)
