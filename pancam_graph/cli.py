@@ -334,7 +334,7 @@ def _run_source(data: SourceData, options: RunOptions, out: Path | None, target,
     try:
         with results_folder(out, resume=resume is not None) as folder:
             checkpoints = CheckpointWriter(folder, RunInputs(data, options), checkpoint_every,
-                                           write_inputs=resume is None)
+                                           resumed_from=resume.next_stop if resume is not None else None)
             listener = None
             if target is not None:
                 from dataclasses import replace
@@ -631,7 +631,7 @@ def bench_command(
     times the image front-end per stage."""
     import numpy as np
 
-    from .pipeline import run
+    from .pipeline import PeakMemory, run
     from .results import RunOptions, cost_along, percentiles
 
     if scenario == "frontend":
@@ -648,7 +648,7 @@ def bench_command(
         sc = _load(scenario)
         first = sc.seed if seed is None else seed
         results, walls, recorded_walls = [], [], []
-        memory = _PeakMemory()
+        memory = PeakMemory()
         for s in range(first, first + seeds):
             start = time.perf_counter()
             results.append(run(sc, RunOptions(seed=s), listener=memory if s == first else None))
@@ -676,7 +676,9 @@ def bench_command(
     }
     # the first seed's cost along the path: flat, or growing with the traverse?
     report["isam2_update_ms_per_km"] = cost_along(results[0], 1000.0)
-    report["peak_rss_mb_along_path"] = memory.along(results[0])
+    distance = results[0].reference_distance()
+    report["peak_rss_mb_along_path"] = [{"at_m": round(float(distance[k]), 1), "peak_rss_mb": round(mb, 1)}
+                                        for k, mb in memory.samples]
     if plot is not None:
         from .viz.plots import plot_cost_along
 
@@ -714,34 +716,6 @@ def bench_command(
                                  for n in results[0].configurations
                                  if all(r.configurations[n].consistency is not None for r in results)}
     print(json.dumps(report, indent=2))
-
-
-class _PeakMemory:
-    """A run listener noting the process's peak resident memory at every checkpoint."""
-
-    def __init__(self):
-        self.samples: list[tuple[int, float]] = []
-
-    def start(self, traverse, truth, localizers) -> None:
-        self.samples = []
-
-    def step(self, stop, motion, steps) -> None:
-        pass
-
-    def checkpoint(self, stop) -> None:
-        self.samples.append((stop.index, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0))
-
-    def finish(self, result) -> None:
-        pass
-
-    def along(self, result: RunResult) -> list[dict]:
-        """[{at_m, peak_rss_mb}] along the reference path (the first configuration's own without truth)."""
-        import numpy as np
-
-        first = next(iter(result.configurations.values()))
-        positions = result.truth.positions if result.truth is not None else first.world_T_body[:, :3, 3]
-        distance = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))]
-        return [{"at_m": round(float(distance[k]), 1), "peak_rss_mb": round(mb, 1)} for k, mb in self.samples]
 
 
 def _bench_monte_carlo_sweep(scenario: str, seed: int | None, seeds: int, workers: int) -> None:

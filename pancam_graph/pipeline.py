@@ -3,6 +3,7 @@ stop by stop, then evaluate each against the reference, the GPS fixes and the he
 
 from __future__ import annotations
 
+import resource
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -68,6 +69,16 @@ class NullListener:
 
     def finish(self, result) -> None:
         pass
+
+
+class PeakMemory(NullListener):
+    """Notes the process's peak resident memory (MB) at every checkpoint: [(stop, MB)]."""
+
+    def start(self, traverse, truth, localizers) -> None:
+        self.samples: list[tuple[int, float]] = []
+
+    def checkpoint(self, stop) -> None:
+        self.samples.append((stop.index, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0))
 
 
 def select_configurations(estimator: EstimatorConfig, traverse: Traverse, requested: tuple[str, ...] | None

@@ -121,6 +121,23 @@ class RunResult:
             return self.scenario.description
         return f"{self.source.kind} {self.source.path}"
 
+    def reference_positions(self) -> tuple[np.ndarray, str]:
+        """The truth at each stop, or without one the last (richest) configuration's estimate,
+        and which it is."""
+        if self.truth is not None:
+            return self.truth.positions, "truth"
+        name = list(self.configurations)[-1]
+        return self.configurations[name].world_T_body[:, :3, 3], f"{name} estimate (no truth)"
+
+    def reference_distance(self) -> np.ndarray:
+        """Distance travelled along the reference at each stop (m)."""
+        return travelled(self.reference_positions()[0])
+
+
+def travelled(positions: np.ndarray) -> np.ndarray:
+    """Distance travelled along a polyline at each of its points (m)."""
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))])
+
 
 def percentiles(ms: np.ndarray) -> dict[str, float]:
     if len(ms) == 0:
@@ -129,13 +146,11 @@ def percentiles(ms: np.ndarray) -> dict[str, float]:
 
 
 def cost_along(result: RunResult, window_m: float = 1000.0) -> dict[str, list[dict]]:
-    """Per configuration, the iSAM2 update time in windows of `window_m` of the path (reference
-    distance when there is truth, else the configuration's own): is the cost flat along the
-    traverse?"""
+    """Per configuration, the iSAM2 update time in windows of `window_m` along the reference
+    path: is the cost flat along the traverse?"""
+    distance = result.reference_distance()
     out = {}
     for name, c in result.configurations.items():
-        positions = result.truth.positions if result.truth is not None else c.world_T_body[:, :3, 3]
-        distance = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))]
         stops = np.array([s.stop for s in c.steps], dtype=int)
         window = (distance[stops] // window_m).astype(int)
         ms = c.update_ms

@@ -103,11 +103,10 @@ class CameraMotion:
         best = int(np.argmax(counts))
         if counts[best] < 20:
             return None
-        on = np.abs(q @ normals[best] - normals[best] @ a[best]) < tolerance_m
+        inliers = q[np.abs(q @ normals[best] - normals[best] @ a[best]) < tolerance_m]
         # least squares over the plane's inliers: n . X = d with |n| = 1 (the scatter's smallest axis)
-        points = q[on] - q[on].mean(axis=0)
-        centre = q[on].mean(axis=0)
-        normal = np.linalg.eigh(points.T @ points)[1][:, 0]
+        centre = inliers.mean(axis=0)
+        normal = np.linalg.eigh((inliers - centre).T @ (inliers - centre))[1][:, 0]
         offset = float(normal @ centre)
         if abs(offset) < 0.3:  # the camera on the plane: no homography
             return None
@@ -244,12 +243,11 @@ class StereoTracker:
             distance, _ = cKDTree(tracked).query(found, distance_upper_bound=c.min_distance_px)
             far = distance > c.min_distance_px  # inf when no track is that near
             found, cell = found[far], cell[far]
-        cells = self._cells(image.shape)
         g = c.detection_grid
         h, w = image.shape
         tracked_cell = (np.clip(tracked[:, 1] * g // h, 0, g - 1) * g + np.clip(tracked[:, 0] * g // w, 0, g - 1))
-        already = np.bincount(tracked_cell.astype(int), minlength=len(cells))
-        first = np.searchsorted(cell, np.arange(len(cells)))  # corners come cell by cell, strongest first
+        already = np.bincount(tracked_cell.astype(int), minlength=g * g)
+        first = np.searchsorted(cell, np.arange(g * g))  # corners come cell by cell, strongest first
         rank = np.arange(len(found)) - first[cell] + already[cell]
         found = found[np.argsort(rank, kind="stable")[:count]]
         if not len(found):

@@ -45,12 +45,13 @@ class CheckpointWriter:
     """Called by the run loop at every checkpoint with the run's state."""
 
     def __init__(self, folder: Path, inputs: RunInputs, min_interval_s: float = 30.0, max_overhead: float = 0.05,
-                 write_inputs: bool = True):
+                 resumed_from: int | None = None):
+        """`resumed_from`: the stop a resumed run goes on from (its inputs and state are there)."""
         self.folder = Path(folder) / CHECKPOINT_DIR
-        self.inputs = inputs
+        self.shared = _shared(inputs)
         self.min_interval_s = min_interval_s
         self.max_overhead = max_overhead
-        self.saved_stop: int | None = None  # the stop a resumed run would go on from
+        self.saved_stop = resumed_from  # the stop a resumed run would go on from
         self.saves = 0
         self.save_s = 0.0
         self._last_end = time.perf_counter()
@@ -59,7 +60,7 @@ class CheckpointWriter:
             self.folder.mkdir(exist_ok=True)
         except OSError as exc:
             raise ResultsError(f"{self.folder}: cannot create the checkpoint folder: {exc.strerror}") from None
-        if write_inputs:  # a resumed run's are there already
+        if resumed_from is None:
             _write_atomically(self.folder / INPUTS_FILE, _dumps(inputs, {}))
 
     def __call__(self, state: RunState) -> None:
@@ -67,7 +68,7 @@ class CheckpointWriter:
         if self.min_interval_s > 0 and since < max(self.min_interval_s, self._last_cost / self.max_overhead):
             return
         start = time.perf_counter()
-        _write_atomically(self.folder / STATE_FILE, _dumps(state, _shared(self.inputs)))
+        _write_atomically(self.folder / STATE_FILE, _dumps(state, self.shared))
         self._last_end = time.perf_counter()
         self._last_cost = self._last_end - start
         self.saved_stop = state.next_stop

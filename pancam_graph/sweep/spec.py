@@ -8,7 +8,7 @@ from typing import Any
 
 from pydantic import Field, ValidationError, model_validator
 
-from ..config import Scenario, _Strict, dump_scenario, load_scenario, load_toml_model, resolve_scenario
+from ..config import Scenario, _describe, _Strict, dump_scenario, load_scenario, load_toml_model, resolve_scenario
 from ..errors import ConfigError
 
 RUN_TIMEOUT_S = 3600.0
@@ -98,6 +98,6 @@ def _combined(base: Scenario, rig: str, variant: SweepVariant, name: str) -> Sce
     try:
         scenario = Scenario.model_validate(data)
     except ValidationError as exc:
-        problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+        problems = "; ".join(_describe(e) for e in exc.errors())
         raise ConfigError(f"sweep: scenario {name} with rig {rig} and variant {variant.name}: {problems}") from None
     return scenario

@@ -14,18 +14,10 @@ import numpy as np  # noqa: E402
 
 from ..evaluation.evaluate import Evaluation  # noqa: E402
 from ..pipeline import antenna_at_times, gps_enu  # noqa: E402
-from ..results import RunResult  # noqa: E402
+from ..results import RunResult, travelled  # noqa: E402
 
 _COLOURS = {"dead_reckoning": "tab:purple", "dead_reckoning_gps": "tab:brown", "vo": "tab:red",
             "vo_sites": "tab:orange", "vo_sites_hrc": "tab:green", "full": "tab:blue"}
-
-
-def reference_positions(result: RunResult) -> tuple[np.ndarray, str]:
-    """The truth at each stop, or without one the last (richest) configuration's estimate."""
-    if result.truth is not None:
-        return result.truth.positions, "truth"
-    name = list(result.configurations)[-1]
-    return result.configurations[name].world_T_body[:, :3, 3], f"{name} estimate (no truth)"
 
 
 def plot_trajectories(result: RunResult, path: Path) -> None:
@@ -36,7 +28,7 @@ def plot_trajectories(result: RunResult, path: Path) -> None:
     _, held = gps_enu(result.traverse, result.held_out_fixes)
     if len(held):
         ax.scatter(held[:, 0], held[:, 1], s=6, marker="x", c="tab:red", label="held-out GPS fixes", zorder=1)
-    truth, _ = reference_positions(result)
+    truth, _ = result.reference_positions()
     if result.truth is not None:
         ax.plot(truth[:, 0], truth[:, 1], "k-", lw=2.0, label="truth", zorder=2)
     for name, c in result.configurations.items():
@@ -53,20 +45,11 @@ def plot_trajectories(result: RunResult, path: Path) -> None:
     _save(fig, path)
 
 
-def reference_distance(result: RunResult) -> np.ndarray:
-    """Distance travelled along the reference (see `reference_positions`) at each stop (m)."""
-    return _accumulated(reference_positions(result)[0])
-
-
-def _accumulated(positions: np.ndarray) -> np.ndarray:
-    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))])
-
-
 def distance_scale(result: RunResult, name: str) -> float:
     """Least-squares slope (through the origin) of estimated against reference travelled distance:
     below 1, the estimate comes out short (the seed's Fig. 4.12 found 0.93 for its VO)."""
-    ref = reference_distance(result)
-    est = _accumulated(result.configurations[name].world_T_body[:, :3, 3])
+    ref = result.reference_distance()
+    est = travelled(result.configurations[name].world_T_body[:, :3, 3])
     return float(ref @ est / (ref @ ref))
 
 
@@ -75,7 +58,7 @@ def plot_error_vs_distance(result: RunResult, path: Path) -> None:
         _plot_gps_error(result, path)
         return
     truth = result.truth.positions
-    dist = reference_distance(result)
+    dist = result.reference_distance()
     fig, ax = plt.subplots(figsize=(9, 4.5), dpi=110)
     for name, c in result.configurations.items():
         err = np.linalg.norm(c.world_T_body[:, :3, 3] - truth, axis=1)
@@ -99,7 +82,7 @@ def _plot_gps_error(result: RunResult, path: Path) -> None:
     what = "held-out GPS fixes" if result.held_out_fixes else "GPS fixes in the graph"
     times, enu = gps_enu(result.traverse, fixes)
     fig, ax = plt.subplots(figsize=(9, 4.5), dpi=110)
-    dist = _accumulated(enu)
+    dist = travelled(enu)
     for name, c in result.configurations.items():
         antenna = antenna_at_times(result.traverse, c.world_T_body, times)
         ax.plot(dist, np.linalg.norm(antenna[:, :2] - enu[:, :2], axis=1), color=_COLOURS.get(name), lw=1.0,
@@ -113,11 +96,11 @@ def _plot_gps_error(result: RunResult, path: Path) -> None:
 
 def plot_distance_relation(result: RunResult, path: Path) -> None:
     """Estimated against reference travelled distance (seed Fig. 4.12) and their difference."""
-    ref = reference_distance(result)
+    ref = result.reference_distance()
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.5), dpi=110)
-    left.plot(ref, ref, "k-", lw=2.0, label=f"reference ({reference_positions(result)[1]})")
+    left.plot(ref, ref, "k-", lw=2.0, label=f"reference ({result.reference_positions()[1]})")
     for name, c in result.configurations.items():
-        est = _accumulated(c.world_T_body[:, :3, 3])
+        est = travelled(c.world_T_body[:, :3, 3])
         label = f"{name} (scale {distance_scale(result, name):.4f})"
         left.plot(ref, est, color=_COLOURS.get(name), lw=1.2, label=label)
         right.plot(ref, est - ref, color=_COLOURS.get(name), lw=1.2, label=name)
@@ -131,7 +114,7 @@ def plot_distance_relation(result: RunResult, path: Path) -> None:
 
 def plot_elevation_profile(result: RunResult, path: Path) -> None:
     """Height against reference travelled distance (seed Fig. 4.14)."""
-    ref = reference_distance(result)
+    ref = result.reference_distance()
     fig, ax = plt.subplots(figsize=(9, 4.5), dpi=110)
     times, gps = gps_enu(result.traverse)
     if len(times):
@@ -171,7 +154,7 @@ def evaluation_plot(evaluation: Evaluation, path: Path) -> None:
     plan.plot(*ref[0, :2], "go", ms=8, label="start")
     plan.set_aspect("equal", adjustable="datalim")
     _label(plan, "east (m)", "north (m)", "trajectories")
-    distance = _accumulated(ref)
+    distance = travelled(ref)
     err.plot(distance, np.linalg.norm(est - ref, axis=1), "-", color="tab:blue", lw=1.0, label="3-D")
     err.plot(distance, np.linalg.norm(est[:, :2] - ref[:, :2], axis=1), "-", color="tab:orange", lw=1.0,
              label="horizontal")

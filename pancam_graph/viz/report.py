@@ -35,14 +35,14 @@ def write_report(result: RunResult, folder: Path, figures: bool = True) -> Path:
 def report_markdown(result: RunResult, figures: bool = True) -> str:
     tr = result.traverse
     stops = tr.stops
-    length = plots.reference_distance(result)[-1]
+    length = result.reference_distance()[-1]
     where = " in this folder" if result.scenario is not None else ""
     lines = [
         f"# {result.name}, seed {result.seed}",
         "",
         f"{result.description}",
         "",
-        f"- rig: {tr.rig.name}; {len(stops)} stops over {length:.1f} m ({plots.reference_positions(result)[1]}); "
+        f"- rig: {tr.rig.name}; {len(stops)} stops over {length:.1f} m ({result.reference_positions()[1]}); "
         f"{sum(s.is_site for s in stops)} sites with panoramas; {len(tr.gps_fixes)} GPS fixes in the graph"
         + (f", {len(result.held_out_fixes)} held out" if result.held_out_fixes else ""),
         f"- source: {result.source.kind} `{result.source.path}`; reference: {result.source.reference}; "
