@@ -353,7 +353,7 @@ def _run_source(data: SourceData, options: RunOptions, out: Path | None, target,
                 result = _with_progress(data.traverse.name, quiet, lambda report: run_traverse(
                     data.traverse, data.truth, data.estimator, data.seed, options, report, listener,
                     source=data.info, scenario=data.scenario, held_out=data.held_out, save=checkpoints,
-                    resume=resume))
+                    resume=resume, vo_motions=data.vo_motions))
                 write_run(result, folder)
                 report = write_report(result, folder, figures)
                 remove_checkpoint(folder)
@@ -613,8 +613,10 @@ def sweep_command(
 @app.command("bench")
 def bench_command(
     scenario: str = typer.Argument("denver_trail", help="bundled scenario name or path to a TOML file, or "
-                                   "'frontend' to time the image front-end on SOURCE"),
-    source: str | None = typer.Argument(None, help="with 'frontend': stereo images (a KITTI odometry sequence)"),
+                                   "'frontend' to time the image front-end on SOURCE, or 'sites' to measure the "
+                                   "site panoramas' matching on the image folder SOURCE"),
+    source: str | None = typer.Argument(None, help="with 'frontend': stereo images (a KITTI odometry sequence); "
+                                        "with 'sites': a rendered image folder"),
     detector: str | None = typer.Option(None, "--detector", help="with 'frontend': gftt, orb or sift"),
     seed: int | None = typer.Option(None, "--seed", help="first seed (default: the scenario's)"),
     seeds: int = typer.Option(1, "--seeds", min=1, help="run this many consecutive seeds and summarise"),
@@ -636,6 +638,9 @@ def bench_command(
 
     if scenario == "frontend":
         _bench_frontend(source, detector)
+        return
+    if scenario == "sites":
+        _bench_sites(source, seeds if seeds > 1 else 3)
         return
     if source is not None or detector is not None:
         raise _fail(ConfigError("SOURCE and --detector go with 'bench frontend' only"), bad_input=True)
@@ -746,6 +751,127 @@ def _bench_monte_carlo_sweep(scenario: str, seed: int | None, seeds: int, worker
               "wall_s": time.perf_counter() - start,
               "monte_carlo": {c: mc for c in configs if (mc := monte_carlo([r for r in rows if r["config"] == c]))}}
     print(json.dumps(report, indent=2))
+
+
+def _bench_sites(source: str | None, compared_sites: int) -> None:
+    """The site panoramas of an image folder: pan/tilt-aided against unaided (SIFT) matching of
+    overlapping frames on the first `compared_sites` sites, and the tie points between every pair
+    of sites; each checked against the renderer's truth when the folder names a bundled scenario."""
+    import os
+
+    import numpy as np
+
+    from .config import FrontendConfig, bundled_scenarios
+    from .frontend.motion import VoMotions
+    from .frontend.panorama import PanoramaMatcher, PanoramaView, unaided_matches
+    from .io.observations import is_image_folder, read_observations
+    from .render.truth import RenderedTruth
+    from .sources import image_folder
+    from .sources.site_images import with_site_panoramas
+
+    if source is None or not is_image_folder(Path(source)):
+        raise _fail(ConfigError(f"bench sites {source or ''}: give an image folder with site panoramas "
+                                "(pancam-graph render SCENARIO --out FOLDER writes one)"), bad_input=True)
+    load_before = os.getloadavg()
+    try:
+        obs = read_observations(Path(source))
+        scenario = bundled_scenarios().get(obs.traverse.name)
+        truth = None if scenario is None or obs.truth is None else RenderedTruth(
+            _load(str(scenario)), obs.seed, obs.truth.world_T_body, obs.traverse.rig.wac)
+        pairs = image_folder.FramePairs(obs)
+        size = pairs.size
+
+        def read_view(image):
+            pair = (image_folder.read_gray(image.left, size), image_folder.read_gray(image.right, size))
+            return pair if pairs.rectify is None else pairs.rectify(*pair)
+
+        with _progress_bar() as bar:
+            task = bar.add_task("front-end", total=len(obs.traverse.stops))
+            tracked = image_folder.load(Path(source), FrontendConfig(), sites=False,
+                                        progress=lambda _, done, total: bar.update(task, completed=done, total=total))
+        vo = VoMotions.estimate(tracked.traverse, tracked.estimator)
+        with _progress_bar() as bar:
+            task = bar.add_task("site panoramas", total=None)
+            _, report = with_site_panoramas(obs, list(tracked.traverse.stops), read_view, vo, FrontendConfig(),
+                                            progress=lambda _, done, total: bar.update(task, completed=done,
+                                                                                       total=total))
+        # aided against unaided matching of overlapping frames, on the first sites
+        rig = obs.traverse.rig
+        matcher = PanoramaMatcher(rig.wac, rig.baseline_m)
+        aided = {"frame_pairs": 0, "links": 0, "seconds": 0.0, "errors": []}
+        unaided = {"frame_pairs": 0, "matches": 0, "seconds": 0.0, "errors": []}
+        by_stop: dict[int, list] = {}
+        for image in obs.panorama_frames:
+            if image.camera == "wac":
+                by_stop.setdefault(image.stop, []).append(image)
+        for stop in sorted(by_stop)[:compared_sites]:
+            views = [PanoramaView(im.pan_rad, im.tilt_rad, rig.body_T_left(im.pan_rad, im.tilt_rad).matrix(),
+                                  *read_view(im)) for im in by_stop[stop]]
+            matcher(stop, 0, views)
+            for i, a in enumerate(views):
+                for b in views[i + 1:]:
+                    start = time.perf_counter()
+                    links = matcher.overlap_matches(a, b)
+                    aided["seconds"] += time.perf_counter() - start
+                    if not links:
+                        continue
+                    aided["frame_pairs"] += 1
+                    aided["links"] += len(links)
+                    start = time.perf_counter()
+                    ua, ub = unaided_matches(a, b)
+                    unaided["seconds"] += time.perf_counter() - start
+                    unaided["frame_pairs"] += 1
+                    unaided["matches"] += len(ua)
+                    if truth is None:
+                        continue
+                    uv_a = dict(zip(a.observations.track_ids.tolist(), a.observations.uvv[:, [0, 2]], strict=True))
+                    uv_b = dict(zip(b.observations.track_ids.tolist(), b.observations.uvv[:, [0, 2]], strict=True))
+                    aided["errors"] += [truth.transfer_error((stop, a.body_T_camera, uv_a[ta]),
+                                                             (stop, b.body_T_camera, uv_b[tb])) for ta, tb in links]
+                    unaided["errors"] += [truth.transfer_error((stop, a.body_T_camera, pa), (stop, b.body_T_camera, pb))
+                                          for pa, pb in zip(ua, ub, strict=True)]
+    except PancamGraphError as exc:
+        raise _fail(exc, bad_input=True) from None
+
+    def scored(errors: list[float], within_px: float) -> dict:
+        e = np.asarray(errors)
+        if not len(e):
+            return {}
+        return {f"correct_within_{within_px:g}px_pct": round(100.0 * float(np.mean(e < within_px)), 2),
+                "median_error_px": round(float(np.median(e)), 3)}
+
+    site = {s.stop: s for s in report.sites}
+    pair_rows, tie_errors = [], []
+    for pair in report.pairs:
+        errors = [] if truth is None else [truth.transfer_error(
+            (pair.a_stop, site[pair.a_stop].views[t.a_view].body_T_camera, t.a_uvv[[0, 2]]),
+            (pair.b_stop, site[pair.b_stop].views[t.b_view].body_T_camera, t.b_uvv[[0, 2]]))
+            for t in pair.result.ties]
+        tie_errors += errors
+        pair_rows.append({"a_stop": pair.a_stop, "b_stop": pair.b_stop, "distance_m": round(pair.distance_m, 1),
+                          "adjacent": pair.b_stop == report.next_site(pair.a_stop),
+                          "candidates": pair.result.candidates, "matched": len(pair.result.matches),
+                          "verified": len(pair.result.ties), "seconds": round(pair.result.seconds, 2),
+                          "note": pair.result.note, **scored(errors, 3.0)})
+    adjacent = [r["verified"] for r in pair_rows if r["adjacent"]]
+    print(json.dumps({
+        "source": source, "sites": len(report.sites), "summary": report.summary(),
+        "truth": "renderer depth at the true poses" if truth is not None else None,
+        "ties": {"total": sum(len(p.result.ties) for p in report.pairs),
+                 "adjacent_pairs_fewest": min(adjacent) if adjacent else 0,
+                 "adjacent_pairs_median": float(np.median(adjacent)) if adjacent else 0.0,
+                 **scored(tie_errors, 3.0), **scored(tie_errors, 2.0), "pairs": pair_rows},
+        "overlapping_frames": {
+            "sites": min(compared_sites, len(by_stop)),
+            "pan_tilt_aided": {k: v for k, v in aided.items() if k != "errors"} | scored(aided["errors"], 2.0),
+            "unaided_sift": {k: v for k, v in unaided.items() if k != "errors"} | scored(unaided["errors"], 2.0),
+            "note": "aided: seconds of back-projection, warping and optical flow over every frame pair (the "
+                    "stereo features are the site's own); unaided: SIFT detection and matching of the left "
+                    "images and a RANSAC fundamental matrix, on the frame pairs the aided matching found "
+                    "overlapping",
+        },
+        "load_average_1min": {"before": load_before[0], "after": os.getloadavg()[0]},
+    }, indent=2))
 
 
 def _bench_frontend(source: str | None, detector: str | None) -> None:

@@ -176,6 +176,9 @@ class EstimatorConfig(_Strict):
     vo_scale_sigma: float = Field(0.01, gt=0.0, lt=0.5, description="vo_scale kind: 1-sigma scale error "
                                   "shared by every VO step (the stereo baseline's calibration)")
     tie_points_per_site: int = Field(150, ge=3)
+    tie_sigma_px: float | None = Field(None, gt=0.0, le=50.0, description="pixel sigma of a landmark's stereo "
+                                       "views at sites; None: the traverse's image noise (tie points matched "
+                                       "across sites from images are found to about 1 px: docs/frontend.md)")
     site_memory: int = Field(3, ge=1, description="earlier sites searched for tie points")
     landmark_anchor_sigma_m: float = Field(3.0, gt=0.0, description="bearing-range anchor of a new "
                                            "landmark from its first site, along and across the line of sight")

@@ -16,7 +16,7 @@ from .errors import ConfigError
 from .evaluation.consistency import consistency, crlb_position_covariances
 from .evaluation.metrics import GPS_REFERENCE_STEP_M, TrajectoryMetrics, compare, decimated_length
 from .evaluation.timed import poses_at_times
-from .frontend.motion import Motion, dead_reckoning_motion, motion_between
+from .frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_between
 from .frontend.stereo_vo import StereoVO
 from .kinds import unavailable
 from .localizer import Localizer, StepResult
@@ -181,10 +181,13 @@ def run_traverse(
     started: float | None = None,
     save: Callable[[RunState], None] | None = None,
     resume: RunState | None = None,
+    vo_motions: VoMotions | None = None,
 ) -> RunResult:
     """Estimate the motion of every stop once, feed every configuration's localizer stop by
     stop, then evaluate each against the reference (when there is one) and GPS. At every
-    checkpoint `save` gets the run's state; a run given `resume` goes on from that state."""
+    checkpoint `save` gets the run's state; a run given `resume` goes on from that state.
+    `vo_motions`: the stops' VO motions when a source has estimated them already (with this
+    estimator configuration)."""
     start = time.perf_counter() if started is None else started
     source = source or SourceInfo("traverse", traverse.name, "truth" if truth is not None else "none")
     listener = listener or NullListener()
@@ -199,6 +202,10 @@ def run_traverse(
         start -= state.elapsed_s
     any_vo = any(loc.uses_vo for loc in localizers.values())
     vo = StereoVO.for_traverse(traverse, estimator) if any_vo else None
+    known = vo_motions.motions if vo_motions is not None and vo_motions.estimator == estimator and len(
+        vo_motions.motions) == n else None
+    if known is not None and resume is None:
+        state.vo_s = vo_motions.seconds
     listener.start(traverse, truth, localizers)
 
     slip = traverse.wheel_slip
@@ -209,7 +216,8 @@ def run_traverse(
             dr_motions.append(dead_reckoning_motion(stop, dr_motions[-1], slip))
             if vo is not None:
                 t0 = time.perf_counter()
-                motions.append(motion_between(vo, traverse.stops[k - 1], stop, motions[-1], slip))
+                motions.append(known[k] if known is not None else
+                               motion_between(vo, traverse.stops[k - 1], stop, motions[-1], slip))
                 state.vo_s += time.perf_counter() - t0
             else:
                 motions.append(dr_motions[-1])

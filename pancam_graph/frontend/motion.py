@@ -6,13 +6,15 @@ covariance when the rover has it, otherwise the previous motion with a wide cova
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Literal
 
 import gtsam
 import numpy as np
 
-from ..records import DeadReckoning, SlipPrior, Stop
+from ..config import EstimatorConfig
+from ..records import DeadReckoning, SlipPrior, Stop, Traverse
 from .stereo_vo import StereoVO
 
 # Without any dead reckoning the bridge only says "the rover moved about as before":
@@ -34,6 +36,27 @@ class Motion:
     @property
     def bridged(self) -> bool:
         return self.source != "vo"
+
+
+@dataclass(frozen=True)
+class VoMotions:
+    """Every stop's motion from the previous one (None for the first), estimated once with this
+    estimator configuration: a source that needed them (the site tie points' predictions) hands
+    them to the run, which estimates them again only under another configuration."""
+
+    estimator: EstimatorConfig
+    motions: tuple[Motion | None, ...]
+    seconds: float = 0.0  # what estimating them took
+
+    @staticmethod
+    def estimate(traverse: Traverse, estimator: EstimatorConfig) -> VoMotions:
+        start = time.perf_counter()
+        vo = StereoVO.for_traverse(traverse, estimator)
+        motions: list[Motion | None] = [None]
+        for k in range(1, len(traverse.stops)):
+            motions.append(motion_between(vo, traverse.stops[k - 1], traverse.stops[k], motions[-1],
+                                          traverse.wheel_slip))
+        return VoMotions(estimator, tuple(motions), time.perf_counter() - start)
 
 
 def motion_between(vo: StereoVO, prev: Stop, curr: Stop, last: Motion | None, slip: SlipPrior) -> Motion:

@@ -52,7 +52,8 @@ class Sites(Kind):
         super().__init__(localizer)
         est = localizer.estimator
         self.rig = localizer.traverse.rig
-        self.sigma_px = localizer.traverse.image_noise_px
+        # the pixel sigma of a landmark's views: the tie noise and the tie gate's triangulations
+        self.sigma_px = est.tie_sigma_px or localizer.traverse.image_noise_px
         self.memory = est.site_memory
         self.anchor_sigma_m = est.landmark_anchor_sigma_m
         self.tie_points_per_site = est.tie_points_per_site

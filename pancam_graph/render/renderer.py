@@ -30,6 +30,7 @@ void main() {
 
 _FRAGMENT = """
 #version 330
+#define MAX_TAPS 8
 uniform vec3 sun;
 uniform float seed;
 in vec3 world;
@@ -49,6 +50,49 @@ float value_noise(vec2 p) {
     return mix(mix(hash(i), hash(i + vec2(1, 0)), u.x), mix(hash(i + vec2(0, 1)), hash(i + vec2(1, 1)), u.x), u.y);
 }
 
+// Albedo averaged over a pixel's footprint: up to `taps` samples along its long side `major`
+// (metres), each faded by `footprint`; an octave (or pebble size) gets two samples per period
+// along the long side, so one much coarser than the pixel is looked up once, at its centre.
+float ground_albedo(vec2 p, vec2 major, int taps, float footprint, bool rock) {
+    float long_side = length(major);
+    float texture = 0.0;
+    float total = 0.0;
+    float scale = 0.00625;                              // finest octave: 6 mm (what the HRC resolves)
+    for (int octave = 0; octave < 11; ++octave) {
+        // fade an octave out as it approaches the footprint (2 px per period at least)
+        float keep = clamp((scale / footprint - 2.0) / 2.0, 0.0, 1.0);
+        if (keep > 0.0) {
+            float value = 0.0;
+            int n = int(clamp(ceil(2.0 * long_side / scale), 1.0, float(taps)));
+            for (int t = 0; t < n; ++t) {
+                value += value_noise((p + major * ((float(t) + 0.5) / float(n) - 0.5)) / scale) - 0.5;
+            }
+            texture += keep * value / float(n);
+        }
+        total += keep;
+        scale *= 2.0;
+    }
+    // pebbles: crisp blobs at two sizes, their edges smoothed over one footprint (antialiased)
+    float pebbles = 0.0;
+    for (int size = 0; size < 2; ++size) {
+        float s = size == 0 ? 0.12 : 0.45;
+        float edge = 0.5 * footprint / s;
+        float keep = clamp((s / footprint - 3.0) / 3.0, 0.0, 1.0);
+        if (keep > 0.0) {
+            float blob = 0.0;
+            int m = int(clamp(ceil(2.0 * long_side / s), 1.0, float(taps)));
+            for (int t = 0; t < m; ++t) {
+                float n = value_noise((p + major * ((float(t) + 0.5) / float(m) - 0.5)) / s + 17.0 * float(size));
+                blob += smoothstep(0.72 - edge, 0.72 + edge, n) - smoothstep(0.22 - edge, 0.22 + edge, 1.0 - n);
+            }
+            pebbles += keep * blob / float(m);
+        }
+    }
+    float c = rock ? contrast - 1.0 : contrast;
+    float base = rock ? 0.38 : 0.45;
+    return base + c * (0.9 * texture / max(total, 1.0) * 1.6 + (rock ? 0.0 : 0.22) * pebbles);
+}
+
 void main() {
     vec3 normal = normalize(cross(dFdx(world), dFdy(world)));
     if (normal.z < 0.0) normal = -normal;
@@ -59,29 +103,19 @@ void main() {
     vec2 p = world.xy;
     if (rock && n.x > n.z && n.x >= n.y) p = world.yz + 31.0;
     else if (rock && n.y > n.z && n.y > n.x) p = world.xz + 57.0;
-    float footprint = max(length(fwidth(p)), 1e-5);   // metres per pixel here
-    float texture = 0.0;
-    float total = 0.0;
-    float scale = 0.00625;                              // finest octave: 6 mm (what the HRC resolves)
-    for (int octave = 0; octave < 11; ++octave) {
-        // fade an octave out as it approaches the pixel footprint (2 px per period at least)
-        float keep = clamp((scale / footprint - 2.0) / 2.0, 0.0, 1.0);
-        if (keep > 0.0) texture += keep * (value_noise(p / scale) - 0.5);
-        total += keep;
-        scale *= 2.0;
-    }
-    // pebbles: crisp blobs at two sizes, their edges smoothed over one pixel (antialiased)
-    float pebbles = 0.0;
-    for (int size = 0; size < 2; ++size) {
-        float s = size == 0 ? 0.12 : 0.45;
-        float n = value_noise(p / s + 17.0 * float(size));
-        float edge = 0.5 * footprint / s;
-        float keep = clamp((s / footprint - 3.0) / 3.0, 0.0, 1.0);
-        pebbles += keep * (smoothstep(0.72 - edge, 0.72 + edge, n) - smoothstep(0.22 - edge, 0.22 + edge, 1.0 - n));
-    }
-    float c = rock ? contrast - 1.0 : contrast;
-    float base = rock ? 0.38 : 0.45;
-    float albedo = base + c * (0.9 * texture / max(total, 1.0) * 1.6 + (rock ? 0.0 : 0.22) * pebbles);
+    // A pixel's footprint on the ground is long along the line of sight (grazing view) and
+    // short across it. Fading the texture by the long side (isotropic filtering) wipes out
+    // pebbles a real camera resolves across the line of sight at 20-40 m; averaging taps along
+    // the long side, each faded by the short side, integrates the pixel as a sensor does.
+    vec2 dx = dFdx(p);
+    vec2 dy = dFdy(p);
+    float lx = length(dx);
+    float ly = length(dy);
+    vec2 major = lx > ly ? dx : dy;
+    float minor = max(min(lx, ly), 1e-5);
+    int taps = int(clamp(ceil(max(lx, ly) / minor), 1.0, float(MAX_TAPS)));
+    float footprint = length(vec2(minor, max(lx, ly) / float(taps)));   // metres per tap
+    float albedo = ground_albedo(p, major, taps, footprint, rock);
     float light = 0.25 + 0.75 * max(dot(normal, sun), 0.0);
     albedo_out = clamp(albedo * light, 0.0, 1.0);
 }
@@ -212,5 +246,5 @@ class _Lens:
 
 def sensor_image(radiance: np.ndarray, rng: np.random.Generator, noise_dn: float = 1.5) -> np.ndarray:
     """8-bit grayscale with Gaussian read noise and quantisation."""
-    dn = radiance * 255.0 + rng.normal(0.0, noise_dn, radiance.shape)
+    dn = radiance * np.float32(255.0) + rng.standard_normal(radiance.shape, dtype=np.float32) * np.float32(noise_dn)
     return np.clip(np.rint(dn), 0, 255).astype(np.uint8)

@@ -14,12 +14,18 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..config import FrontendConfig
-from ..errors import InputError
+from ..errors import FrameError, InputError
+from ..frontend.motion import VoMotions
 from ..frontend.tracker import CameraMotion, StageTimes, StereoTracker
 from ..records import Stop, Traverse
 from ..results import SourceInfo
 from .base import SourceData
 from .frames import median_frame_ms, track_frames
+from .site_images import with_site_panoramas
+
+# Pixel sigma of a landmark's views when its tie points were matched across sites from images:
+# the matches' error against the renderer's truth has a median of 0.45 px and 99 % below 3 px.
+TIE_SIGMA_PX = 1.0
 
 if TYPE_CHECKING:
     from ..io.observations import ObservationSet
@@ -77,9 +83,11 @@ class FramePairs:
 
 
 def load(folder: Path, frontend: FrontendConfig | None = None,
-         progress: Callable[[str, int, int], None] | None = None, skip_bad_frames: bool = False) -> SourceData:
+         progress: Callable[[str, int, int], None] | None = None, skip_bad_frames: bool = False,
+         sites: bool = True) -> SourceData:
     """`skip_bad_frames`: a missing, truncated or wrong-sized image leaves its stop without
-    observations (the VO bridges it) instead of stopping with the message naming the file."""
+    observations (the VO bridges it) instead of stopping with the message naming the file.
+    `sites`: match the site panoramas into tie points (when the folder has them)."""
     from ..io.observations import read_observations
 
     obs = read_observations(folder)
@@ -102,7 +110,40 @@ def load(folder: Path, frontend: FrontendConfig | None = None,
         return SourceData(replace(obs.traverse, stops=tuple(stops)), truth, obs.estimator, obs.seed, info)
 
     camera_motion = odometry_camera_motion(obs.traverse) if frontend.odometry_aided else None
-    return track_frames(obs.traverse.stops, read_pair, tracker, finish, skip_bad_frames, progress, camera_motion)
+    data = track_frames(obs.traverse.stops, read_pair, tracker, finish, skip_bad_frames, progress, camera_motion)
+    if not sites or not any(p.camera == "wac" for p in obs.panorama_frames):
+        return data
+    return with_sites(data, obs, pairs, frontend, skip_bad_frames, progress)
+
+
+def with_sites(data: SourceData, obs: ObservationSet, pairs: FramePairs, frontend: FrontendConfig,
+               skip_bad_frames: bool, progress: Callable[[str, int, int], None] | None) -> SourceData:
+    """The site panoramas' features and tie points (sources/site_images.py) added to the tracked
+    stops. The ties are found to about 1 px (docs/frontend.md): unless the folder says otherwise,
+    the estimator's landmark views get that sigma."""
+    def read_view(image) -> tuple[np.ndarray, np.ndarray]:
+        pair = (read_gray(image.left, pairs.size), read_gray(image.right, pairs.size))
+        return pair if pairs.rectify is None else pairs.rectify(*pair)
+
+    estimator = data.estimator
+    notes = []
+    if estimator.tie_sigma_px is None:
+        estimator = estimator.model_copy(update={"tie_sigma_px": TIE_SIGMA_PX})
+        notes.append(f"tie points matched across sites from images: landmark views at {TIE_SIGMA_PX} px")
+    if progress is not None:
+        progress("stereo VO (tie point predictions)", 0, 1)
+    vo = VoMotions.estimate(data.traverse, estimator)
+    try:
+        stops, report = with_site_panoramas(obs, list(data.traverse.stops), read_view, vo, frontend, skip_bad_frames,
+                                            progress)
+    except FrameError:
+        raise
+    except InputError as exc:  # a panorama frame: every navigation frame's tracking is kept
+        raise FrameError(f"site panorama: {exc} (--skip-bad-frames leaves the frame out)", len(data.traverse.stops),
+                         data) from None
+    info = replace(data.info, notes=(*data.info.notes, report.summary(), *notes, *report.skipped))
+    return replace(data, traverse=replace(data.traverse, stops=tuple(stops)), estimator=estimator, info=info,
+                   vo_motions=vo)
 
 
 def odometry_camera_motion(traverse: Traverse) -> Callable[[np.ndarray], CameraMotion]:

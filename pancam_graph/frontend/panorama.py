@@ -1,0 +1,187 @@
+"""A site's panorama images into stereo features with site-wide tracks.
+
+Every WAC pair of the panorama is matched left to right as the navigation pairs are
+(frontend/tracker.py). Neighbouring frames overlap by a few degrees of pan or tilt; a feature
+seen in two of them is one track. Pan/tilt-aided matching (seed eq. 4.3): the mast angles give
+the relative orientation of the two frames, so each triangulated feature of one frame is
+back-projected into the other, the image is warped by the rotation's homography, and the
+feature is searched for by optical flow only near its prediction; it joins the other frame's
+feature found there.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ..config import FrontendConfig
+from ..records import StereoObservations
+from ..rig import Camera, triangulate_rectified
+from .tracker import StereoTracker
+
+LINK_PX = 1.5  # a flow end point this near the other frame's feature is that feature
+
+
+@dataclass
+class PanoramaView:
+    """One rectified WAC pair of a site panorama and its stereo features (site track ids)."""
+
+    pan_rad: float
+    tilt_rad: float
+    body_T_camera: np.ndarray  # 4x4, the rectified left camera in the body frame
+    left: np.ndarray
+    right: np.ndarray
+    observations: StereoObservations = field(default_factory=StereoObservations.empty)
+
+    def points_camera(self, camera: Camera, baseline_m: float) -> np.ndarray:
+        o = self.observations.uvv
+        return triangulate_rectified(o[:, 0], o[:, 1], o[:, 2], camera, baseline_m)
+
+    def points_body(self, camera: Camera, baseline_m: float) -> np.ndarray:
+        p = self.points_camera(camera, baseline_m)
+        return p @ self.body_T_camera[:3, :3].T + self.body_T_camera[:3, 3]
+
+
+@dataclass
+class SitePanorama:
+    """What a site's panorama gives from images: its views, each with its features."""
+
+    stop: int
+    site: int
+    views: list[PanoramaView]
+    links: int = 0  # features found again in a neighbouring frame (pan/tilt-aided)
+    seconds: float = 0.0
+
+    def track_count(self) -> int:
+        return len({int(t) for v in self.views for t in v.observations.track_ids})
+
+
+class PanoramaMatcher:
+    """Features for every frame of a site's panorama, one track per feature seen in overlapping
+    frames. Track ids are unique over every site the matcher sees."""
+
+    def __init__(self, camera: Camera, baseline_m: float, config: FrontendConfig | None = None, first_id: int = 0):
+        self.camera, self.baseline_m = camera, baseline_m
+        self.config = config or FrontendConfig()
+        self._next_id = first_id
+
+    def new_ids(self, n: int) -> np.ndarray:
+        ids = np.arange(self._next_id, self._next_id + n, dtype=np.int64)
+        self._next_id += n
+        return ids
+
+    def __call__(self, stop: int, site: int, views: list[PanoramaView]) -> SitePanorama:
+        start = time.perf_counter()
+        for view in views:
+            found = StereoTracker(self.config)(view.left, view.right)
+            view.observations = StereoObservations(self.new_ids(len(found)), found.uvv)
+        panorama = SitePanorama(stop, site, views)
+        panorama.links = self._link_overlaps(views)
+        panorama.seconds = time.perf_counter() - start
+        return panorama
+
+    # -- pan/tilt-aided matching between overlapping frames ----------------------------------------
+
+    def _link_overlaps(self, views: list[PanoramaView]) -> int:
+        parent: dict[int, int] = {}
+
+        def root(t: int) -> int:
+            while parent.get(t, t) != t:
+                t = parent[t]
+            return t
+
+        links = 0
+        for i, a in enumerate(views):
+            for b in views[i + 1:]:
+                for ta, tb in self.overlap_matches(a, b):
+                    ra, rb = root(int(ta)), root(int(tb))
+                    if ra != rb:
+                        parent[max(ra, rb)] = min(ra, rb)
+                        links += 1
+        if parent:
+            # A track appears at most once per frame: a merge that would put one track twice in a
+            # frame (two features of one frame joined through others) keeps the first.
+            for view in views:
+                ids = np.array([root(int(t)) for t in view.observations.track_ids], dtype=np.int64)
+                _, first = np.unique(ids, return_index=True)
+                keep = np.zeros(len(ids), bool)
+                keep[first] = True
+                view.observations = StereoObservations(ids[keep], view.observations.uvv[keep])
+        return links
+
+    def overlap_matches(self, a: PanoramaView, b: PanoramaView) -> list[tuple[int, int]]:
+        """(track in a, track in b) for a's features found in b near where the mast angles put
+        them: a's triangulated points back-projected into b, a's image warped into b's view by
+        the rotation between them, Lucas-Kanade from the prediction with a forward-backward check."""
+        cam = self.camera
+        if not len(a.observations) or not len(b.observations):
+            return []
+        b_T_a = np.linalg.inv(b.body_T_camera) @ a.body_T_camera
+        # quick reject: optical axes further apart than the field of view diagonal
+        if b_T_a[2, 2] < np.cos(2.0 * np.arctan(np.hypot(cam.width, cam.height) / (2.0 * cam.fx))):
+            return []
+        p = a.points_camera(cam, self.baseline_m)
+        q = p @ b_T_a[:3, :3].T + b_T_a[:3, 3]
+        front = q[:, 2] > 0.5
+        predicted = np.full((len(q), 2), -1.0)
+        predicted[front] = cam.project(q[front], distort=False)
+        inside = front & cam.in_image(predicted, margin_px=self.config.klt_window_px)
+        if not inside.any():
+            return []
+        # The frames share (nearly) an optical centre: the rotation's homography warps a's image
+        # into b's view, so the flow compares like with like.
+        K = cam.matrix()
+        H = K @ b_T_a[:3, :3] @ np.linalg.inv(K)
+        h, w = a.left.shape
+        warped = cv2.warpPerspective(a.left, H, (w, h), flags=cv2.INTER_LINEAR)
+        start = cv2.perspectiveTransform(a.observations.uvv[inside][:, [0, 2]].reshape(-1, 1, 2), H).reshape(-1, 2)
+        lk = dict(winSize=(self.config.klt_window_px,) * 2, maxLevel=1,
+                  criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+        p0 = start.astype(np.float32).reshape(-1, 1, 2)
+        p1, ok, _ = cv2.calcOpticalFlowPyrLK(warped, b.left, p0, predicted[inside].astype(np.float32).reshape(-1, 1, 2),
+                                             flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
+        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(b.left, warped, p1.copy(), p0.copy(),
+                                                    flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
+        p1, back = p1.reshape(-1, 2), back.reshape(-1, 2)
+        good = ((ok.ravel() == 1) & (ok_back.ravel() == 1)
+                & (np.linalg.norm(back - start, axis=1) < self.config.mutual_max_px))
+        # the feature of b nearest to each flow end point
+        b_uv = b.observations.uvv[:, [0, 2]]
+        distance = np.linalg.norm(p1[:, None, :] - b_uv[None, :, :], axis=2)
+        nearest = np.argmin(distance, axis=1)
+        good &= distance[np.arange(len(p1)), nearest] < LINK_PX
+        # and the two frames' disparities agree with one depth (b's is a's point seen from b)
+        expected = cam.fx * self.baseline_m / q[inside][:, 2]
+        b_disparity = b.observations.uvv[nearest, 0] - b.observations.uvv[nearest, 1]
+        good &= np.abs(b_disparity - expected) < np.maximum(2.0, 0.1 * expected)
+        a_tracks = a.observations.track_ids[inside]
+        return [(int(a_tracks[k]), int(b.observations.track_ids[nearest[k]])) for k in np.flatnonzero(good)]
+
+
+def unaided_matches(a: PanoramaView, b: PanoramaView, features: int = 2000) -> tuple[np.ndarray, np.ndarray]:
+    """For comparison with the aided matching: SIFT over both left images, mutual nearest
+    neighbours with Lowe's ratio test, kept when a fundamental matrix (RANSAC, 1 px) explains them.
+    (uv in a, uv in b)."""
+    sift = cv2.SIFT_create(nfeatures=features)
+    ka, da = sift.detectAndCompute(a.left, None)
+    kb, db = sift.detectAndCompute(b.left, None)
+    none = (np.zeros((0, 2)), np.zeros((0, 2)))
+    if da is None or db is None or len(ka) < 8 or len(kb) < 8:
+        return none
+    matcher = cv2.BFMatcher(cv2.NORM_L2, crossCheck=False)
+    forward = matcher.knnMatch(da, db, k=2)
+    backward = {m[0].queryIdx: m[0].trainIdx for m in matcher.knnMatch(db, da, k=1) if m}
+    pairs = [(m[0].queryIdx, m[0].trainIdx) for m in forward
+             if len(m) == 2 and m[0].distance < 0.8 * m[1].distance and backward.get(m[0].trainIdx) == m[0].queryIdx]
+    if len(pairs) < 8:
+        return none
+    pa = np.float32([ka[i].pt for i, _ in pairs])
+    pb = np.float32([kb[j].pt for _, j in pairs])
+    _, inliers = cv2.findFundamentalMat(pa, pb, cv2.FM_RANSAC, 1.0, 0.999)
+    if inliers is None:
+        return none
+    keep = inliers.ravel() == 1
+    return pa[keep].astype(float), pb[keep].astype(float)

@@ -1,0 +1,403 @@
+"""Tie points between two sites' panoramas, from the images.
+
+The next site sees the ground between the two from the other side, at a grazing angle, tens of
+metres away: a patch looks different from each site. What stays the same is the ground seen
+from above. For every feature of the earlier site (a) whose ground the later site (b) should
+see at a similar range:
+
+1. predict where it is from b, from the relative pose of the two sites and its covariance;
+2. resample the ground around it, on the local plane fitted to a's triangulated features, into
+   a small orthoimage from each site's image (each cell the mean of the pixels over it, as a
+   sensor integrates), the one from b wide enough for the prediction's 3-sigma uncertainty;
+3. find a's orthoimage in b's by normalized cross-correlation: a clear, distinct peak is the
+   feature's ground in b, and b's pixel follows through the same plane and prediction;
+4. match b's pixel into b's right image (the stereo observation);
+5. verify all of a site pair's matches together: one rigid motion must carry a's triangulated
+   points onto b's (RANSAC, Mahalanobis distance with both triangulation covariances), and it
+   must agree with the prediction.
+
+Each verified tie is b's observation of a's track: the back-end's tie gate checks it again.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import gtsam
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.stats import chi2
+
+from ..graph.tie_gate import SitePoint, site_points
+from ..rig import Rig, triangulate_rectified, triangulation_covariance
+from .panorama import SitePanorama
+
+_GATE_3D = float(chi2.ppf(0.999, 3))
+_GATE_6D = float(chi2.ppf(0.999, 6))
+
+
+@dataclass(frozen=True)
+class TieSettings:
+    cell_m: float = 0.06  # orthoimage cell
+    half_cells: int = 16  # a's orthoimage is (2 half + 1) cells square (about 2 m)
+    samples: int = 4  # per cell and axis, averaged
+    min_ncc: float = 0.8
+    distinct: float = 0.1  # the best peak beats any other (4 cells away) by this much
+    range_m: tuple[float, float] = (3.0, 35.0)  # from both sites
+    range_ratio: float = 2.0  # the farther site sees the ground at most this much farther
+    max_search_m: float = 1.5  # on the ground, from the prediction
+    min_search_m: float = 0.3
+    max_candidates: int = 600
+    min_verified: int = 4
+    ransac_iterations: int = 300
+    match_sigma_px: float = 1.0  # of b's pixel found through the orthoimages (measured on renders)
+
+
+@dataclass(frozen=True)
+class RelativePose:
+    """Site b's body pose in site a's body frame and its 6x6 covariance ([rotation,
+    translation], b's frame: a_T_b exp(xi))."""
+
+    a_T_b: np.ndarray
+    covariance: np.ndarray
+
+    @staticmethod
+    def compose(steps: list[tuple[np.ndarray, np.ndarray]]) -> RelativePose:
+        """The chain of (prev_T_curr, covariance) steps from a to b."""
+        pose, cov = np.eye(4), np.zeros((6, 6))
+        for step, step_cov in steps:
+            ad = gtsam.Pose3(np.linalg.inv(step)).AdjointMap()
+            cov = ad @ cov @ ad.T + step_cov
+            pose = pose @ step
+        return RelativePose(pose, cov)
+
+
+@dataclass(frozen=True)
+class Tie:
+    """Site b's stereo observation of site a's track."""
+
+    track: int
+    a_view: int
+    a_uvv: np.ndarray
+    b_view: int
+    b_uvv: np.ndarray
+    ncc: float
+    sigma_cells: float = 0.0  # how well the earlier site's patch can be located (its texture)
+
+
+@dataclass
+class TieResult:
+    ties: list[Tie] = field(default_factory=list)
+    candidates: int = 0  # a's features predicted in b's images at a similar range
+    matches: list[Tie] = field(default_factory=list)  # found by correlation and in b's right image
+    seconds: float = 0.0
+    note: str = ""
+
+
+class TieMatcher:
+    def __init__(self, rig: Rig, sigma_px: float, settings: TieSettings | None = None):
+        self.rig, self.camera, self.baseline_m = rig, rig.wac, rig.baseline_m
+        self.sigma_px = sigma_px
+        self.s = settings or TieSettings()
+
+    def __call__(self, a: SitePanorama, b: SitePanorama, prediction: RelativePose) -> TieResult:
+        start = time.perf_counter()
+        result = TieResult()
+        points = self._site_points(a)
+        ground = _Ground(points)
+        candidates = self._candidates(a, b, points, prediction)
+        result.candidates = len(candidates)
+        found = []
+        for track, a_view, a_index, b_view, radius_m in candidates:
+            match = self._match(a, b, track, a_view, a_index, b_view, radius_m, points[track].p_body, ground,
+                                prediction)
+            if match is not None:
+                found.append(match)
+        result.matches = found
+        result.ties = self._verify(found, points, b, prediction, result)
+        result.seconds = time.perf_counter() - start
+        return result
+
+    # -- prediction --------------------------------------------------------------------------------
+
+    def _site_points(self, site: SitePanorama) -> dict[int, SitePoint]:
+        views: dict[int, list] = {}
+        for view in site.views:
+            mount = gtsam.Pose3(view.body_T_camera)
+            for track, uvv in zip(view.observations.track_ids, view.observations.uvv, strict=True):
+                views.setdefault(int(track), []).append((mount, uvv))
+        return {t: p for t, p in site_points(views, self.rig, self.sigma_px).items() if p is not None}
+
+    def _candidates(self, a: SitePanorama, b: SitePanorama, points: dict[int, SitePoint], prediction: RelativePose):
+        """(track, a view, index in it, b view, search radius m) for a's features whose ground b
+        sees at a similar range, each in the b view where it lies farthest from the border."""
+        s, cam = self.s, self.camera
+        b_T_a = np.linalg.inv(prediction.a_T_b)
+        margin = 2.0 * s.half_cells + 8.0  # px: room for the orthoimage's footprint, roughly
+        rows = []
+        for a_view, view in enumerate(a.views):
+            for index, track in enumerate(view.observations.track_ids):
+                point = points.get(int(track))
+                if point is None:
+                    continue
+                range_a = np.linalg.norm(point.p_body - view.body_T_camera[:3, 3])
+                rows.append((int(track), a_view, index, range_a))
+        if not rows:
+            return []
+        # one a view per track: the first that sees it
+        seen, picked = set(), []
+        for row in rows:
+            if row[0] not in seen:
+                seen.add(row[0])
+                picked.append(row)
+        tracks = np.array([r[0] for r in picked])
+        p_a = np.array([points[t].p_body for t in tracks])
+        cov_a = np.array([points[t].cov_body for t in tracks])
+        range_a = np.array([r[3] for r in picked])
+        p_b = p_a @ b_T_a[:3, :3].T + b_T_a[:3, 3]
+        # the prediction's uncertainty in b's frame: the relative pose's and a's triangulation's
+        skew = np.zeros((len(p_b), 3, 3))
+        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -p_b[:, 2], p_b[:, 1], -p_b[:, 0]
+        skew -= np.transpose(skew, (0, 2, 1))
+        jac = np.concatenate([skew, -np.broadcast_to(np.eye(3), skew.shape)], axis=2)
+        cov_b = jac @ prediction.covariance @ np.transpose(jac, (0, 2, 1)) + b_T_a[:3, :3] @ cov_a @ b_T_a[:3, :3].T
+        radius = 3.0 * np.sqrt(np.maximum(np.linalg.eigvalsh(cov_b[:, :2, :2])[:, -1], 0.0))
+        radius = np.clip(radius, s.min_search_m, None)
+        best_view = np.full(len(p_b), -1)
+        best_room = np.zeros(len(p_b))
+        for b_view, view in enumerate(b.views):
+            cam_T_b = np.linalg.inv(view.body_T_camera)
+            q = p_b @ cam_T_b[:3, :3].T + cam_T_b[:3, 3]
+            in_front = q[:, 2] > 0.5
+            uv = np.full((len(q), 2), -1e9)
+            uv[in_front] = cam.project(q[in_front], distort=False)
+            room = np.minimum.reduce([uv[:, 0], cam.width - 1 - uv[:, 0], uv[:, 1], cam.height - 1 - uv[:, 1]])
+            range_b = np.linalg.norm(q, axis=1)
+            ok = (in_front & (room > margin) & (range_b >= s.range_m[0]) & (range_b <= s.range_m[1])
+                  & (np.maximum(range_a, range_b) <= s.range_ratio * np.minimum(range_a, range_b)))
+            better = ok & (room > best_room)
+            best_view[better], best_room[better] = b_view, room[better]
+        usable = (best_view >= 0) & (range_a >= s.range_m[0]) & (range_a <= s.range_m[1]) & (radius <= s.max_search_m)
+        order = np.flatnonzero(usable)
+        if len(order) > s.max_candidates:  # the nearest ground first: it is seen best
+            order = order[np.argsort(range_a[order])[:s.max_candidates]]
+        return [(int(tracks[k]), picked[k][1], picked[k][2], int(best_view[k]), float(radius[k])) for k in order]
+
+    # -- matching ------------------------------------------------------------------------------------
+
+    def _match(self, a: SitePanorama, b: SitePanorama, track, a_view, a_index, b_view, radius_m, p_a, ground,
+               prediction: RelativePose):
+        s = self.s
+        normal = ground.normal(p_a)
+        e1 = np.cross(normal, [0.0, 1.0, 0.0])
+        if np.linalg.norm(e1) < 0.1:
+            e1 = np.cross(normal, [1.0, 0.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(normal, e1)
+        search = int(np.ceil(radius_m / s.cell_m))
+        va, vb = a.views[a_view], b.views[b_view]
+        camera_b_in_a = prediction.a_T_b @ vb.body_T_camera
+        template = self._ortho(va.left, va.body_T_camera, p_a, e1, e2, s.half_cells)
+        window = self._ortho(vb.left, camera_b_in_a, p_a, e1, e2, s.half_cells + search)
+        if template is None or window is None:
+            return None
+        # Kept for diagnosis, not as a gate: 0.002-0.003 cells on ordinary rendered ground, 0.004-0.011
+        # on the featureless sand sheet, but far ground between sites 45-50 m apart is as weak and
+        # its matches are right (docs/frontend.md).
+        sigma_cells = _location_sigma(template)
+        score = cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED)
+        _, best, _, (x, y) = cv2.minMaxLoc(score)
+        if best < s.min_ncc or x in (0, score.shape[1] - 1) or y in (0, score.shape[0] - 1):
+            return None  # too weak, or on the search window's edge: the match may lie beyond it
+        others = score.copy()
+        others[max(0, y - 4):y + 5, max(0, x - 4):x + 5] = -1.0
+        if others.size and others.max() > best - s.distinct:
+            return None
+        dx, dy = _peak_offset(score, x, y)
+        on_ground = p_a + ((x + dx - search) * e1 + (y + dy - search) * e2) * s.cell_m
+        q = np.linalg.inv(camera_b_in_a) @ np.append(on_ground, 1.0)
+        uv = self.camera.project(q[:3][None], distort=False)[0]
+        u_right = self._stereo(vb, uv, self.camera.fx * self.baseline_m / q[2])
+        if u_right is None:
+            return None
+        return Tie(track, a_view, va.observations.uvv[a_index].copy(), b_view, np.array([uv[0], u_right, uv[1]]),
+                   float(best), sigma_cells)
+
+    def _ortho(self, image, frame_T_camera, centre, e1, e2, half):
+        """The ground plane (through centre, spanned by e1, e2; frame coordinates) resampled
+        from the image of a camera at frame_T_camera: (2 half + 1)^2 cells, each the mean of
+        samples^2 pixels; None when it leaves the image."""
+        s, cam = self.s, self.camera
+        g = ((np.arange(-half * s.samples, (half + 1) * s.samples) + 0.5) / s.samples - 0.5) * s.cell_m
+        gx, gy = np.meshgrid(g, g)
+        X = centre + gx[..., None] * e1 + gy[..., None] * e2
+        camera_T = np.linalg.inv(frame_T_camera)
+        q = X.reshape(-1, 3) @ camera_T[:3, :3].T + camera_T[:3, 3]
+        if q[:, 2].min() <= 0.5:
+            return None
+        u = (cam.fx * q[:, 0] / q[:, 2] + cam.cx).reshape(gx.shape).astype(np.float32)
+        v = (cam.fy * q[:, 1] / q[:, 2] + cam.cy).reshape(gx.shape).astype(np.float32)
+        if u.min() < 0 or v.min() < 0 or u.max() > cam.width - 1 or v.max() > cam.height - 1:
+            return None
+        fine = cv2.remap(image, u, v, cv2.INTER_LINEAR).astype(np.float32)
+        n = 2 * half + 1
+        return cv2.resize(fine, (n, n), interpolation=cv2.INTER_AREA)
+
+    def _stereo(self, view, uv, disparity_guess) -> float | None:
+        """The right image's column of left pixel uv: optical flow from the predicted disparity,
+        the same row within 1 px, back to within 0.5 px."""
+        lk = dict(winSize=(11, 11), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+        p0 = np.float32(uv).reshape(1, 1, 2)
+        guess = np.float32([uv[0] - disparity_guess, uv[1]]).reshape(1, 1, 2)
+        p1, ok, _ = cv2.calcOpticalFlowPyrLK(view.left, view.right, p0, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
+        if not ok[0, 0]:
+            return None
+        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(view.right, view.left, p1.copy(), p0.copy(),
+                                                    flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
+        u_right, v_right = p1[0, 0]
+        if (not ok_back[0, 0] or np.linalg.norm(back[0, 0] - p0[0, 0]) > 0.5 or abs(v_right - uv[1]) > 1.0
+                or not 0.5 < uv[0] - u_right < 250.0):
+            return None
+        return float(u_right)
+
+    # -- verification --------------------------------------------------------------------------------
+
+    def _verify(self, found: list[Tie], points: dict[int, SitePoint], b: SitePanorama, prediction: RelativePose,
+                result: TieResult) -> list[Tie]:
+        """The matches one rigid motion b_T_a explains (RANSAC over three-point Kabsch fits,
+        Mahalanobis inliers), when that motion agrees with the prediction."""
+        s, cam = self.s, self.camera
+        if len(found) < s.min_verified:
+            result.note = f"{len(found)} matches, fewer than {s.min_verified}"
+            return []
+        p = np.array([points[t.track].p_body for t in found])
+        cov_p = np.array([points[t.track].cov_body for t in found])
+        b_uvv = np.array([t.b_uvv for t in found])
+        q_cam = triangulate_rectified(b_uvv[:, 0], b_uvv[:, 1], b_uvv[:, 2], cam, self.baseline_m)
+        mounts = np.array([b.views[t.b_view].body_T_camera for t in found])
+        q = np.einsum("nij,nj->ni", mounts[:, :3, :3], q_cam) + mounts[:, :3, 3]
+        cov_q_cam = triangulation_covariance(q_cam, cam, self.baseline_m, max(s.match_sigma_px, self.sigma_px))
+        cov_q = mounts[:, :3, :3] @ cov_q_cam @ np.transpose(mounts[:, :3, :3], (0, 2, 1))
+        rng = np.random.default_rng(0)
+        best = np.zeros(len(found), bool)
+        for _ in range(s.ransac_iterations):
+            pick = rng.choice(len(found), 3, replace=False)
+            motion = _kabsch(p[pick], q[pick])
+            if motion is None:
+                continue
+            inliers = _inliers(motion, p, cov_p, q, cov_q)
+            if inliers.sum() > best.sum():
+                best = inliers
+        if best.sum() < s.min_verified:
+            result.note = f"no rigid motion explains {s.min_verified} of {len(found)} matches"
+            return []
+        motion, _ = _refine(_kabsch(p[best], q[best]), p[best], cov_p[best], q[best], cov_q[best])
+        best = _inliers(motion, p, cov_p, q, cov_q)
+        if best.sum() < s.min_verified:
+            result.note = f"no rigid motion explains {s.min_verified} of {len(found)} matches"
+            return []
+        motion, fit = _refine(motion, p[best], cov_p[best], q[best], cov_q[best])
+        # The fitted motion against the prediction, each with its covariance (left perturbations
+        # of b_T_a: the prediction's right one of a_T_b, negated). The points' errors are not all
+        # independent (stereo at range is biased alike by the pair's calibration): the fit's
+        # covariance is scaled by its residuals' variance factor.
+        xi = gtsam.Pose3.Logmap(gtsam.Pose3(motion).compose(gtsam.Pose3(prediction.a_T_b)))
+        fit *= max(1.0, _variance_factor(motion, p[best], cov_p[best], q[best], cov_q[best]))
+        covariance = prediction.covariance + fit
+        if xi @ np.linalg.solve(covariance, xi) > _GATE_6D:
+            result.note = "the matches' rigid motion disagrees with the prediction"
+            return []
+        return [t for t, ok in zip(found, best, strict=True) if ok]
+
+
+class _Ground:
+    """The local ground plane's normal around a point, from a site's triangulated features."""
+
+    def __init__(self, points: dict[int, SitePoint], radius_m: float = 2.0):
+        self.p = np.array([pt.p_body for pt in points.values()]) if points else np.zeros((0, 3))
+        self.tree = cKDTree(self.p[:, :2]) if len(self.p) else None
+        self.radius_m = radius_m
+
+    def normal(self, at: np.ndarray) -> np.ndarray:
+        up = np.array([0.0, 0.0, 1.0])
+        if self.tree is None:
+            return up
+        near = self.p[self.tree.query_ball_point(at[:2], self.radius_m)]
+        if len(near) < 6:
+            return up
+        _, _, vt = np.linalg.svd(near - near.mean(axis=0))
+        n = vt[2] * np.sign(vt[2][2])
+        return n if n[2] > 0.9 else up  # steeper than 25 deg: a rock, not the ground
+
+
+def _location_sigma(patch: np.ndarray, noise_dn: float = 1.0) -> float:
+    """How precisely a patch can be located (cells, 1 sigma) under image noise: noise over the
+    root of the structure tensor's smaller eigenvalue (the weakest direction of its texture)."""
+    gy, gx = np.gradient(patch)
+    tensor = np.array([[np.sum(gx * gx), np.sum(gx * gy)], [np.sum(gx * gy), np.sum(gy * gy)]])
+    weakest = np.linalg.eigvalsh(tensor)[0]
+    return float(noise_dn / np.sqrt(max(weakest, 1e-12)))
+
+
+def _peak_offset(score: np.ndarray, x: int, y: int) -> tuple[float, float]:
+    """Sub-cell position of a correlation peak (a parabola through it and its neighbours)."""
+    def vertex(lo, mid, hi):
+        den = lo - 2.0 * mid + hi
+        return 0.0 if den >= 0 else float(np.clip(0.5 * (lo - hi) / den, -0.5, 0.5))
+
+    dx = vertex(score[y, x - 1], score[y, x], score[y, x + 1]) if 0 < x < score.shape[1] - 1 else 0.0
+    dy = vertex(score[y - 1, x], score[y, x], score[y + 1, x]) if 0 < y < score.shape[0] - 1 else 0.0
+    return dx, dy
+
+
+def _kabsch(p: np.ndarray, q: np.ndarray) -> np.ndarray | None:
+    """The rigid motion (4x4) taking points p onto q, least squares."""
+    cp, cq = p.mean(axis=0), q.mean(axis=0)
+    u, sv, vt = np.linalg.svd((p - cp).T @ (q - cq))
+    if sv[1] < 1e-9:
+        return None
+    d = np.sign(np.linalg.det(vt.T @ u.T))
+    r = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    motion = np.eye(4)
+    motion[:3, :3], motion[:3, 3] = r, cq - r @ cp
+    return motion
+
+
+def _refine(motion, p, cov_p, q, cov_q, iterations: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted least squares (Gauss-Newton) of the rigid motion taking p onto q, each residual
+    weighted by its covariance; the motion and its covariance (left perturbation, [rotation,
+    translation])."""
+    for _ in range(iterations):
+        r = motion[:3, :3]
+        moved = p @ r.T + motion[:3, 3]
+        weights = np.linalg.inv(r @ cov_p @ r.T + cov_q)
+        jac = np.zeros((len(p), 3, 6))
+        jac[:, :, :3] = -np.array([_skew(x) for x in moved])
+        jac[:, :, 3:] = np.eye(3)
+        jt_w = np.transpose(jac, (0, 2, 1)) @ weights
+        information = (jt_w @ jac).sum(axis=0) + 1e-12 * np.eye(6)
+        step = np.linalg.solve(information, np.einsum("nij,nj->i", jt_w, q - moved))
+        motion = gtsam.Pose3.Expmap(step).matrix() @ motion
+    return motion, np.linalg.inv(information)
+
+
+def _variance_factor(motion, p, cov_p, q, cov_q) -> float:
+    """Sum of squared Mahalanobis residuals over the degrees of freedom (3 per point, 6 fitted)."""
+    return float(_mahalanobis2(motion, p, cov_p, q, cov_q).sum() / max(3 * len(p) - 6, 1))
+
+
+def _mahalanobis2(motion, p, cov_p, q, cov_q) -> np.ndarray:
+    r = motion[:3, :3]
+    diff = q - (p @ r.T + motion[:3, 3])
+    cov = r @ cov_p @ r.T + cov_q
+    return np.einsum("ni,ni->n", diff, np.linalg.solve(cov, diff[..., None])[..., 0])
+
+
+def _skew(x: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -x[2], x[1]], [x[2], 0.0, -x[0]], [-x[1], x[0], 0.0]])
+
+
+def _inliers(motion, p, cov_p, q, cov_q) -> np.ndarray:
+    return _mahalanobis2(motion, p, cov_p, q, cov_q) <= _GATE_3D

@@ -1,0 +1,133 @@
+"""An image folder's site panoramas into the back-end's panorama observations: every site's
+features (frontend/panorama.py), and its tie points to the last few sites (frontend/ties.py)
+predicted by the stereo VO between the two sites and its covariance (what the `vo`
+configuration knows there)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..config import FrontendConfig
+from ..errors import InputError
+from ..frontend.motion import VoMotions
+from ..frontend.panorama import PanoramaMatcher, PanoramaView, SitePanorama
+from ..frontend.ties import RelativePose, TieMatcher, TieResult
+from ..records import PanoramaFrame, StereoObservations, Stop
+
+if TYPE_CHECKING:
+    from ..io.observations import ObservationSet
+
+MAX_TIE_DISTANCE_M = 80.0  # sites further apart see no common ground at a usable range
+TRACK_OFFSET = 1_000_000_000  # site track ids start here, apart from the navigation tracks'
+
+ReadViewPair = Callable[[object], tuple[np.ndarray, np.ndarray]]  # PanoramaImage -> rectified pair
+
+
+@dataclass(frozen=True)
+class SitePairTies:
+    """The tie points found between an earlier site (a) and a later one (b)."""
+
+    a_stop: int
+    b_stop: int
+    distance_m: float  # predicted
+    prediction: RelativePose
+    result: TieResult
+
+
+@dataclass
+class SiteReport:
+    """What the site front-end did, for the run's notes and for evaluation."""
+
+    sites: list[SitePanorama] = field(default_factory=list)  # without their images
+    pairs: list[SitePairTies] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)  # frames that could not be read
+
+    def summary(self) -> str:
+        if not self.sites:
+            return "no site panoramas"
+        adjacent = [p for p in self.pairs if p.b_stop == self.next_site(p.a_stop)]
+        counts = [len(p.result.ties) for p in adjacent]
+        seconds = sum(s.seconds for s in self.sites) + sum(p.result.seconds for p in self.pairs)
+        links = sum(s.links for s in self.sites)
+        text = (f"site panoramas: {len(self.sites)} sites, {links} features linked between overlapping frames; "
+                f"{sum(len(p.result.ties) for p in self.pairs)} tie points over {len(self.pairs)} site pairs")
+        if counts:
+            text += f" (adjacent sites: median {int(np.median(counts))}, fewest {min(counts)})"
+        return text + f"; {seconds:.0f} s"
+
+    def next_site(self, stop: int) -> int | None:
+        later = [s.stop for s in self.sites if s.stop > stop]
+        return min(later) if later else None
+
+
+def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadViewPair, vo: VoMotions,
+                        frontend: FrontendConfig, skip_bad_frames: bool = False,
+                        progress: Callable[[str, int, int], None] | None = None) -> tuple[list[Stop], SiteReport]:
+    """The stops with their site panoramas' observations (site ids set), and what was done.
+    A panorama frame that cannot be read stops with the message naming it, or with
+    `skip_bad_frames` is left out of its panorama."""
+    report = SiteReport()
+    by_stop: dict[int, list] = {}
+    for image in obs.panorama_frames:
+        if image.camera == "wac" and image.stop < len(stops):
+            by_stop.setdefault(image.stop, []).append(image)
+    if not by_stop:
+        return stops, report
+    rig = obs.traverse.rig
+    motions = vo.motions
+    matcher = PanoramaMatcher(rig.wac, rig.baseline_m, frontend, first_id=TRACK_OFFSET)
+    ties = TieMatcher(rig, obs.traverse.image_noise_px)
+    recent: list[SitePanorama] = []
+    stops = list(stops)
+    for done, (stop, images) in enumerate(sorted(by_stop.items())):
+        views = []
+        for im in images:
+            try:
+                pair = read_pair(im)
+            except InputError as exc:
+                if not skip_bad_frames:
+                    raise
+                report.skipped.append(f"site {im.site} frame skipped: {exc}")
+                continue
+            mount = rig.body_T_left(im.pan_rad, im.tilt_rad).matrix()
+            views.append(PanoramaView(im.pan_rad, im.tilt_rad, mount, *pair))
+        site = matcher(stop, images[0].site, views)
+        for earlier in reversed(recent):
+            prediction = RelativePose.compose([(motions[k].prev_T_curr.matrix(), motions[k].covariance)
+                                               for k in range(earlier.stop + 1, stop + 1)])
+            distance = float(np.linalg.norm(prediction.a_T_b[:3, 3]))
+            if distance > MAX_TIE_DISTANCE_M:
+                continue
+            result = ties(earlier, site, prediction)
+            _add_ties(site, result)
+            report.pairs.append(SitePairTies(earlier.stop, stop, distance, prediction, result))
+        stops[stop] = replace(stops[stop], site_id=site.site, panorama=tuple(
+            PanoramaFrame(v.pan_rad, v.tilt_rad, v.observations) for v in site.views))
+        recent = (recent + [site])[-vo.estimator.site_memory:]
+        report.sites.append(_without_images(site))
+        if progress is not None:
+            progress("site panoramas", done + 1, len(by_stop))
+    return stops, report
+
+
+def _add_ties(site: SitePanorama, result: TieResult) -> None:
+    """Each verified tie becomes the later site's observation of the earlier site's track (once
+    per frame)."""
+    for index, view in enumerate(site.views):
+        new = [t for t in result.ties if t.b_view == index and t.track not in set(view.observations.track_ids.tolist())]
+        if not new:
+            continue
+        tracks = {t.track: t for t in new}  # one per track
+        o = view.observations
+        view.observations = StereoObservations(
+            np.concatenate([o.track_ids, np.array(list(tracks), dtype=np.int64)]),
+            np.vstack([o.uvv, np.array([t.b_uvv for t in tracks.values()])]))
+
+
+def _without_images(site: SitePanorama) -> SitePanorama:
+    views = [replace(v, left=np.zeros((0, 0), np.uint8), right=np.zeros((0, 0), np.uint8)) for v in site.views]
+    return replace(site, views=views)
