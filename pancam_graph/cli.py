@@ -640,7 +640,7 @@ def bench_command(
         _bench_frontend(source, detector)
         return
     if scenario == "sites":
-        _bench_sites(source, seeds if seeds > 1 else 3)
+        _bench_sites(source)
         return
     if source is not None or detector is not None:
         raise _fail(ConfigError("SOURCE and --detector go with 'bench frontend' only"), bad_input=True)
@@ -753,10 +753,11 @@ def _bench_monte_carlo_sweep(scenario: str, seed: int | None, seeds: int, worker
     print(json.dumps(report, indent=2))
 
 
-def _bench_sites(source: str | None, compared_sites: int) -> None:
+def _bench_sites(source: str | None, compared_sites: int = 3) -> None:
     """The site panoramas of an image folder: pan/tilt-aided against unaided (SIFT) matching of
-    overlapping frames on the first `compared_sites` sites, and the tie points between every pair
-    of sites; each checked against the renderer's truth when the folder names a bundled scenario."""
+    overlapping frames on the first `compared_sites` sites (SIFT takes about 25 s a site), and
+    the tie points between every pair of sites; each checked against the renderer's truth when
+    the folder names a bundled scenario."""
     import os
 
     import numpy as np
@@ -767,7 +768,7 @@ def _bench_sites(source: str | None, compared_sites: int) -> None:
     from .io.observations import is_image_folder, read_observations
     from .render.truth import RenderedTruth
     from .sources import image_folder
-    from .sources.site_images import with_site_panoramas
+    from .sources.site_images import wac_images_by_stop, with_site_panoramas
 
     if source is None or not is_image_folder(Path(source)):
         raise _fail(ConfigError(f"bench sites {source or ''}: give an image folder with site panoramas "
@@ -779,12 +780,6 @@ def _bench_sites(source: str | None, compared_sites: int) -> None:
         truth = None if scenario is None or obs.truth is None else RenderedTruth(
             _load(str(scenario)), obs.seed, obs.truth.world_T_body, obs.traverse.rig.wac)
         pairs = image_folder.FramePairs(obs)
-        size = pairs.size
-
-        def read_view(image):
-            pair = (image_folder.read_gray(image.left, size), image_folder.read_gray(image.right, size))
-            return pair if pairs.rectify is None else pairs.rectify(*pair)
-
         with _progress_bar() as bar:
             task = bar.add_task("front-end", total=len(obs.traverse.stops))
             tracked = image_folder.load(Path(source), FrontendConfig(), sites=False,
@@ -792,7 +787,7 @@ def _bench_sites(source: str | None, compared_sites: int) -> None:
         vo = VoMotions.estimate(tracked.traverse, tracked.estimator)
         with _progress_bar() as bar:
             task = bar.add_task("site panoramas", total=None)
-            _, report = with_site_panoramas(obs, list(tracked.traverse.stops), read_view, vo, FrontendConfig(),
+            _, report = with_site_panoramas(obs, list(tracked.traverse.stops), pairs.read_view, vo, FrontendConfig(),
                                             progress=lambda _, done, total: bar.update(task, completed=done,
                                                                                        total=total))
         # aided against unaided matching of overlapping frames, on the first sites
@@ -800,13 +795,10 @@ def _bench_sites(source: str | None, compared_sites: int) -> None:
         matcher = PanoramaMatcher(rig.wac, rig.baseline_m)
         aided = {"frame_pairs": 0, "links": 0, "seconds": 0.0, "errors": []}
         unaided = {"frame_pairs": 0, "matches": 0, "seconds": 0.0, "errors": []}
-        by_stop: dict[int, list] = {}
-        for image in obs.panorama_frames:
-            if image.camera == "wac":
-                by_stop.setdefault(image.stop, []).append(image)
-        for stop in sorted(by_stop)[:compared_sites]:
+        by_stop = wac_images_by_stop(obs)
+        for stop in list(by_stop)[:compared_sites]:
             views = [PanoramaView(im.pan_rad, im.tilt_rad, rig.body_T_left(im.pan_rad, im.tilt_rad).matrix(),
-                                  *read_view(im)) for im in by_stop[stop]]
+                                  *pairs.read_view(im)) for im in by_stop[stop]]
             matcher(stop, 0, views)
             for i, a in enumerate(views):
                 for b in views[i + 1:]:

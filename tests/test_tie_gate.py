@@ -102,3 +102,19 @@ def test_site_point_of_one_view_is_its_triangulation():
     sp = site_point([(mount, _view(mount, point, rng, sigma=0.0))], RIG, SIGMA_PX)
     assert isinstance(sp, SitePoint)
     np.testing.assert_allclose(sp.p_body, point, atol=1e-9)
+
+
+def test_composed_relative_pose_covariance_matches_sampled_chains():
+    """RelativePose.compose (GTSAM's compose Jacobians) against 4000 sampled three-step chains."""
+    rng = np.random.default_rng(3)
+    steps = [(gtsam.Pose3(gtsam.Rot3.Ypr(0.1 * k, 0.02, -0.01), np.array([1.5, 0.2 * k, 0.05])),
+              np.diag([1e-4, 2e-4, 4e-4, 1e-3, 2e-3, 5e-4]) * (k + 1)) for k in range(3)]
+    composed = RelativePose.compose(steps)
+    errors = []
+    for _ in range(4000):
+        chain = gtsam.Pose3()
+        for step, cov in steps:
+            chain = chain.compose(step.compose(gtsam.Pose3.Expmap(rng.multivariate_normal(np.zeros(6), cov))))
+        errors.append(gtsam.Pose3.Logmap(composed.a_T_b.between(chain)))
+    sampled = np.cov(np.array(errors).T)
+    assert np.allclose(np.diag(sampled), np.diag(composed.covariance), rtol=0.1)

@@ -67,6 +67,7 @@ class PanoramaMatcher:
         self.camera, self.baseline_m = camera, baseline_m
         self.config = config or FrontendConfig()
         self._next_id = first_id
+        self._tracker = StereoTracker(self.config)  # its optical flow (forward-backward checked)
 
     def new_ids(self, n: int) -> np.ndarray:
         ids = np.arange(self._next_id, self._next_id + n, dtype=np.int64)
@@ -138,16 +139,7 @@ class PanoramaMatcher:
         h, w = a.left.shape
         warped = cv2.warpPerspective(a.left, H, (w, h), flags=cv2.INTER_LINEAR)
         start = cv2.perspectiveTransform(a.observations.uvv[inside][:, [0, 2]].reshape(-1, 1, 2), H).reshape(-1, 2)
-        lk = dict(winSize=(self.config.klt_window_px,) * 2, maxLevel=1,
-                  criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
-        p0 = start.astype(np.float32).reshape(-1, 1, 2)
-        p1, ok, _ = cv2.calcOpticalFlowPyrLK(warped, b.left, p0, predicted[inside].astype(np.float32).reshape(-1, 1, 2),
-                                             flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
-        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(b.left, warped, p1.copy(), p0.copy(),
-                                                    flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
-        p1, back = p1.reshape(-1, 2), back.reshape(-1, 2)
-        good = ((ok.ravel() == 1) & (ok_back.ravel() == 1)
-                & (np.linalg.norm(back - start, axis=1) < self.config.mutual_max_px))
+        p1, good = self._tracker.flow(warped, b.left, start.astype(np.float32), predicted[inside], levels=1)
         # the feature of b nearest to each flow end point
         b_uv = b.observations.uvv[:, [0, 2]]
         distance = np.linalg.norm(p1[:, None, :] - b_uv[None, :, :], axis=2)

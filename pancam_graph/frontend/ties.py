@@ -30,9 +30,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.stats import chi2
 
-from ..graph.tie_gate import SitePoint, site_points
+from ..graph.tie_gate import RelativePose, SitePoint, site_points
 from ..rig import Rig, triangulate_rectified, triangulation_covariance
 from .panorama import SitePanorama
+from .tracker import StereoTracker
 
 _GATE_3D = float(chi2.ppf(0.999, 3))
 _GATE_6D = float(chi2.ppf(0.999, 6))
@@ -56,25 +57,6 @@ class TieSettings:
 
 
 @dataclass(frozen=True)
-class RelativePose:
-    """Site b's body pose in site a's body frame and its 6x6 covariance ([rotation,
-    translation], b's frame: a_T_b exp(xi))."""
-
-    a_T_b: np.ndarray
-    covariance: np.ndarray
-
-    @staticmethod
-    def compose(steps: list[tuple[np.ndarray, np.ndarray]]) -> RelativePose:
-        """The chain of (prev_T_curr, covariance) steps from a to b."""
-        pose, cov = np.eye(4), np.zeros((6, 6))
-        for step, step_cov in steps:
-            ad = gtsam.Pose3(np.linalg.inv(step)).AdjointMap()
-            cov = ad @ cov @ ad.T + step_cov
-            pose = pose @ step
-        return RelativePose(pose, cov)
-
-
-@dataclass(frozen=True)
 class Tie:
     """Site b's stereo observation of site a's track."""
 
@@ -84,7 +66,6 @@ class Tie:
     b_view: int
     b_uvv: np.ndarray
     ncc: float
-    sigma_cells: float = 0.0  # how well the earlier site's patch can be located (its texture)
 
 
 @dataclass
@@ -101,6 +82,7 @@ class TieMatcher:
         self.rig, self.camera, self.baseline_m = rig, rig.wac, rig.baseline_m
         self.sigma_px = sigma_px
         self.s = settings or TieSettings()
+        self._tracker = StereoTracker()  # its stereo optical flow
 
     def __call__(self, a: SitePanorama, b: SitePanorama, prediction: RelativePose) -> TieResult:
         start = time.perf_counter()
@@ -134,36 +116,26 @@ class TieMatcher:
         """(track, a view, index in it, b view, search radius m) for a's features whose ground b
         sees at a similar range, each in the b view where it lies farthest from the border."""
         s, cam = self.s, self.camera
-        b_T_a = np.linalg.inv(prediction.a_T_b)
         margin = 2.0 * s.half_cells + 8.0  # px: room for the orthoimage's footprint, roughly
-        rows = []
+        picked, seen = [], set()  # one a view per track: the first that sees it
         for a_view, view in enumerate(a.views):
-            for index, track in enumerate(view.observations.track_ids):
-                point = points.get(int(track))
-                if point is None:
-                    continue
-                range_a = np.linalg.norm(point.p_body - view.body_T_camera[:3, 3])
-                rows.append((int(track), a_view, index, range_a))
-        if not rows:
+            for index, track in enumerate(view.observations.track_ids.tolist()):
+                if track in points and track not in seen:
+                    seen.add(track)
+                    picked.append((track, a_view, index,
+                                   float(np.linalg.norm(points[track].p_body - view.body_T_camera[:3, 3]))))
+        if not picked:
             return []
-        # one a view per track: the first that sees it
-        seen, picked = set(), []
-        for row in rows:
-            if row[0] not in seen:
-                seen.add(row[0])
-                picked.append(row)
         tracks = np.array([r[0] for r in picked])
-        p_a = np.array([points[t].p_body for t in tracks])
-        cov_a = np.array([points[t].cov_body for t in tracks])
         range_a = np.array([r[3] for r in picked])
-        p_b = p_a @ b_T_a[:3, :3].T + b_T_a[:3, 3]
-        # the prediction's uncertainty in b's frame: the relative pose's and a's triangulation's
-        skew = np.zeros((len(p_b), 3, 3))
-        skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -p_b[:, 2], p_b[:, 1], -p_b[:, 0]
-        skew -= np.transpose(skew, (0, 2, 1))
-        jac = np.concatenate([skew, -np.broadcast_to(np.eye(3), skew.shape)], axis=2)
-        cov_b = jac @ prediction.covariance @ np.transpose(jac, (0, 2, 1)) + b_T_a[:3, :3] @ cov_a @ b_T_a[:3, :3].T
-        radius = 3.0 * np.sqrt(np.maximum(np.linalg.eigvalsh(cov_b[:, :2, :2])[:, -1], 0.0))
+        # each point in b's frame, and its uncertainty there: the relative pose's and a's triangulation's
+        p_b, radius = np.zeros((len(picked), 3)), np.zeros(len(picked))
+        h_pose, h_point = np.zeros((3, 6), order="F"), np.zeros((3, 3), order="F")
+        for k, track in enumerate(tracks):
+            point = points[int(track)]
+            p_b[k] = prediction.a_T_b.transformTo(point.p_body, h_pose, h_point)
+            cov = h_pose @ prediction.covariance @ h_pose.T + h_point @ point.cov_body @ h_point.T
+            radius[k] = 3.0 * np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0))
         radius = np.clip(radius, s.min_search_m, None)
         best_view = np.full(len(p_b), -1)
         best_room = np.zeros(len(p_b))
@@ -198,15 +170,11 @@ class TieMatcher:
         e2 = np.cross(normal, e1)
         search = int(np.ceil(radius_m / s.cell_m))
         va, vb = a.views[a_view], b.views[b_view]
-        camera_b_in_a = prediction.a_T_b @ vb.body_T_camera
+        camera_b_in_a = prediction.a_T_b.matrix() @ vb.body_T_camera
         template = self._ortho(va.left, va.body_T_camera, p_a, e1, e2, s.half_cells)
         window = self._ortho(vb.left, camera_b_in_a, p_a, e1, e2, s.half_cells + search)
         if template is None or window is None:
             return None
-        # Kept for diagnosis, not as a gate: 0.002-0.003 cells on ordinary rendered ground, 0.004-0.011
-        # on the featureless sand sheet, but far ground between sites 45-50 m apart is as weak and
-        # its matches are right (docs/frontend.md).
-        sigma_cells = _location_sigma(template)
         score = cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED)
         _, best, _, (x, y) = cv2.minMaxLoc(score)
         if best < s.min_ncc or x in (0, score.shape[1] - 1) or y in (0, score.shape[0] - 1):
@@ -223,7 +191,7 @@ class TieMatcher:
         if u_right is None:
             return None
         return Tie(track, a_view, va.observations.uvv[a_index].copy(), b_view, np.array([uv[0], u_right, uv[1]]),
-                   float(best), sigma_cells)
+                   float(best))
 
     def _ortho(self, image, frame_T_camera, centre, e1, e2, half):
         """The ground plane (through centre, spanned by e1, e2; frame coordinates) resampled
@@ -246,21 +214,12 @@ class TieMatcher:
         return cv2.resize(fine, (n, n), interpolation=cv2.INTER_AREA)
 
     def _stereo(self, view, uv, disparity_guess) -> float | None:
-        """The right image's column of left pixel uv: optical flow from the predicted disparity,
-        the same row within 1 px, back to within 0.5 px."""
-        lk = dict(winSize=(11, 11), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
-        p0 = np.float32(uv).reshape(1, 1, 2)
-        guess = np.float32([uv[0] - disparity_guess, uv[1]]).reshape(1, 1, 2)
-        p1, ok, _ = cv2.calcOpticalFlowPyrLK(view.left, view.right, p0, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
-        if not ok[0, 0]:
-            return None
-        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(view.right, view.left, p1.copy(), p0.copy(),
-                                                    flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
-        u_right, v_right = p1[0, 0]
-        if (not ok_back[0, 0] or np.linalg.norm(back[0, 0] - p0[0, 0]) > 0.5 or abs(v_right - uv[1]) > 1.0
-                or not 0.5 < uv[0] - u_right < 250.0):
-            return None
-        return float(u_right)
+        """The right image's column of left pixel uv: the tracker's stereo optical flow (same row,
+        disparity in range, forward-backward checked) from the predicted disparity."""
+        left = np.float32([uv])
+        right, ok = self._tracker.flow(view.left, view.right, left, left - np.float32([disparity_guess, 0.0]),
+                                       levels=2, accept=lambda right_uv: self._tracker.stereo_ok(left, right_uv))
+        return float(right[0, 0]) if ok[0] else None
 
     # -- verification --------------------------------------------------------------------------------
 
@@ -303,7 +262,7 @@ class TieMatcher:
         # of b_T_a: the prediction's right one of a_T_b, negated). The points' errors are not all
         # independent (stereo at range is biased alike by the pair's calibration): the fit's
         # covariance is scaled by its residuals' variance factor.
-        xi = gtsam.Pose3.Logmap(gtsam.Pose3(motion).compose(gtsam.Pose3(prediction.a_T_b)))
+        xi = gtsam.Pose3.Logmap(gtsam.Pose3(motion).compose(prediction.a_T_b))
         fit *= max(1.0, _variance_factor(motion, p[best], cov_p[best], q[best], cov_q[best]))
         covariance = prediction.covariance + fit
         if xi @ np.linalg.solve(covariance, xi) > _GATE_6D:
@@ -330,15 +289,6 @@ class _Ground:
         _, _, vt = np.linalg.svd(near - near.mean(axis=0))
         n = vt[2] * np.sign(vt[2][2])
         return n if n[2] > 0.9 else up  # steeper than 25 deg: a rock, not the ground
-
-
-def _location_sigma(patch: np.ndarray, noise_dn: float = 1.0) -> float:
-    """How precisely a patch can be located (cells, 1 sigma) under image noise: noise over the
-    root of the structure tensor's smaller eigenvalue (the weakest direction of its texture)."""
-    gy, gx = np.gradient(patch)
-    tensor = np.array([[np.sum(gx * gx), np.sum(gx * gy)], [np.sum(gx * gy), np.sum(gy * gy)]])
-    weakest = np.linalg.eigvalsh(tensor)[0]
-    return float(noise_dn / np.sqrt(max(weakest, 1e-12)))
 
 
 def _peak_offset(score: np.ndarray, x: int, y: int) -> tuple[float, float]:

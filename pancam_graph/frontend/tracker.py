@@ -188,7 +188,7 @@ class StereoTracker:
                     warp = motion.ground_homography(uv, disparity, c.ground_warp_range_m, c.ground_warp_tolerance_m)
                 guess, disparity, _ = motion.predict(uv, disparity)  # disparity: where stereo starts
             if warp is None:
-                moved, ok = self._flow(self._previous_left, left, uv, guess)
+                moved, ok = self.flow(self._previous_left, left, uv, guess)
             else:
                 moved, ok = self._flow_over_ground(self._previous_left, left, uv, guess, *warp)
             if motion is not None and ok.sum() > 2:
@@ -255,7 +255,7 @@ class StereoTracker:
         return cv2.cornerSubPix(image, found.reshape(-1, 1, 2).copy(), (5, 5), (-1, -1),
                                 (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01)).reshape(-1, 2)
 
-    def _flow(self, a, b, points, guess, levels: int | None = None, accept=None) -> tuple[np.ndarray, np.ndarray]:
+    def flow(self, a, b, points, guess, levels: int | None = None, accept=None) -> tuple[np.ndarray, np.ndarray]:
         """Lucas-Kanade from image a to b with a forward-backward check; (positions in b, ok).
         `accept(positions in b)` rejects matches before the check (whose cost is per point)."""
         lk = dict(self._lk)
@@ -284,11 +284,11 @@ class StereoTracker:
         into the current view by the ground's homography; the others from the image as it is."""
         moved, ok = np.zeros_like(uv), np.zeros(len(uv), bool)
         rest = ~on_plane
-        moved[rest], ok[rest] = self._flow(previous, current, uv[rest], guess[rest])
+        moved[rest], ok[rest] = self.flow(previous, current, uv[rest], guess[rest])
         h, w = previous.shape
         warped = cv2.warpPerspective(previous, homography, (w, h), flags=cv2.INTER_LINEAR)
         there = cv2.perspectiveTransform(uv[on_plane].reshape(-1, 1, 2).astype(np.float64), homography)
-        moved[on_plane], ok[on_plane] = self._flow(warped, current, there.reshape(-1, 2).astype(np.float32),
+        moved[on_plane], ok[on_plane] = self.flow(warped, current, there.reshape(-1, 2).astype(np.float32),
                                                    guess[on_plane])
         return moved, ok
 
@@ -299,10 +299,10 @@ class StereoTracker:
         c = self.config
         start = np.where(np.isfinite(disparity), disparity, c.initial_disparity_px)
         guess = uv - np.column_stack([start, np.zeros(len(uv))]).astype(np.float32)
-        matched, ok = self._flow(left, right, uv, guess, accept=lambda right_uv: self._stereo_ok(uv, right_uv))
+        matched, ok = self.flow(left, right, uv, guess, accept=lambda right_uv: self.stereo_ok(uv, right_uv))
         return ok, (uv[:, 0] - matched[:, 0]).astype(np.float32)
 
-    def _stereo_ok(self, left_uv: np.ndarray, right_uv: np.ndarray) -> np.ndarray:
+    def stereo_ok(self, left_uv: np.ndarray, right_uv: np.ndarray) -> np.ndarray:
         """The same row (rectified) and a disparity in range."""
         c = self.config
         d = left_uv[:, 0] - right_uv[:, 0]
@@ -327,8 +327,8 @@ class StereoTracker:
         i, j = self._mutual(dl, dr, allowed)
         uv, desc = pl[i], dl[i]
         # sub-pixel disparity: optical flow from the matched position, on the full image
-        matched, ok = self._flow(left, right, uv, pr[j], levels=1,
-                                 accept=lambda right_uv: self._stereo_ok(uv, right_uv))
+        matched, ok = self.flow(left, right, uv, pr[j], levels=1,
+                                 accept=lambda right_uv: self.stereo_ok(uv, right_uv))
         d = uv[:, 0] - matched[:, 0]
         uv, desc, d = uv[ok], desc[ok], d[ok]
         t = self.times.add("stereo", t)

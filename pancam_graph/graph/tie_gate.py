@@ -96,6 +96,16 @@ class RelativePose:
         cov = jac @ joint @ jac.T
         return cls(a_T_b, 0.5 * (cov + cov.T))
 
+    @classmethod
+    def compose(cls, steps: list[tuple[gtsam.Pose3, np.ndarray]]) -> RelativePose:
+        """Along a chain of independent (prev_T_curr, covariance) steps from a to b."""
+        a_T_b, cov = gtsam.Pose3(), np.zeros((6, 6))
+        h_chain, h_step = np.zeros((6, 6), order="F"), np.zeros((6, 6), order="F")
+        for step, step_cov in steps:
+            a_T_b = a_T_b.compose(step, h_chain, h_step)
+            cov = h_chain @ cov @ h_chain.T + h_step @ step_cov @ h_step.T
+        return cls(a_T_b, cov)
+
 
 def disagreement2(at_a: SitePoint, at_b: SitePoint, relative: RelativePose) -> float:
     """Squared Mahalanobis distance between site a's triangulation and site b's moved into a's

@@ -15,7 +15,8 @@ from ..config import FrontendConfig
 from ..errors import InputError
 from ..frontend.motion import VoMotions
 from ..frontend.panorama import PanoramaMatcher, PanoramaView, SitePanorama
-from ..frontend.ties import RelativePose, TieMatcher, TieResult
+from ..frontend.ties import TieMatcher, TieResult
+from ..graph.tie_gate import RelativePose
 from ..records import PanoramaFrame, StereoObservations, Stop
 
 if TYPE_CHECKING:
@@ -64,6 +65,15 @@ class SiteReport:
         return min(later) if later else None
 
 
+def wac_images_by_stop(obs: ObservationSet) -> dict[int, list]:
+    """The folder's panorama WAC pairs (PanoramaImage), per site stop in stop order."""
+    by_stop: dict[int, list] = {}
+    for image in obs.panorama_frames:
+        if image.camera == "wac":
+            by_stop.setdefault(image.stop, []).append(image)
+    return dict(sorted(by_stop.items()))
+
+
 def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadViewPair, vo: VoMotions,
                         frontend: FrontendConfig, skip_bad_frames: bool = False,
                         progress: Callable[[str, int, int], None] | None = None) -> tuple[list[Stop], SiteReport]:
@@ -71,10 +81,7 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
     A panorama frame that cannot be read stops with the message naming it, or with
     `skip_bad_frames` is left out of its panorama."""
     report = SiteReport()
-    by_stop: dict[int, list] = {}
-    for image in obs.panorama_frames:
-        if image.camera == "wac" and image.stop < len(stops):
-            by_stop.setdefault(image.stop, []).append(image)
+    by_stop = {stop: images for stop, images in wac_images_by_stop(obs).items() if stop < len(stops)}
     if not by_stop:
         return stops, report
     rig = obs.traverse.rig
@@ -83,7 +90,7 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
     ties = TieMatcher(rig, obs.traverse.image_noise_px)
     recent: list[SitePanorama] = []
     stops = list(stops)
-    for done, (stop, images) in enumerate(sorted(by_stop.items())):
+    for done, (stop, images) in enumerate(by_stop.items()):
         views = []
         for im in images:
             try:
@@ -97,9 +104,9 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
             views.append(PanoramaView(im.pan_rad, im.tilt_rad, mount, *pair))
         site = matcher(stop, images[0].site, views)
         for earlier in reversed(recent):
-            prediction = RelativePose.compose([(motions[k].prev_T_curr.matrix(), motions[k].covariance)
+            prediction = RelativePose.compose([(motions[k].prev_T_curr, motions[k].covariance)
                                                for k in range(earlier.stop + 1, stop + 1)])
-            distance = float(np.linalg.norm(prediction.a_T_b[:3, 3]))
+            distance = float(np.linalg.norm(prediction.a_T_b.translation()))
             if distance > MAX_TIE_DISTANCE_M:
                 continue
             result = ties(earlier, site, prediction)
@@ -118,7 +125,8 @@ def _add_ties(site: SitePanorama, result: TieResult) -> None:
     """Each verified tie becomes the later site's observation of the earlier site's track (once
     per frame)."""
     for index, view in enumerate(site.views):
-        new = [t for t in result.ties if t.b_view == index and t.track not in set(view.observations.track_ids.tolist())]
+        there = set(view.observations.track_ids.tolist())
+        new = [t for t in result.ties if t.b_view == index and t.track not in there]
         if not new:
             continue
         tracks = {t.track: t for t in new}  # one per track
