@@ -421,23 +421,106 @@ def render_command(
     scenario: str = typer.Argument("denver_trail", help="bundled scenario name or a scenario TOML file"),
     out: Path = typer.Option(..., "--out", help="image folder to write (keep it out of git)"),
     seed: int | None = typer.Option(None, "--seed", min=0, help="override the scenario's seed"),
+    control_field: bool = typer.Option(False, "--control-field", help="render the calibration control field "
+                                       "instead, for `pancam-graph calibrate`"),
+    views: int = typer.Option(8, "--views", min=3, max=100, help="with --control-field: stereo pairs to take"),
     quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
 ) -> None:
     """Render a scenario's navigation stereo pairs and site panoramas (terrain with relief, rocks,
     texture at several scales, shading; the rig's intrinsics through a distorting lens on a
     slightly misaligned pair, with its calibration; sensor noise) into an image folder that `run`
     and `track` read; the truth goes in its own files. The scenario's [render] table sets the
-    lens, the pair's errors, rocks and panoramas. Needs the [render] extra (moderngl on EGL)."""
-    from .render.images import render_scenario
-
+    lens, the pair's errors, rocks and panoramas. Needs the [render] extra (moderngl on EGL).
+    With --control-field: the same pair photographs a 3-D control field of 176 coded targets
+    from several views (views/NN_left.png, NN_right.png, control_field.csv, and the pair's true
+    calibration in truth_calibration.yaml)."""
     try:
         _check_out(out)
         sc = _load(scenario)
         start = time.perf_counter()
-        n = _with_progress(sc.name, quiet, lambda report: render_scenario(sc, out, seed, report))
+        if control_field:
+            from .render.control_field import render_control_field
+
+            n = _with_progress(sc.name, quiet, lambda report: render_control_field(sc, out, views, seed, report))
+        else:
+            from .render.images import render_scenario
+
+            n = _with_progress(sc.name, quiet, lambda report: render_scenario(sc, out, seed, report))
     except PancamGraphError as exc:
         raise _fail(exc, bad_input=True) from None
     console.print(f"{n} images rendered into {out} in {time.perf_counter() - start:.0f} s")
+
+
+@app.command("calibrate")
+def calibrate_command(
+    folder: Path = typer.Argument(..., help="control-field stereo pairs NAME_left.png / NAME_right.png (any depth)"),
+    out: Path = typer.Option(..., "--out", help="OpenCV YAML to write: K1 D1 K2 D2 R T and the rectification "
+                             "(R1 R2 P1 P2 Q), which `run` and `track` read as a calibration"),
+    field: Path | None = typer.Option(None, "--field", help="the field's targets (target_id,panel,x_m,y_m,z_m); "
+                                      "default FOLDER/control_field.csv"),
+    truth: Path | None = typer.Option(None, "--truth", help="a calibration to compare with (default "
+                                      "FOLDER/truth_calibration.yaml when there is one)"),
+    quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
+) -> None:
+    """Calibrate a stereo pair from images of a 3-D control field (the seed's section 4.2): each
+    camera's focal lengths, principal point and k1, k2, p1, p2, then the pair's boresight, and
+    the rectification; prints the fit, its uncertainty and, given a truth, the errors."""
+    from .io.calibration import read_opencv_yaml, write_opencv_yaml
+    from .io.calibration_images import calibrate_folder
+
+    try:
+        if out.exists() and out.is_dir():
+            raise ConfigError(f"--out {out}: is a folder; give the YAML file to write")
+        truth = truth or (folder / "truth_calibration.yaml" if (folder / "truth_calibration.yaml").is_file() else None)
+        reference = read_opencv_yaml(truth) if truth is not None else None
+        result = _with_progress(folder.name, quiet, lambda report: calibrate_folder(folder, field, report))
+        out.parent.mkdir(parents=True, exist_ok=True)
+        write_opencv_yaml(out, result.fit.calibration, rectification=True)
+    except PancamGraphError as exc:
+        raise _fail(exc, bad_input=True) from None
+    _print_calibration(result.fit, reference, truth)
+    console.print(f"calibration written to {out}")
+
+
+def _print_calibration(fit, reference, truth_path: Path | None) -> None:
+    import cv2
+    import numpy as np
+
+    c = fit.calibration
+    table = Table(title=f"{fit.views} views, {fit.left.targets} / {fit.right.targets} targets (left / right)",
+                  box=None, padding=(0, 1))
+    table.add_column("")
+    sides = (("left", c.k_left, c.d_left, fit.left), ("right", c.k_right, c.d_right, fit.right))
+    for name, *_ in sides:
+        table.add_column(name, justify="right")
+        table.add_column("1 sigma", justify="right")
+        if reference is not None:
+            table.add_column("- truth", justify="right")
+    columns = []
+    for name, k, d, cam in sides:
+        values = [k[0, 0], k[1, 1], k[0, 2], k[1, 2], *np.pad(d, (0, 4))[:4]]
+        columns.append(values)
+        columns.append(list(cam.sigma[:8]))
+        if reference is not None:
+            kt, dt = (reference.k_left, reference.d_left) if name == "left" else (reference.k_right, reference.d_right)
+            columns.append([a - b for a, b in zip(values, [kt[0, 0], kt[1, 1], kt[0, 2], kt[1, 2],
+                                                           *np.pad(dt, (0, 4))[:4]], strict=True)])
+    for row, label in enumerate(("fx px", "fy px", "cx px", "cy px", "k1", "k2", "p1", "p2")):
+        fmt = "{:.2f}" if row < 4 else "{:.5f}"
+        table.add_row(label, *(fmt.format(col[row]) for col in columns))
+    extra = [""] * (len(columns) // 2 - 1)
+    table.add_row("RMS px", f"{fit.left.rms_px:.3f}", *extra, f"{fit.right.rms_px:.3f}", *extra)
+    table.add_row("dropped", str(fit.left.rejected), *extra, str(fit.right.rejected), *extra)
+    console.print(table)
+    rectified = c.rectified()
+    line = (f"baseline {c.baseline_m * 1000:.2f} mm, stereo RMS {fit.stereo_rms_px:.3f} px; rectified focal length "
+            f"{rectified.camera.fx:.2f} px")
+    if reference is not None:
+        angle = np.rad2deg(np.linalg.norm(cv2.Rodrigues(c.rotation @ reference.rotation.T)[0]))
+        line += (f"\nagainst {truth_path}: baseline {(c.baseline_m - reference.baseline_m) * 1000:+.3f} mm, "
+                 f"boresight {angle:.4f} deg, focal lengths {100 * (c.k_left[0, 0] / reference.k_left[0, 0] - 1):+.3f} "
+                 f"/ {100 * (c.k_right[0, 0] / reference.k_right[0, 0] - 1):+.3f} %")
+    console.print(line)
 
 
 @app.command("show-config")

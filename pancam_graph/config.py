@@ -89,6 +89,9 @@ class SitesConfig(_Strict):
     max_range_m: float = Field(40.0, gt=0.0, le=10000.0)
     hrc: bool = True
     hrc_tilt_deg: Degrees = -5.0
+    hrc_pan_step_deg: float | None = Field(None, ge=1.0, le=360.0, description="HRC frames every this many "
+                                           "degrees of pan over pan_range_deg (default: pan_step_deg, one "
+                                           "HRC frame per panorama column)")
     dwell_s: float = Field(900.0, ge=0.0, le=86400.0, description="time a site's panorama takes (the rover "
                            "stands still)")
 
@@ -100,9 +103,11 @@ class SitesConfig(_Strict):
         if not -360.0 <= lo <= hi <= 360.0:
             raise ValueError(f"pan_range_deg must lie within (-360, 360), got {list(self.pan_range_deg)}")
         frames = (int((hi - lo) / self.pan_step_deg) + 1) * max(len(self.tilts_deg), 1)
+        if self.hrc:
+            frames += int((hi - lo) / (self.hrc_pan_step_deg or self.pan_step_deg)) + 1
         if frames > 2000:
-            raise ValueError(f"pan_range_deg, pan_step_deg and tilts_deg give {frames} frames per site (at most "
-                             "2000)")
+            raise ValueError(f"pan_range_deg, pan_step_deg, tilts_deg and hrc_pan_step_deg give {frames} frames "
+                             "per site (at most 2000)")
         return self
 
 

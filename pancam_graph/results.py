@@ -173,6 +173,7 @@ def metrics_document(result: RunResult) -> dict:
             landmarks=c.landmarks,
             rejected_tie_points=int(c.counters.get("rejected_tie_points", 0)),
             rejected_tie_views=int(c.counters.get("rejected_tie_views", 0)),
+            hrc_measurements=int(c.counters.get("hrc_measurements", 0)),
             rejected_hrc_measurements=int(c.counters.get("rejected_hrc_measurements", 0)),
             gps_fixes_used=c.gps_fixes_used,
             gps_outliers=c.gps_outliers,

@@ -73,14 +73,16 @@ class StereoCalibration:
         return (not np.any(self.d_left) and not np.any(self.d_right) and np.allclose(self.k_left, self.k_right)
                 and np.allclose(self.rotation, np.eye(3), atol=1e-9) and abs(abs(t[0]) - 1.0) < 1e-9)
 
-    def _stereo_rectify(self):
+    def stereo_rectify(self) -> tuple[np.ndarray, ...]:
+        """OpenCV stereoRectify's R1, R2, P1, P2, Q, ROI1, ROI2 (zero disparity at infinity,
+        only valid pixels: alpha 0)."""
         return cv2.stereoRectify(self.k_left, self.d_left, self.k_right, self.d_right, self.size, self.rotation,
                                  self.translation.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0.0)
 
     def rectified(self) -> RectifiedStereo:
         """The pair after rectification (OpenCV stereoRectify, zero disparity at infinity, only
         valid pixels: alpha 0)."""
-        r1, _, p1, p2, _, _, _ = self._stereo_rectify()
+        r1, _, p1, p2, _, _, _ = self.stereo_rectify()
         w, h = self.size
         camera = Camera(fx=float(p1[0, 0]), fy=float(p1[1, 1]), cx=float(p1[0, 2]), cy=float(p1[1, 2]), width=w,
                         height=h)
@@ -92,7 +94,7 @@ class StereoCalibration:
 
     def rectification_maps(self) -> RectificationMaps:
         """The maps `rectified()`'s pair is made with (fixed-point, for a fast remap)."""
-        r1, r2, p1, p2, _, _, _ = self._stereo_rectify()
+        r1, r2, p1, p2, _, _, _ = self.stereo_rectify()
         maps = [cv2.initUndistortRectifyMap(k, d, r, p, self.size, cv2.CV_16SC2)
                 for k, d, r, p in ((self.k_left, self.d_left, r1, p1), (self.k_right, self.d_right, r2, p2))]
         return RectificationMaps(*maps)

@@ -55,7 +55,7 @@ def _waypoint(value):
     (_set("sites", "tilts_deg", [-6.0, 1e308]), ["sites.tilts_deg.1", "less than or equal to 90"]),
     (_set("sites", "pan_step_deg", 1.0), None),  # 361 x 2 tilts: fine
     (lambda d: (_set("sites", "pan_step_deg", 1.0)(d), _set("sites", "tilts_deg", [-19.0 + t for t in range(20)])(d)),
-     ["7220 frames per site"]),
+     ["7581 frames per site"]),  # 361 pans x 20 tilts + 361 HRC frames
     (_set("terrain", "featureless", [[300.0, 100.0]]), ["terrain.featureless.0", "min <= max"]),
     (_set("gps", "lever_arm_m", [0.0, 0.0, 1e308]), ["lever_arm_m", "within 10 m"]),
     (_set("dead_reckoning", "wheel_slip_mean", math.nan), ["dead_reckoning.wheel_slip_mean", "finite"]),

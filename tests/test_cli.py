@@ -166,7 +166,7 @@ def test_bench_prints_json(tmp_path):
 def test_scenarios_lists_bundled_files():
     result = runner.invoke(app, ["scenarios"])
     assert result.exit_code == 0
-    for name in ("denver_trail", "straight_500m", "gps_multipath", "short_trail", "long_traverse"):
+    for name in ("denver_trail", "straight_500m", "gps_multipath", "short_trail", "long_traverse", "sparse_sites"):
         assert name in result.output
     assert "(invalid" not in result.output
 

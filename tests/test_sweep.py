@@ -11,8 +11,10 @@ from pathlib import Path
 import pytest
 
 from pancam_graph.config import resolve_scenario
+from pancam_graph.errors import ConfigError
 from pancam_graph.evaluation.consistency import monte_carlo_summary
 from pancam_graph.pipeline import RunOptions, run
+from pancam_graph.sweep.spec import SweepSpec, plan
 
 EXE = Path(sys.executable).parent / "pancam-graph"
 SPEC = """
@@ -93,3 +95,11 @@ def test_a_bad_spec_names_the_field(tmp_path):
     result = _sweep(tmp_path)
     assert result.returncode == 2 and "spec.toml: invalid sweep specification" in result.stderr
     assert "field 'seeds'" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_two_scenario_files_of_one_name_are_refused(tmp_path):
+    # They would share their results folders and their rows of the table.
+    (tmp_path / "copy.toml").write_text(resolve_scenario("short_trail").read_text())
+    spec = SweepSpec(scenarios=["short_trail", "copy.toml"], seeds=1)
+    with pytest.raises(ConfigError, match="short_trail and copy.toml are both named 'short_trail'"):
+        plan(spec, tmp_path / "sweep", tmp_path)

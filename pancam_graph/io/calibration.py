@@ -14,9 +14,11 @@ import numpy as np
 import yaml
 
 from ..errors import InputError
+from ..frontend.calibrate import MIN_TARGETS_PER_VIEW, ControlField
 from ..rig import Camera
 from ..stereo_pair import RectifiedStereo, StereoCalibration
 from ..text_files import read_text
+from .tables import write_csv
 
 KALIBR_CAMERA_MODELS = ("pinhole",)
 KALIBR_DISTORTION_MODELS = ("radtan", "none")  # OpenCV's plumb-bob order (k1, k2, p1, p2)
@@ -133,15 +135,19 @@ def _node_values(path: Path, name: str, node) -> np.ndarray:
         raise InputError(f"{path}: field '{name}': a number beyond floating point") from None
 
 
-def write_opencv_yaml(path: Path, calibration: StereoCalibration) -> None:
+def write_opencv_yaml(path: Path, calibration: StereoCalibration, rectification: bool = False) -> None:
     """A stereo calibration as OpenCV FileStorage YAML (K1 D1 K2 D2 R T, image size), the
-    layout `read_opencv_yaml` reads."""
+    layout `read_opencv_yaml` reads; with `rectification`, also stereoRectify's R1 R2 P1 P2 Q
+    as OpenCV's stereo_calib sample writes them (readers recompute them from the rest)."""
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
     if not fs.isOpened():
         raise InputError(f"{path}: cannot write the calibration")
     c = calibration
-    for name, value in (("K1", c.k_left), ("D1", c.d_left.reshape(1, -1)), ("K2", c.k_right),
-                        ("D2", c.d_right.reshape(1, -1)), ("R", c.rotation), ("T", c.translation.reshape(3, 1))):
+    fields = [("K1", c.k_left), ("D1", c.d_left.reshape(1, -1)), ("K2", c.k_right), ("D2", c.d_right.reshape(1, -1)),
+              ("R", c.rotation), ("T", c.translation.reshape(3, 1))]
+    if rectification:
+        fields += list(zip(("R1", "R2", "P1", "P2", "Q"), c.stereo_rectify()[:5], strict=True))
+    for name, value in fields:
         fs.write(name, np.asarray(value, dtype=float))
     fs.write("image_width", int(c.size[0]))
     fs.write("image_height", int(c.size[1]))
@@ -377,3 +383,45 @@ def _check_intrinsics(source: str, camera: str, fx: float, fy: float, cx: float,
     if not (0 <= cx <= width and 0 <= cy <= height):
         raise InputError(f"{source}: {camera} camera principal point ({cx:.6g}, {cy:.6g}) px is off the "
                          f"{width} x {height} image")
+
+
+# -- control field (calibrate) ----------------------------------------------------------------------
+
+CONTROL_FIELD_COLUMNS = ["target_id", "panel", "x_m", "y_m", "z_m"]
+
+
+def write_control_field(path: Path, field: ControlField) -> None:
+    """The field's surveyed targets (marker centres), one row each, metres."""
+    write_csv(path, CONTROL_FIELD_COLUMNS, [[int(t), int(p), *(f"{v:.6f}" for v in xyz)]
+                                            for t, p, xyz in zip(field.ids, field.panel, field.points, strict=True)])
+
+
+def read_control_field(path: Path) -> ControlField:
+    """A control field CSV (`write_control_field`'s columns): each target once, ids of the
+    ArUco 4x4 dictionary (0-249), finite coordinates in metres, a panel number per flat surface."""
+    from .observations import _Table
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such control field file (columns {','.join(CONTROL_FIELD_COLUMNS)})")
+    table = _Table(path, CONTROL_FIELD_COLUMNS)
+    points: dict[int, np.ndarray] = {}
+    panels: dict[int, int] = {}
+    for line, row in table.rows:
+        values = table.values(line, row)
+        target, panel = (int(table.number(line, c, v, integer=True))
+                         for c, v in zip(CONTROL_FIELD_COLUMNS[:2], values[:2], strict=True))
+        if not 0 <= target < 250:
+            raise InputError(f"{path}: line {line}: target_id {target} is not an ArUco 4x4 id (0-249)")
+        if target in points:
+            raise InputError(f"{path}: line {line}: target {target} given twice")
+        if not 0 <= panel < 250:
+            raise InputError(f"{path}: line {line}: panel {panel} outside 0-249")
+        xyz = np.array([table.number(line, c, v) for c, v in zip(CONTROL_FIELD_COLUMNS[2:], values[2:], strict=True)])
+        if np.any(np.abs(xyz) > 1e4):
+            raise InputError(f"{path}: line {line}: a coordinate beyond 10 km")
+        points[target], panels[target] = xyz, panel
+    if len(points) < MIN_TARGETS_PER_VIEW:
+        raise InputError(f"{path}: {len(points)} targets; calibration needs at least {MIN_TARGETS_PER_VIEW}")
+    ids = np.array(sorted(points))
+    return ControlField(ids, np.array([points[t] for t in ids]), np.array([panels[t] for t in ids]))

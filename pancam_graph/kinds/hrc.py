@@ -33,7 +33,7 @@ class Hrc(Kind):
         self.noise = noise.robust("huber", noise.image_pixels(localizer.traverse.image_noise_px),
                                   localizer.estimator.huber_k)
         self.gate_px = localizer.estimator.hrc_gate_px
-        self.rejected = 0
+        self.added = self.rejected = 0
         localizer.kind("sites").hrc = self
 
     def collect(self, stop: Stop, obs: SiteObservations) -> None:
@@ -46,7 +46,14 @@ class Hrc(Kind):
         views = site.hrc.get(track, ())
         if not views:
             return
-        p_world = self.loc.smoother.point(L(track))
+        # Predict from this site's own WAC triangulation when it has one: the HRC is 0.4 m from
+        # the left WAC, so the WAC's range error hardly moves the point in the HRC image. The
+        # graph's landmark may still be the earlier site's triangulation, whose range error at
+        # 40 m is hundreds of HRC pixels from here, and would gate out the very measurements
+        # that tie the two sites.
+        seen = site.points.get(track)
+        p_world = (world_T_body.transformFrom(seen.p_body) if seen is not None
+                   else self.loc.smoother.point(L(track)))
         for mount, uv in views:
             camera = gtsam.PinholeCameraCal3_S2(world_T_body.compose(mount), self.calibration)
             p_cam = camera.pose().transformTo(p_world)
@@ -54,6 +61,7 @@ class Hrc(Kind):
                 self.rejected += 1
                 continue
             self.loc.smoother.add(factors.projection(site.stop, track, uv, self.calibration, mount, self.noise))
+            self.added += 1
 
     def counters(self) -> dict:
-        return {"rejected_hrc_measurements": self.rejected}
+        return {"hrc_measurements": self.added, "rejected_hrc_measurements": self.rejected}

@@ -34,6 +34,8 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
     tilt = np.deg2rad(cam_cfg.traverse_tilt_deg)
     body_T_nav = rig.body_T_left(0.0, tilt)
     pans = np.deg2rad(np.arange(*scenario.sites.pan_range_deg, scenario.sites.pan_step_deg))
+    hrc_pans = np.deg2rad(np.arange(*scenario.sites.pan_range_deg,
+                                    scenario.sites.hrc_pan_step_deg or scenario.sites.pan_step_deg))
     site_range = (1.0, scenario.sites.max_range_m)
 
     # The traverse's wheel slip: one draw per traverse (terrain, load), from its own stream so
@@ -68,7 +70,7 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
                 hrc_tilt = np.deg2rad(scenario.sites.hrc_tilt_deg)
                 hrc = tuple(
                     observe_hrc(field, poses[k], float(p), hrc_tilt, rig, site_range, cam_cfg, rng)
-                    for p in pans
+                    for p in hrc_pans
                 )
         if at_stops and k % scenario.gps.every_n_stops == 0 and not _in_ranges(s, scenario.gps.dropouts):
             fixes.append(gps_fix(poses[k], time_s, scenario.gps, frame, rng))

@@ -75,9 +75,16 @@ def plan(spec: SweepSpec, out: Path, spec_folder: Path = Path(".")) -> list[Swee
     except OSError as exc:
         raise ConfigError(f"--out {out}: cannot create the sweep folder: {exc.strerror}") from None
     runs = []
+    named: dict[str, str] = {}
     for name in spec.scenarios:
         beside = spec_folder / name
         base = load_scenario(beside if name.endswith(".toml") and beside.is_file() else resolve_scenario(name))
+        # Runs are filed and reduced by the scenario's name: two files of one name would share
+        # their results folders and their rows of the table.
+        if base.name in named:
+            raise ConfigError(f"sweep: scenarios {named[base.name]} and {name} are both named {base.name!r}; "
+                              "give each scenario file its own name")
+        named[base.name] = name
         for rig in spec.rigs or [base.rig]:
             for variant in spec.variants:
                 scenario = _combined(base, rig, variant, name)
