@@ -872,7 +872,8 @@ def _bench_sites(source: str | None, compared_sites: int = 3) -> None:
             task = bar.add_task("site panoramas", total=None)
             _, report = with_site_panoramas(obs, list(tracked.traverse.stops), pairs.read_view, vo, FrontendConfig(),
                                             progress=lambda _, done, total: bar.update(task, completed=done,
-                                                                                       total=total))
+                                                                                       total=total),
+                                            read_hrc=pairs.read_hrc if obs.traverse.rig.hrc is not None else None)
         # aided against unaided matching of overlapping frames, on the first sites
         rig = obs.traverse.rig
         matcher = PanoramaMatcher(rig.wac, rig.baseline_m)
@@ -929,6 +930,18 @@ def _bench_sites(source: str | None, compared_sites: int = 3) -> None:
                           "verified": len(pair.result.ties), "seconds": round(pair.result.seconds, 2),
                           "note": pair.result.note, **scored(errors, 3.0)})
     adjacent = [r["verified"] for r in pair_rows if r["adjacent"]]
+    hrc_rows, hrc_errors = [], []
+    for stop, frames in report.hrc.items():
+        for m in frames:
+            body_T_hrc = rig.body_T_hrc(m.pan_rad, m.tilt_rad).matrix()
+            errors = [] if truth is None else [float(np.linalg.norm(truth.pixel(stop, body_T_hrc, truth.world_point(
+                stop, site[stop].views[v].body_T_camera, wac_uv), rig.hrc) - uv))
+                for v, wac_uv, uv in zip(m.wac_view, m.wac_uv, m.uv, strict=True)]
+            hrc_errors += errors
+            hrc_rows.append({"stop": stop, "pan_deg": round(float(np.rad2deg(m.pan_rad)), 1),
+                             "predicted": m.predicted, "matched": len(m.track_ids),
+                             "correct_within_7px": int(np.sum(np.array(errors) < 7.0)) if truth is not None else None,
+                             "seconds": round(m.seconds, 3)})
     print(json.dumps({
         "source": source, "sites": len(report.sites), "summary": report.summary(),
         "truth": "renderer depth at the true poses" if truth is not None else None,
@@ -936,6 +949,16 @@ def _bench_sites(source: str | None, compared_sites: int = 3) -> None:
                  "adjacent_pairs_fewest": min(adjacent) if adjacent else 0,
                  "adjacent_pairs_median": float(np.median(adjacent)) if adjacent else 0.0,
                  **scored(tie_errors, 3.0), **scored(tie_errors, 2.0), "pairs": pair_rows},
+        "hrc": {
+            "frames": len(hrc_rows),
+            "matched_median": float(np.median([r["matched"] for r in hrc_rows])) if hrc_rows else 0.0,
+            "matched_fewest": min((r["matched"] for r in hrc_rows), default=0),
+            "correct_fewest": min((r["correct_within_7px"] or 0 for r in hrc_rows), default=0),
+            **scored(hrc_errors, 7.0), **scored(hrc_errors, 3.0),
+            "note": "HRC pixels against where the WAC feature's terrain point is in the HRC image; 7 HRC px is "
+                    "one WAC pixel",
+            "frames_detail": hrc_rows,
+        },
         "overlapping_frames": {
             "sites": min(compared_sites, len(by_stop)),
             "pan_tilt_aided": {k: v for k, v in aided.items() if k != "errors"} | scored(aided["errors"], 2.0),

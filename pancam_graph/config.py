@@ -188,6 +188,9 @@ class EstimatorConfig(_Strict):
     landmark_anchor_sigma_m: float = Field(3.0, gt=0.0, description="bearing-range anchor of a new "
                                            "landmark from its first site, along and across the line of sight")
     hrc_gate_px: float = Field(30.0, gt=0.0, description="HRC measurement vs WAC landmark prediction")
+    hrc_sigma_px: float | None = Field(None, gt=0.0, le=50.0, description="pixel sigma of an HRC view; None: "
+                                       "the traverse's image noise (WAC features found in HRC images carry the WAC "
+                                       "pixel's error: image folders use 7 HRC px, docs/frontend.md)")
     tie_kernel: Literal["huber", "cauchy", "none"] = "huber"
     gps_kernel: Literal["huber", "cauchy", "none"] = "huber"
     huber_k: float = Field(1.345, gt=0.0, description="Huber threshold in sigmas (95 % efficiency)")

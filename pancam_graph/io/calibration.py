@@ -18,7 +18,7 @@ from ..frontend.calibrate import MIN_TARGETS_PER_VIEW, ControlField
 from ..rig import Camera
 from ..stereo_pair import RectifiedStereo, StereoCalibration
 from ..text_files import read_text
-from .tables import write_csv
+from .tables import CsvTable, write_csv
 
 KALIBR_CAMERA_MODELS = ("pinhole",)
 KALIBR_DISTORTION_MODELS = ("radtan", "none")  # OpenCV's plumb-bob order (k1, k2, p1, p2)
@@ -399,12 +399,10 @@ def write_control_field(path: Path, field: ControlField) -> None:
 def read_control_field(path: Path) -> ControlField:
     """A control field CSV (`write_control_field`'s columns): each target once, ids of the
     ArUco 4x4 dictionary (0-249), finite coordinates in metres, a panel number per flat surface."""
-    from .observations import _Table
-
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such control field file (columns {','.join(CONTROL_FIELD_COLUMNS)})")
-    table = _Table(path, CONTROL_FIELD_COLUMNS)
+    table = CsvTable(path, CONTROL_FIELD_COLUMNS)
     points: dict[int, np.ndarray] = {}
     panels: dict[int, int] = {}
     for line, row in table.rows:

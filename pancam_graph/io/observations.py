@@ -21,9 +21,7 @@ written with repr(), so a folder written from a traverse reads back bit for bit.
 from __future__ import annotations
 
 import csv
-import io
 from collections import defaultdict
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -48,6 +46,7 @@ from ..records import (
 )
 from ..rig import Rig, rig_preset
 from ..text_files import read_text
+from .tables import CsvTable
 
 if TYPE_CHECKING:
     from ..stereo_pair import StereoCalibration
@@ -338,68 +337,8 @@ def _rig(folder: Path, source: RigSource) -> tuple[Rig, StereoCalibration | None
                raw_R_rectified=rotation), raw
 
 
-class _Table:
-    """Rows of a CSV file with required columns; every bad value names file, line and column."""
-
-    def __init__(self, path: Path, columns: list[str], optional: list[str] = ()):
-        self.path = path
-        reader = csv.reader(io.StringIO(read_text(path), newline=""))
-        try:
-            header = [c.strip() for c in next(reader, [])]
-            missing = [c for c in columns if c not in header]
-            if missing:
-                raise InputError(f"{path}: line 1: missing column(s) {', '.join(missing)} "
-                                 f"(expected {','.join(columns)})")
-            self.index = [header.index(c) for c in columns]
-            self.optional_index = {c: header.index(c) for c in optional if c in header}
-            self.columns = columns
-            self.rows = [(line, row) for line, row in enumerate(reader, start=2) if row]
-        except csv.Error as exc:  # e.g. a field over the csv module's 131,072 characters
-            raise InputError(f"{path}: line {reader.line_num}: not a CSV row this reader takes ({exc})") from None
-
-    def values(self, line: int, row: list[str]) -> list[str]:
-        if len(row) < max(self.index) + 1:
-            raise InputError(f"{self.path}: line {line}: {len(row)} fields, expected {len(self.columns)}")
-        return [row[i] for i in self.index]
-
-    def number(self, line: int, column: str, text: str, integer: bool = False) -> float:
-        try:
-            value = int(text) if integer else float(text)
-        except ValueError:
-            kind = "an integer" if integer else "a number"
-            raise InputError(f"{self.path}: line {line}: column '{column}': expected {kind}, got {text!r}") from None
-        if not integer and not np.isfinite(value):
-            raise InputError(f"{self.path}: line {line}: column '{column}' is not finite")
-        return value
-
-    def optional_number(self, line: int, row: list[str], column: str, default: float) -> float:
-        i = self.optional_index.get(column)
-        if i is None or i >= len(row) or row[i] == "":
-            return default
-        return self.number(line, column, row[i])
-
-    def stops_and_numbers(self, n: int) -> Iterator[tuple[int, int, list[float]]]:
-        """(line, stop, numbers) of a table whose first column is a stop and the rest are numbers."""
-        for line, row in self.rows:
-            values = self.values(line, row)
-            numbers = [self.number(line, c, v) for c, v in zip(self.columns[1:], values[1:], strict=True)]
-            yield line, self.stop(line, values[0], n), numbers
-
-    def track(self, line: int, text: str) -> int:
-        t = int(self.number(line, "track", text, integer=True))
-        if not 0 <= t < 2**63:  # an int64 in every array that holds tracks
-            raise InputError(f"{self.path}: line {line}: track {t} outside 0..2^63-1")
-        return t
-
-    def stop(self, line: int, text: str, n: int) -> int:
-        k = int(self.number(line, "stop", text, integer=True))
-        if not 0 <= k < n:
-            raise InputError(f"{self.path}: line {line}: stop {k} is not one of stereo.csv's stops 0..{n - 1}")
-        return k
-
-
 def _read_stereo(path: Path) -> tuple[list[float], list[float], list[StereoObservations]]:
-    table = _Table(path, STEREO_COLUMNS, optional=["dwell_s"])
+    table = CsvTable(path, STEREO_COLUMNS, optional=["dwell_s"])
     times: dict[int, float] = {}
     dwells: dict[int, float] = {}
     rows: dict[int, list] = defaultdict(list)
@@ -442,7 +381,7 @@ def _read_stereo(path: Path) -> tuple[list[float], list[float], list[StereoObser
 
 def _read_frames_csv(path: Path) -> tuple[list[float], list[float], list[tuple[Path, Path]]]:
     """An image folder's frames.csv: per stop (0..N-1 in order) its time, dwell and images."""
-    table = _Table(path, FRAME_COLUMNS)
+    table = CsvTable(path, FRAME_COLUMNS)
     times, dwells, frames = [], [], []
     for line, row in table.rows:
         stop, time_s, dwell_s, left, right = table.values(line, row)
@@ -464,7 +403,7 @@ def _read_panorama_frames(path: Path, n: int) -> tuple[PanoramaImage, ...]:
     """An image folder's panorama_frames.csv (optional): WAC pairs and HRC frames at sites."""
     if not path.is_file():
         return ()
-    table = _Table(path, PANORAMA_FRAME_COLUMNS)
+    table = CsvTable(path, PANORAMA_FRAME_COLUMNS)
     images = []
     for line, row in table.rows:
         stop, site, camera, pan, tilt, left, right = table.values(line, row)
@@ -479,7 +418,7 @@ def _read_panorama_frames(path: Path, n: int) -> tuple[PanoramaImage, ...]:
     return tuple(images)
 
 
-def _read_frames(table: _Table, n: int, measured: list[str]) -> dict[int, dict[tuple[float, float], tuple]]:
+def _read_frames(table: CsvTable, n: int, measured: list[str]) -> dict[int, dict[tuple[float, float], tuple]]:
     """Rows grouped by stop and frame (pan_rad, tilt_rad), in file order: per frame the track ids
     and the `measured` columns as an (N, len(measured)) array."""
     grouped: dict[int, dict[tuple[float, float], list]] = defaultdict(dict)
@@ -500,7 +439,7 @@ def _read_frames(table: _Table, n: int, measured: list[str]) -> dict[int, dict[t
 def _read_panorama(path: Path, n: int) -> tuple[dict[int, tuple[PanoramaFrame, ...]], dict[int, int]]:
     if not path.is_file():
         return {}, {}
-    table = _Table(path, PANORAMA_COLUMNS)
+    table = CsvTable(path, PANORAMA_COLUMNS)
     frames = _read_frames(table, n, ["u_left", "u_right", "v"])  # validates every row first
     sites = {int(row[table.index[0]]): int(table.number(line, "site", row[table.index[1]], integer=True))
              for line, row in table.rows}
@@ -512,7 +451,7 @@ def _read_panorama(path: Path, n: int) -> tuple[dict[int, tuple[PanoramaFrame, .
 def _read_hrc(path: Path, n: int) -> dict[int, tuple[HrcFrame, ...]]:
     if not path.is_file():
         return {}
-    frames = _read_frames(_Table(path, HRC_COLUMNS), n, ["u", "v"])
+    frames = _read_frames(CsvTable(path, HRC_COLUMNS), n, ["u", "v"])
     return {k: tuple(HrcFrame(pan, tilt, tracks, uv) for (pan, tilt), (tracks, uv) in by_frame.items())
             for k, by_frame in frames.items()}
 
@@ -522,7 +461,7 @@ def _read_gps(path: Path) -> tuple[GpsFix, ...]:
     each fix is used at its own time."""
     if not path.is_file():
         return ()
-    table = _Table(path, GPS_COLUMNS)
+    table = CsvTable(path, GPS_COLUMNS)
     fixes = []
     for line, row in table.rows:
         t, lat, lon, h, sh, sv = (table.number(line, c, v) for c, v in zip(GPS_COLUMNS, table.values(line, row),
@@ -539,7 +478,7 @@ def _read_odometry(path: Path, n: int) -> dict[int, DeadReckoning]:
     if not path.is_file():
         return {}
     increments = {}
-    for line, k, numbers in _Table(path, ODOMETRY_COLUMNS).stops_and_numbers(n):
+    for line, k, numbers in CsvTable(path, ODOMETRY_COLUMNS).stops_and_numbers(n):
         pose = np.eye(4)
         pose[:3, :3], pose[:3, 3] = np.reshape(numbers[:9], (3, 3)), numbers[9:12]
         cov = np.zeros((6, 6))
@@ -565,7 +504,7 @@ def _read_truth_landmarks(path: Path) -> np.ndarray:
     """(M, 3) indexed by track id; NaN for tracks without a true position."""
     if not path.is_file():
         return np.zeros((0, 3))
-    table = _Table(path, ["track", "x_m", "y_m", "z_m"])
+    table = CsvTable(path, ["track", "x_m", "y_m", "z_m"])
     rows = []
     for line, row in table.rows:
         track, x, y, z = table.values(line, row)

@@ -3,8 +3,15 @@
 from __future__ import annotations
 
 import csv
+import io
 import json
+from collections.abc import Iterator
 from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..text_files import read_text
 
 
 def write_json(path: Path, data: dict) -> None:
@@ -16,3 +23,63 @@ def write_csv(path: Path, header: list[str], rows) -> None:
         writer = csv.writer(f)
         writer.writerow(header)
         writer.writerows(rows)
+
+
+class CsvTable:
+    """Rows of a CSV file with required columns; every bad value names file, line and column."""
+
+    def __init__(self, path: Path, columns: list[str], optional: list[str] = ()):
+        self.path = path
+        reader = csv.reader(io.StringIO(read_text(path), newline=""))
+        try:
+            header = [c.strip() for c in next(reader, [])]
+            missing = [c for c in columns if c not in header]
+            if missing:
+                raise InputError(f"{path}: line 1: missing column(s) {', '.join(missing)} "
+                                 f"(expected {','.join(columns)})")
+            self.index = [header.index(c) for c in columns]
+            self.optional_index = {c: header.index(c) for c in optional if c in header}
+            self.columns = columns
+            self.rows = [(line, row) for line, row in enumerate(reader, start=2) if row]
+        except csv.Error as exc:  # e.g. a field over the csv module's 131,072 characters
+            raise InputError(f"{path}: line {reader.line_num}: not a CSV row this reader takes ({exc})") from None
+
+    def values(self, line: int, row: list[str]) -> list[str]:
+        if len(row) < max(self.index) + 1:
+            raise InputError(f"{self.path}: line {line}: {len(row)} fields, expected {len(self.columns)}")
+        return [row[i] for i in self.index]
+
+    def number(self, line: int, column: str, text: str, integer: bool = False) -> float:
+        try:
+            value = int(text) if integer else float(text)
+        except ValueError:
+            kind = "an integer" if integer else "a number"
+            raise InputError(f"{self.path}: line {line}: column '{column}': expected {kind}, got {text!r}") from None
+        if not integer and not np.isfinite(value):
+            raise InputError(f"{self.path}: line {line}: column '{column}' is not finite")
+        return value
+
+    def optional_number(self, line: int, row: list[str], column: str, default: float) -> float:
+        i = self.optional_index.get(column)
+        if i is None or i >= len(row) or row[i] == "":
+            return default
+        return self.number(line, column, row[i])
+
+    def stops_and_numbers(self, n: int) -> Iterator[tuple[int, int, list[float]]]:
+        """(line, stop, numbers) of a table whose first column is a stop and the rest are numbers."""
+        for line, row in self.rows:
+            values = self.values(line, row)
+            numbers = [self.number(line, c, v) for c, v in zip(self.columns[1:], values[1:], strict=True)]
+            yield line, self.stop(line, values[0], n), numbers
+
+    def track(self, line: int, text: str) -> int:
+        t = int(self.number(line, "track", text, integer=True))
+        if not 0 <= t < 2**63:  # an int64 in every array that holds tracks
+            raise InputError(f"{self.path}: line {line}: track {t} outside 0..2^63-1")
+        return t
+
+    def stop(self, line: int, text: str, n: int) -> int:
+        k = int(self.number(line, "stop", text, integer=True))
+        if not 0 <= k < n:
+            raise InputError(f"{self.path}: line {line}: stop {k} is not one of stereo.csv's stops 0..{n - 1}")
+        return k

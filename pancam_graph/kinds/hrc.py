@@ -30,8 +30,8 @@ class Hrc(Kind):
         self.calibration = self.rig.hrc.gtsam_calibration()
         # HRC residuals start large (landmarks come from the WAC), so only a convex kernel keeps
         # them pulling: Huber, whatever the tie-point kernel is.
-        self.noise = noise.robust("huber", noise.image_pixels(localizer.traverse.image_noise_px),
-                                  localizer.estimator.huber_k)
+        sigma_px = localizer.estimator.hrc_sigma_px or localizer.traverse.image_noise_px
+        self.noise = noise.robust("huber", noise.image_pixels(sigma_px), localizer.estimator.huber_k)
         self.gate_px = localizer.estimator.hrc_gate_px
         self.added = self.rejected = 0
         localizer.kind("sites").hrc = self

@@ -35,11 +35,13 @@ class RenderedTruth:
         ray = np.array([(uv[0] - cam.cx) / cam.fx, (uv[1] - cam.cy) / cam.fy, 1.0])
         return world_T_camera[:3, :3] @ (z * ray) + world_T_camera[:3, 3]
 
-    def pixel(self, stop: int, body_T_camera: np.ndarray, world: np.ndarray) -> np.ndarray:
-        """Where a world point is in the rectified image of the camera at body_T_camera."""
+    def pixel(self, stop: int, body_T_camera: np.ndarray, world: np.ndarray, camera: Camera | None = None
+              ) -> np.ndarray:
+        """Where a world point is in the rectified image of the camera at body_T_camera (another
+        camera than the rectified WAC's, e.g. the HRC, if given)."""
         camera_T_world = np.linalg.inv(self.world_T_body[stop] @ body_T_camera)
         q = camera_T_world[:3, :3] @ world + camera_T_world[:3, 3]
-        return self.camera.project(q[None], distort=False)[0]
+        return (camera or self.camera).project(q[None], distort=False)[0]
 
     def transfer_error(self, a: tuple[int, np.ndarray, np.ndarray], b: tuple[int, np.ndarray, np.ndarray]) -> float:
         """Pixel distance between b's measurement and where the terrain under a's measurement is

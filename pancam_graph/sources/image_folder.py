@@ -26,6 +26,11 @@ from .site_images import with_site_panoramas
 # Pixel sigma of a landmark's views when its tie points were matched across sites from images:
 # the matches' error against the renderer's truth has a median of 0.50 px and 96 % below 3 px.
 TIE_SIGMA_PX = 1.0
+# Pixel sigma of an HRC view of a WAC feature found in the HRC image. The match itself is good to
+# 2.3 HRC px RMS along the rows and 0.55 px across them (98 % within 7 px), but it finds where the
+# WAC's pixel is, so it carries that pixel's error: one WAC pixel (7 HRC px) is what it is worth.
+# At 2 px the copied tie-point errors made vo_sites_hrc worse on denver_trail (docs/frontend.md).
+HRC_SIGMA_PX = 7.0
 
 if TYPE_CHECKING:
     from ..io.observations import ObservationSet
@@ -61,8 +66,9 @@ class FramePairs:
     """The stereo pairs of an image folder, read (raw) and rectified."""
 
     def __init__(self, obs: ObservationSet):
-        cam = obs.traverse.rig.wac
+        cam, hrc = obs.traverse.rig.wac, obs.traverse.rig.hrc
         self.size = (cam.height, cam.width)
+        self.hrc_size = None if hrc is None else (hrc.height, hrc.width)
         self.frames = obs.frames
         # raw images (lens distortion, a misaligned right camera) are rectified before tracking
         self.rectify = None if obs.calibration is None else obs.calibration.rectification_maps()
@@ -78,6 +84,11 @@ class FramePairs:
         """A panorama frame's WAC pair (io.observations.PanoramaImage), rectified."""
         pair = (read_gray(image.left, self.size), read_gray(image.right, self.size))
         return pair if self.rectify is None else self.rectify(*pair)
+
+    def read_hrc(self, image) -> np.ndarray:
+        """An HRC frame (io.observations.PanoramaImage of camera "hrc"), as taken: the rig's HRC
+        is a pinhole camera."""
+        return read_gray(image.left, self.hrc_size)
 
     def rectified(self, pair: tuple[np.ndarray, np.ndarray], times: StageTimes) -> tuple[np.ndarray, np.ndarray]:
         """A raw pair rectified, the time it took added to `times` (stage "rectify")."""
@@ -131,12 +142,16 @@ def with_sites(data: SourceData, obs: ObservationSet, pairs: FramePairs, fronten
     if estimator.tie_sigma_px is None:
         estimator = estimator.model_copy(update={"tie_sigma_px": TIE_SIGMA_PX})
         notes.append(f"tie points matched across sites from images: landmark views at {TIE_SIGMA_PX} px")
+    has_hrc = obs.traverse.rig.hrc is not None and any(p.camera == "hrc" for p in obs.panorama_frames)
+    if has_hrc and estimator.hrc_sigma_px is None:
+        estimator = estimator.model_copy(update={"hrc_sigma_px": HRC_SIGMA_PX})
+        notes.append(f"WAC features found in the HRC frames: HRC views at {HRC_SIGMA_PX} px")
     if progress is not None:
         progress("stereo VO (tie point predictions)", 0, 1)
     vo = VoMotions.estimate(data.traverse, estimator)
     try:
         stops, report = with_site_panoramas(obs, list(data.traverse.stops), pairs.read_view, vo, frontend,
-                                            skip_bad_frames, progress)
+                                            skip_bad_frames, progress, pairs.read_hrc if has_hrc else None)
     except InputError as exc:  # a panorama frame: every navigation frame's tracking is kept
         raise FrameError(f"site panorama: {exc} (--skip-bad-frames leaves the frame out)", len(data.traverse.stops),
                          data) from None

@@ -1,7 +1,7 @@
-"""An image folder's site panoramas into the back-end's panorama observations: every site's
-features (frontend/panorama.py), and its tie points to the last few sites (frontend/ties.py)
+"""An image folder's site panoramas into the back-end's panorama and HRC observations: every
+site's features (frontend/panorama.py), its tie points to the last few sites (frontend/ties.py)
 predicted by the stereo VO between the two sites and its covariance (what the `vo`
-configuration knows there)."""
+configuration knows there), and its features found in its HRC frames (frontend/hrc.py)."""
 
 from __future__ import annotations
 
@@ -13,11 +13,12 @@ import numpy as np
 
 from ..config import FrontendConfig
 from ..errors import InputError
+from ..frontend.hrc import HrcMatcher, HrcMatches
 from ..frontend.motion import VoMotions
 from ..frontend.panorama import PanoramaMatcher, PanoramaView, SitePanorama
 from ..frontend.ties import TieMatcher, TieResult
 from ..graph.tie_gate import RelativePose
-from ..records import PanoramaFrame, StereoObservations, Stop
+from ..records import HrcFrame, PanoramaFrame, StereoObservations, Stop
 
 if TYPE_CHECKING:
     from ..io.observations import ObservationSet
@@ -26,6 +27,7 @@ MAX_TIE_DISTANCE_M = 80.0  # sites further apart see no common ground at a usabl
 TRACK_OFFSET = 1_000_000_000  # site track ids start here, apart from the navigation tracks'
 
 ReadViewPair = Callable[[object], tuple[np.ndarray, np.ndarray]]  # PanoramaImage -> rectified pair
+ReadHrc = Callable[[object], np.ndarray]  # PanoramaImage of an HRC frame -> grey image
 
 
 @dataclass(frozen=True)
@@ -45,6 +47,7 @@ class SiteReport:
 
     sites: list[SitePanorama] = field(default_factory=list)  # without their images
     pairs: list[SitePairTies] = field(default_factory=list)
+    hrc: dict[int, list[HrcMatches]] = field(default_factory=dict)  # per site stop
     skipped: list[str] = field(default_factory=list)  # frames that could not be read
 
     def summary(self) -> str:
@@ -58,6 +61,12 @@ class SiteReport:
                 f"{sum(len(p.result.ties) for p in self.pairs)} tie points over {len(self.pairs)} site pairs")
         if counts:
             text += f" (adjacent sites: median {int(np.median(counts))}, fewest {min(counts)})"
+        frames = [m for matches in self.hrc.values() for m in matches]
+        if frames:
+            found = [len(m.track_ids) for m in frames]
+            text += (f"; {sum(found)} WAC features found in {len(frames)} HRC frames (median {int(np.median(found))}, "
+                     f"fewest {min(found)})")
+            seconds += sum(m.seconds for m in frames)
         return text + f"; {seconds:.0f} s"
 
     def next_site(self, stop: int) -> int | None:
@@ -76,9 +85,11 @@ def wac_images_by_stop(obs: ObservationSet) -> dict[int, list]:
 
 def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadViewPair, vo: VoMotions,
                         frontend: FrontendConfig, skip_bad_frames: bool = False,
-                        progress: Callable[[str, int, int], None] | None = None) -> tuple[list[Stop], SiteReport]:
-    """The stops with their site panoramas' observations (site ids set), and what was done.
-    A panorama frame that cannot be read stops with the message naming it, or with
+                        progress: Callable[[str, int, int], None] | None = None,
+                        read_hrc: ReadHrc | None = None) -> tuple[list[Stop], SiteReport]:
+    """The stops with their site panoramas' observations (site ids set), and what was done;
+    with `read_hrc`, also the HRC frames' views of the site's features (its tie points
+    included). A panorama frame that cannot be read stops with the message naming it, or with
     `skip_bad_frames` is left out of its panorama."""
     report = SiteReport()
     by_stop = {stop: images for stop, images in wac_images_by_stop(obs).items() if stop < len(stops)}
@@ -88,20 +99,16 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
     motions = vo.motions
     matcher = PanoramaMatcher(rig.wac, rig.baseline_m, frontend, first_id=TRACK_OFFSET)
     ties = TieMatcher(rig, obs.traverse.image_noise_px)
+    hrc_matcher = HrcMatcher(rig) if read_hrc is not None and rig.hrc is not None else None
+    hrc_images: dict[int, list] = {}
+    for image in obs.panorama_frames:
+        if image.camera == "hrc":
+            hrc_images.setdefault(image.stop, []).append(image)
     recent: list[SitePanorama] = []
     stops = list(stops)
     for done, (stop, images) in enumerate(by_stop.items()):
-        views = []
-        for im in images:
-            try:
-                pair = read_pair(im)
-            except InputError as exc:
-                if not skip_bad_frames:
-                    raise
-                report.skipped.append(f"site {im.site} frame skipped: {exc}")
-                continue
-            mount = rig.body_T_left(im.pan_rad, im.tilt_rad).matrix()
-            views.append(PanoramaView(im.pan_rad, im.tilt_rad, mount, *pair))
+        views = [PanoramaView(im.pan_rad, im.tilt_rad, rig.body_T_left(im.pan_rad, im.tilt_rad).matrix(), *pair)
+                 for im, pair in _readable(images, read_pair, "frame", skip_bad_frames, report)]
         site = matcher(stop, images[0].site, views)
         for earlier in reversed(recent):
             prediction = RelativePose.compose([(motions[k].prev_T_curr, motions[k].covariance)
@@ -112,13 +119,33 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
             result = ties(earlier, site, prediction)
             _add_ties(site, result)
             report.pairs.append(SitePairTies(earlier.stop, stop, distance, prediction, result))
+        hrc = []
+        if hrc_matcher is not None:
+            hrc = [hrc_matcher(site, im.pan_rad, im.tilt_rad, image) for im, image in
+                   _readable(hrc_images.get(stop, ()), read_hrc, "HRC frame", skip_bad_frames, report)]
+            report.hrc[stop] = hrc
         stops[stop] = replace(stops[stop], site_id=site.site, panorama=tuple(
-            PanoramaFrame(v.pan_rad, v.tilt_rad, v.observations) for v in site.views))
+            PanoramaFrame(v.pan_rad, v.tilt_rad, v.observations) for v in site.views),
+            hrc=tuple(HrcFrame(m.pan_rad, m.tilt_rad, m.track_ids, m.uv) for m in hrc))
         recent = (recent + [site])[-vo.estimator.site_memory:]
         report.sites.append(_without_images(site))
         if progress is not None:
             progress("site panoramas", done + 1, len(by_stop))
     return stops, report
+
+
+def _readable(images: list, read: Callable, what: str, skip_bad_frames: bool, report: SiteReport):
+    """(frame, what `read` made of it) for each frame; one that cannot be read stops with its
+    message or, with `skip_bad_frames`, is noted in the report and left out."""
+    for im in images:
+        try:
+            data = read(im)
+        except InputError as exc:
+            if not skip_bad_frames:
+                raise
+            report.skipped.append(f"site {im.site} {what} skipped: {exc}")
+            continue
+        yield im, data
 
 
 def _add_ties(site: SitePanorama, result: TieResult) -> None:

@@ -1,0 +1,133 @@
+"""A site's WAC features found in its HRC frames, across the ~7x scale difference (seed section
+4.3.2), giving HRC projection measurements of the WAC tracks.
+
+Each WAC feature with a stereo triangulation is predicted into the HRC frame through the mast
+(the HRC is 0.4 m from the left WAC, so the WAC's range error moves the prediction little).
+The HRC image is then brought to the WAC's geometry around the feature: blurred to the WAC's
+resolution and resampled through the homography of the local ground (level in the body
+frame) through the point. That synthetic WAC patch is correlated (NCC) with the WAC's own patch
+within a few WAC pixels of the prediction; the peak, refined to sub-pixel, maps back into the
+HRC image. The HRC pixel found is where the WAC's pixel is: it carries that pixel's error
+(docs/frontend.md, "What the HRC views are worth from images").
+
+Seed 4.3.2 detects scale-space Harris corners in both images (sigma_d 1 for the WAC, about 7 for
+the HRC) and searches along the epipolar line. Predicting through the mast and correlating at
+the WAC's scale needs no detector in the HRC at all, and so finds every WAC feature the HRC
+sees, not only those that are corners at both scales (refining each match as a corner in the
+HRC's own pixels at the WAC's scale was measured: fewer matches, no better estimate).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ..rig import Rig
+from .panorama import SitePanorama
+
+
+@dataclass(frozen=True)
+class HrcSettings:
+    patch_px: int = 7  # WAC pixels either side of the feature in the correlated patch
+    search_px: int = 4  # WAC pixels either side of the prediction searched (mast errors of 0.1 deg: 3 px)
+    min_ncc: float = 0.85
+    min_texture_dn: float = 3.0  # the WAC patch's standard deviation: below it, no position to find
+    min_range_m: float = 2.0
+    blur_per_scale: float = 0.6  # Gaussian sigma (HRC px) per unit of HRC/WAC scale: a WAC pixel and its optics
+
+
+@dataclass
+class HrcMatches:
+    """One HRC frame's measurements of the site's WAC tracks, and what matching did."""
+
+    pan_rad: float
+    tilt_rad: float
+    track_ids: np.ndarray  # (M,)
+    uv: np.ndarray  # (M, 2) HRC pixels
+    wac_view: np.ndarray  # (M,) index of the site view whose feature was matched
+    wac_uv: np.ndarray  # (M, 2) that feature's rectified left pixel
+    predicted: int = 0  # WAC features predicted inside the frame
+    seconds: float = 0.0
+    notes: dict = field(default_factory=dict)
+
+
+class HrcMatcher:
+    """WAC features of a site into its HRC frames."""
+
+    def __init__(self, rig: Rig, settings: HrcSettings | None = None):
+        if rig.hrc is None:
+            raise ValueError(f"rig {rig.name!r} has no HRC")
+        self.rig = rig
+        self.settings = settings or HrcSettings()
+        self.scale = rig.hrc.fx / rig.wac.fx
+
+    def __call__(self, site: SitePanorama, pan_rad: float, tilt_rad: float, image: np.ndarray) -> HrcMatches:
+        start = time.perf_counter()
+        s = self.settings
+        hrc = self.rig.hrc
+        k_h = hrc.matrix()
+        blurred = cv2.GaussianBlur(image.astype(np.float32), (0, 0), s.blur_per_scale * self.scale)
+        hrc_T_body = np.linalg.inv(self.rig.body_T_hrc(pan_rad, tilt_rad).matrix())
+        margin = (s.patch_px + s.search_px + 1) * self.scale
+        seen: set[int] = set()
+        ids, uvs, views, wac_uvs = [], [], [], []
+        predicted = 0
+        offsets = np.arange(-(s.patch_px + s.search_px), s.patch_px + s.search_px + 1, dtype=np.float64)
+        gx, gy = np.meshgrid(offsets, offsets)
+        for index, view in enumerate(site.views):
+            o = view.observations
+            if len(o.track_ids) == 0:
+                continue
+            p_cam = view.points_camera(self.rig.wac, self.rig.baseline_m)
+            hrc_T_cam = hrc_T_body @ view.body_T_camera
+            p_h = p_cam @ hrc_T_cam[:3, :3].T + hrc_T_cam[:3, 3]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                uv_h = hrc.project(p_h, distort=False)
+            inside = ((p_cam[:, 2] > s.min_range_m) & (p_h[:, 2] > s.min_range_m)
+                      & (uv_h[:, 0] >= margin) & (uv_h[:, 0] <= hrc.width - 1 - margin)
+                      & (uv_h[:, 1] >= margin) & (uv_h[:, 1] <= hrc.height - 1 - margin))
+            left = view.left.astype(np.float32)
+            ground_normal = view.body_T_camera[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+            for j in np.flatnonzero(inside):
+                track = int(o.track_ids[j])
+                if track in seen:
+                    continue
+                predicted += 1
+                u, v = float(o.uvv[j, 0]), float(o.uvv[j, 2])
+                # the ground through the point (level in the body frame): its homography WAC -> HRC
+                n = ground_normal
+                h = k_h @ (hrc_T_cam[:3, :3] + np.outer(hrc_T_cam[:3, 3], n) / float(n @ p_cam[j])) \
+                    @ np.linalg.inv(self.rig.wac.matrix())
+                grid = np.stack([u + gx, v + gy, np.ones_like(gx)], axis=-1) @ h.T
+                map_x = (grid[..., 0] / grid[..., 2]).astype(np.float32)
+                map_y = (grid[..., 1] / grid[..., 2]).astype(np.float32)
+                synthetic = cv2.remap(blurred, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+                size = 2 * s.patch_px + 1
+                template = cv2.getRectSubPix(left, (size, size), (u, v))
+                if float(template.std()) < s.min_texture_dn:
+                    continue
+                score = cv2.matchTemplate(synthetic, template, cv2.TM_CCOEFF_NORMED)
+                _, best, _, (bx, by) = cv2.minMaxLoc(score)
+                if best < s.min_ncc or not (0 < bx < score.shape[1] - 1 and 0 < by < score.shape[0] - 1):
+                    continue
+                dx = bx - s.search_px + _parabola(score[by, bx - 1:bx + 2])
+                dy = by - s.search_px + _parabola(score[by - 1:by + 2, bx])
+                q = h @ np.array([u + dx, v + dy, 1.0])
+                seen.add(track)
+                ids.append(track)
+                uvs.append(q[:2] / q[2])
+                views.append(index)
+                wac_uvs.append((u, v))
+        return HrcMatches(pan_rad, tilt_rad, np.array(ids, dtype=np.int64), np.array(uvs).reshape(-1, 2),
+                          np.array(views, dtype=int), np.array(wac_uvs).reshape(-1, 2), predicted,
+                          time.perf_counter() - start)
+
+
+def _parabola(values: np.ndarray) -> float:
+    """The sub-sample offset of a peak from three samples around it."""
+    a, b, c = (float(x) for x in values)
+    denominator = a - 2.0 * b + c
+    return 0.0 if denominator >= 0.0 else 0.5 * (a - c) / denominator
