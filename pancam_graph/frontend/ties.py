@@ -45,6 +45,12 @@ class TieSettings:
     half_cells: int = 16  # a's orthoimage is (2 half + 1) cells square (about 2 m)
     samples: int = 4  # per cell and axis, averaged
     min_ncc: float = 0.8
+    # A pair verified with fewer than `wanted_ties` ties at min_ncc is verified again with the
+    # matches down to relaxed_ncc: the farthest pairs (50 m) see the ground from the most
+    # different directions; their correct peaks are the lower ones. One rigid motion still has
+    # to explain them all and agree with the prediction.
+    relaxed_ncc: float = 0.7
+    wanted_ties: int = 9
     distinct: float = 0.1  # the best peak beats any other (4 cells away) by this much
     range_m: tuple[float, float] = (3.0, 35.0)  # from both sites
     range_ratio: float = 2.0  # the farther site sees the ground at most this much farther
@@ -97,8 +103,16 @@ class TieMatcher:
                                 prediction)
             if match is not None:
                 found.append(match)
-        result.matches = found
-        result.ties = self._verify(found, points, b, prediction, result)
+        strong = [m for m in found if m.ncc >= self.s.min_ncc]
+        result.matches = strong
+        result.ties = self._verify(strong, points, b, prediction, result)
+        if len(result.ties) < self.s.wanted_ties and len(found) > len(strong):
+            relaxed = TieResult()
+            relaxed.ties = self._verify(found, points, b, prediction, relaxed)
+            if len(relaxed.ties) > len(result.ties):
+                result.note = (f"{len(strong)} matches of NCC {self.s.min_ncc} or more verified {len(result.ties)} "
+                               f"ties; all {len(found)} down to {self.s.relaxed_ncc} verified {len(relaxed.ties)}")
+                result.matches, result.ties = found, relaxed.ties
         result.seconds = time.perf_counter() - start
         return result
 
@@ -177,7 +191,7 @@ class TieMatcher:
             return None
         score = cv2.matchTemplate(window, template, cv2.TM_CCOEFF_NORMED)
         _, best, _, (x, y) = cv2.minMaxLoc(score)
-        if best < s.min_ncc or x in (0, score.shape[1] - 1) or y in (0, score.shape[0] - 1):
+        if best < s.relaxed_ncc or x in (0, score.shape[1] - 1) or y in (0, score.shape[0] - 1):
             return None  # too weak, or on the search window's edge: the match may lie beyond it
         others = score.copy()
         others[max(0, y - 4):y + 5, max(0, x - 4):x + 5] = -1.0
