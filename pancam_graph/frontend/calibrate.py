@@ -119,6 +119,15 @@ def calibrate_stereo(field_: ControlField, left: list[Detections], right: list[D
         seen = ", ".join(f"{names[i]}: {len(left[i])}/{len(right[i])}" for i in range(len(left)))
         raise InputError(f"calibration needs at least 3 views with {MIN_TARGETS_PER_VIEW} or more targets in both "
                          f"images; targets found (left/right): {seen or 'no views'}")
+    try:
+        return _calibrate_pair(field_, left, right, size, usable)
+    except cv2.error as exc:  # a degenerate set of views (all targets on one line, ...)
+        message = str(exc).strip().splitlines()[-1]
+        raise InputError(f"calibration: OpenCV could not fit these views ({message})") from None
+
+
+def _calibrate_pair(field_: ControlField, left: list[Detections], right: list[Detections], size: tuple[int, int],
+                    usable: list[int]) -> StereoFit:
     left_fit, left_kept = _calibrate_camera(field_, [left[i] for i in usable], size)
     right_fit, right_kept = _calibrate_camera(field_, [right[i] for i in usable], size)
 

@@ -153,6 +153,8 @@ def _marker_bits(count: int) -> np.ndarray:
 
 
 def _target_intensity(a: np.ndarray, b: np.ndarray, panel: Panel, bits: np.ndarray, first: int) -> np.ndarray:
+    """The printed board at panel coordinates (a, b) m: a marker's black or white cell, or the
+    white gap between markers; the panel's first target is marker `first`."""
     margin = (PITCH_M - TARGET_M) / 2.0
     col, row = np.floor(a / PITCH_M).astype(int), np.floor(b / PITCH_M).astype(int)
     ma, mb = a - col * PITCH_M - margin, b - row * PITCH_M - margin
@@ -165,7 +167,7 @@ def _target_intensity(a: np.ndarray, b: np.ndarray, panel: Panel, bits: np.ndarr
     return out
 
 
-def render_control_field(scenario: Scenario, folder: Path, views: int = 10, seed: int | None = None,
+def render_control_field(scenario: Scenario, folder: Path, views: int = 8, seed: int | None = None,
                          progress: Callable[[str, int, int], None] | None = None) -> int:
     """Write `views` stereo pairs of the control field (`views/NN_left.png`, `NN_right.png`), the
     field's surveyed targets (`control_field.csv`) and the pair's true calibration
