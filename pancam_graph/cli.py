@@ -28,9 +28,11 @@ from rich.text import Text
 from .errors import ConfigError, FolderInUse, FrameError, InputError, PancamGraphError, ResultsError, ViewerUnavailable
 
 if TYPE_CHECKING:  # the heavy imports wait until a command needs them: --help stays fast
+    from .frontend.calibrate import StereoFit
     from .pipeline import RunState
     from .results import RunOptions, RunResult
     from .sources import SourceData
+    from .stereo_pair import StereoCalibration
 
 # rich_markup_mode=None: usage errors as click's plain "Error: ..." line, not a box; user text
 # (file names with [brackets]) is never parsed as markup.
@@ -466,23 +468,23 @@ def calibrate_command(
     camera's focal lengths, principal point and k1, k2, p1, p2, then the pair's boresight, and
     the rectification; prints the fit, its uncertainty and, given a truth, the errors."""
     from .io.calibration import read_opencv_yaml, write_opencv_yaml
-    from .io.calibration_images import calibrate_folder
+    from .io.calibration_images import TRUTH_FILE, calibrate_folder
 
     try:
         if out.exists() and out.is_dir():
             raise ConfigError(f"--out {out}: is a folder; give the YAML file to write")
-        truth = truth or (folder / "truth_calibration.yaml" if (folder / "truth_calibration.yaml").is_file() else None)
+        truth = truth or (folder / TRUTH_FILE if (folder / TRUTH_FILE).is_file() else None)
         reference = read_opencv_yaml(truth) if truth is not None else None
-        result = _with_progress(folder.name, quiet, lambda report: calibrate_folder(folder, field, report))
+        fit = _with_progress(folder.name, quiet, lambda report: calibrate_folder(folder, field, report))
         out.parent.mkdir(parents=True, exist_ok=True)
-        write_opencv_yaml(out, result.fit.calibration, rectification=True)
+        write_opencv_yaml(out, fit.calibration, rectification=True)
     except PancamGraphError as exc:
         raise _fail(exc, bad_input=True) from None
-    _print_calibration(result.fit, reference, truth)
+    _print_calibration(fit, reference, truth)
     console.print(f"calibration written to {out}")
 
 
-def _print_calibration(fit, reference, truth_path: Path | None) -> None:
+def _print_calibration(fit: StereoFit, reference: StereoCalibration | None, truth_path: Path | None) -> None:
     import cv2
     import numpy as np
 
@@ -490,21 +492,20 @@ def _print_calibration(fit, reference, truth_path: Path | None) -> None:
     table = Table(title=f"{fit.views} views, {fit.left.targets} / {fit.right.targets} targets (left / right)",
                   box=None, padding=(0, 1))
     table.add_column("")
-    sides = (("left", c.k_left, c.d_left, fit.left), ("right", c.k_right, c.d_right, fit.right))
-    for name, *_ in sides:
+    columns = []
+
+    def parameters(camera) -> list[float]:
+        return [camera.fx, camera.fy, camera.cx, camera.cy, camera.k1, camera.k2, camera.p1, camera.p2]
+
+    truths = reference.cameras() if reference is not None else (None, None)
+    for name, camera, camera_fit, truth in zip(("left", "right"), c.cameras(), (fit.left, fit.right), truths,
+                                              strict=True):
         table.add_column(name, justify="right")
         table.add_column("1 sigma", justify="right")
-        if reference is not None:
+        columns += [parameters(camera), list(camera_fit.sigma[:8])]
+        if truth is not None:
             table.add_column("- truth", justify="right")
-    columns = []
-    for name, k, d, cam in sides:
-        values = [k[0, 0], k[1, 1], k[0, 2], k[1, 2], *np.pad(d, (0, 4))[:4]]
-        columns.append(values)
-        columns.append(list(cam.sigma[:8]))
-        if reference is not None:
-            kt, dt = (reference.k_left, reference.d_left) if name == "left" else (reference.k_right, reference.d_right)
-            columns.append([a - b for a, b in zip(values, [kt[0, 0], kt[1, 1], kt[0, 2], kt[1, 2],
-                                                           *np.pad(dt, (0, 4))[:4]], strict=True)])
+            columns.append([a - b for a, b in zip(parameters(camera), parameters(truth), strict=True)])
     for row, label in enumerate(("fx px", "fy px", "cx px", "cy px", "k1", "k2", "p1", "p2")):
         fmt = "{:.2f}" if row < 4 else "{:.5f}"
         table.add_row(label, *(fmt.format(col[row]) for col in columns))
@@ -851,7 +852,7 @@ def _bench_sites(source: str | None, compared_sites: int = 3) -> None:
     from .io.observations import is_image_folder, read_observations
     from .render.truth import RenderedTruth
     from .sources import image_folder
-    from .sources.site_images import wac_images_by_stop, with_site_panoramas
+    from .sources.site_images import images_by_stop, with_site_panoramas
 
     if source is None or not is_image_folder(Path(source)):
         raise _fail(ConfigError(f"bench sites {source or ''}: give an image folder with site panoramas "
@@ -879,7 +880,7 @@ def _bench_sites(source: str | None, compared_sites: int = 3) -> None:
         matcher = PanoramaMatcher(rig.wac, rig.baseline_m)
         aided = {"frame_pairs": 0, "links": 0, "seconds": 0.0, "errors": []}
         unaided = {"frame_pairs": 0, "matches": 0, "seconds": 0.0, "errors": []}
-        by_stop = wac_images_by_stop(obs)
+        by_stop = images_by_stop(obs)
         for stop in list(by_stop)[:compared_sites]:
             views = [PanoramaView(im.pan_rad, im.tilt_rad, rig.body_T_left(im.pan_rad, im.tilt_rad).matrix(),
                                   *pairs.read_view(im)) for im in by_stop[stop]]
@@ -934,8 +935,8 @@ def _bench_sites(source: str | None, compared_sites: int = 3) -> None:
     for stop, frames in report.hrc.items():
         for m in frames:
             body_T_hrc = rig.body_T_hrc(m.pan_rad, m.tilt_rad).matrix()
-            errors = [] if truth is None else [float(np.linalg.norm(truth.pixel(stop, body_T_hrc, truth.world_point(
-                stop, site[stop].views[v].body_T_camera, wac_uv), rig.hrc) - uv))
+            errors = [] if truth is None else [
+                truth.transfer_error((stop, site[stop].views[v].body_T_camera, wac_uv), (stop, body_T_hrc, uv), rig.hrc)
                 for v, wac_uv, uv in zip(m.wac_view, m.wac_uv, m.uv, strict=True)]
             hrc_errors += errors
             hrc_rows.append({"stop": stop, "pan_deg": round(float(np.rad2deg(m.pan_rad)), 1),

@@ -19,7 +19,7 @@ from pancam_graph.render.truth import RenderedTruth
 from pancam_graph.results import RunOptions
 from pancam_graph.sources import image_folder
 from pancam_graph.sources.image_folder import FramePairs
-from pancam_graph.sources.site_images import wac_images_by_stop, with_site_panoramas
+from pancam_graph.sources.site_images import images_by_stop, with_site_panoramas
 
 SCENARIO = Scenario.model_validate({
     "name": "site_strip", "description": "three sites 30-40 m apart with full panoramas",
@@ -88,9 +88,8 @@ def test_wac_features_are_found_in_the_hrc_frames(sites):
     for stop, frames in report.hrc.items():
         for m in frames:
             body_T_hrc = rig.body_T_hrc(m.pan_rad, m.tilt_rad).matrix()
-            error = [np.linalg.norm(truth.pixel(stop, body_T_hrc, truth.world_point(
-                stop, site[stop].views[v].body_T_camera, wac_uv), rig.hrc) - uv)
-                for v, wac_uv, uv in zip(m.wac_view, m.wac_uv, m.uv, strict=True)]
+            error = [truth.transfer_error((stop, site[stop].views[v].body_T_camera, wac_uv), (stop, body_T_hrc, uv),
+                                          rig.hrc) for v, wac_uv, uv in zip(m.wac_view, m.wac_uv, m.uv, strict=True)]
             counts.append(int(np.sum(np.array(error) < 7.0)))
             errors += error
     errors = np.array(errors)
@@ -149,7 +148,7 @@ def test_a_pair_with_too_few_strong_ties_is_verified_again_with_the_weaker_peaks
     folder, obs, tracked, _, report, truth = sites
     rig, pairs = obs.traverse.rig, FramePairs(obs)
     matcher = PanoramaMatcher(rig.wac, rig.baseline_m)
-    by_stop = wac_images_by_stop(obs)
+    by_stop = images_by_stop(obs)
     a_stop, b_stop = list(by_stop)[:2]
     a, b = (matcher(stop, k, [PanoramaView(im.pan_rad, im.tilt_rad, rig.body_T_left(im.pan_rad, im.tilt_rad).matrix(),
                                            *pairs.read_view(im)) for im in by_stop[stop]])

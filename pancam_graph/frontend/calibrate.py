@@ -16,7 +16,7 @@ flat panel in each view (Zhang's method on that panel alone).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -81,10 +81,9 @@ class StereoFit:
     right: CameraFit
     stereo_rms_px: float
     views: int
-    targets_per_view: list[tuple[int, int]] = field(default_factory=list)  # (left, right) per view used
 
 
-def detect_targets(image: np.ndarray, field_: ControlField) -> Detections:
+def detect_targets(image: np.ndarray, field: ControlField) -> Detections:
     """The field's targets in one 8-bit grey image: each marker's centre from its sub-pixel
     corners; ids the field does not have are dropped (another board in view)."""
     params = cv2.aruco.DetectorParameters()
@@ -96,7 +95,7 @@ def detect_targets(image: np.ndarray, field_: ControlField) -> Detections:
     corners, ids, _ = detector.detectMarkers(image)
     if ids is None:
         return Detections(np.zeros(0, dtype=int), np.zeros((0, 2)))
-    known = field_.lookup()
+    known = field.lookup()
     keep = [i for i, t in enumerate(ids.ravel()) if int(t) in known]
     return Detections(ids.ravel()[keep].astype(int),
                       np.array([_centre(corners[i].reshape(4, 2)) for i in keep]).reshape(-1, 2))
@@ -110,7 +109,7 @@ def _centre(quad: np.ndarray) -> np.ndarray:
     return x[:2] / x[2]
 
 
-def calibrate_stereo(field_: ControlField, left: list[Detections], right: list[Detections],
+def calibrate_stereo(field: ControlField, left: list[Detections], right: list[Detections],
                      size: tuple[int, int], names: list[str] | None = None) -> StereoFit:
     """Calibrate each camera, then the pair, from the targets found in each view's two images."""
     names = names or [f"view {i}" for i in range(len(left))]
@@ -120,19 +119,19 @@ def calibrate_stereo(field_: ControlField, left: list[Detections], right: list[D
         raise InputError(f"calibration needs at least 3 views with {MIN_TARGETS_PER_VIEW} or more targets in both "
                          f"images; targets found (left/right): {seen or 'no views'}")
     try:
-        return _calibrate_pair(field_, left, right, size, usable)
+        return _calibrate_pair(field, left, right, size, usable)
     except cv2.error as exc:  # a degenerate set of views (all targets on one line, ...)
         message = str(exc).strip().splitlines()[-1]
         raise InputError(f"calibration: OpenCV could not fit these views ({message})") from None
 
 
-def _calibrate_pair(field_: ControlField, left: list[Detections], right: list[Detections], size: tuple[int, int],
+def _calibrate_pair(field: ControlField, left: list[Detections], right: list[Detections], size: tuple[int, int],
                     usable: list[int]) -> StereoFit:
-    left_fit, left_kept = _calibrate_camera(field_, [left[i] for i in usable], size)
-    right_fit, right_kept = _calibrate_camera(field_, [right[i] for i in usable], size)
+    left_fit, left_kept = _calibrate_camera(field, [left[i] for i in usable], size)
+    right_fit, right_kept = _calibrate_camera(field, [right[i] for i in usable], size)
 
     # The boresight from the targets kept in both images of a view.
-    lookup = field_.lookup()
+    lookup = field.lookup()
     obj, img_l, img_r = [], [], []
     for v, i in enumerate(usable):
         both = sorted(left_kept[v] & right_kept[v])
@@ -140,7 +139,7 @@ def _calibrate_pair(field_: ControlField, left: list[Detections], right: list[De
             continue
         where_l = {int(t): j for j, t in enumerate(left[i].ids)}
         where_r = {int(t): j for j, t in enumerate(right[i].ids)}
-        obj.append(field_.points[[lookup[t] for t in both]].astype(np.float32))
+        obj.append(field.points[[lookup[t] for t in both]].astype(np.float32))
         img_l.append(left[i].points[[where_l[t] for t in both]].astype(np.float32))
         img_r.append(right[i].points[[where_r[t] for t in both]].astype(np.float32))
     if len(obj) < 3:
@@ -150,32 +149,31 @@ def _calibrate_pair(field_: ControlField, left: list[Detections], right: list[De
         criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12))
     calibration = StereoCalibration("calibrate", k1, d1.ravel(), k2, d2.ravel(), (int(size[0]), int(size[1])),
                                     rotation, translation.ravel())
-    return StereoFit(calibration, left_fit, right_fit, float(rms), len(obj),
-                     [(len(left[i]), len(right[i])) for i in usable])
+    return StereoFit(calibration, left_fit, right_fit, float(rms), len(obj))
 
 
-def _calibrate_camera(field_: ControlField, views: list[Detections], size: tuple[int, int]
+def _calibrate_camera(field: ControlField, views: list[Detections], size: tuple[int, int]
                       ) -> tuple[CameraFit, list[set[int]]]:
     """One camera: a first guess from the largest panel, then every target in 3-D; targets more
     than OUTLIER_PX off the fit are dropped and the fit repeated. Returns the fit and, per
     view, the ids kept."""
-    lookup = field_.lookup()
+    lookup = field.lookup()
     flags = cv2.CALIB_FIX_K3
     # Zhang's method on the largest panel's targets (coplanar: no guess needed).
-    biggest = np.bincount(field_.panel).argmax()
-    flat = [np.array([field_.panel[lookup[int(t)]] == biggest for t in det.ids], dtype=bool) for det in views]
+    biggest = np.bincount(field.panel).argmax()
+    flat = [np.array([field.panel[lookup[int(t)]] == biggest for t in det.ids], dtype=bool) for det in views]
     flat_views = [(det, f) for det, f in zip(views, flat, strict=True) if f.sum() >= 6]
     if len(flat_views) < 2:
         raise InputError("calibration: the field's largest panel is seen with 6 or more targets in fewer than 2 "
                          "views")
     _, k0, d0, _, _ = cv2.calibrateCamera(
-        [field_.points[[lookup[int(t)] for t in det.ids[f]]].astype(np.float32) for det, f in flat_views],
+        [field.points[[lookup[int(t)] for t in det.ids[f]]].astype(np.float32) for det, f in flat_views],
         [det.points[f].astype(np.float32) for det, f in flat_views], size, None, None, flags=flags)
 
     kept = [np.ones(len(det), dtype=bool) for det in views]
     rejected = 0
     for fit in range(3):
-        obj = [field_.points[[lookup[int(t)] for t in det.ids[keep]]].astype(np.float32)
+        obj = [field.points[[lookup[int(t)] for t in det.ids[keep]]].astype(np.float32)
                for det, keep in zip(views, kept, strict=True)]
         img = [det.points[keep].astype(np.float32) for det, keep in zip(views, kept, strict=True)]
         rms, k, d, rvecs, tvecs, sigma = cv2.calibrateCameraExtended(
@@ -185,7 +183,7 @@ def _calibrate_camera(field_: ControlField, views: list[Detections], size: tuple
             break
         dropped = 0
         for v, (det, keep, r, t) in enumerate(zip(views, kept, rvecs, tvecs, strict=True)):
-            all_obj = field_.points[[lookup[int(x)] for x in det.ids]]
+            all_obj = field.points[[lookup[int(x)] for x in det.ids]]
             error = np.linalg.norm(cv2.projectPoints(all_obj, r, t, k, d)[0].reshape(-1, 2) - det.points, axis=1)
             kept[v] = keep & (error <= OUTLIER_PX)
             dropped += int(keep.sum() - kept[v].sum())

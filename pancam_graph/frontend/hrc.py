@@ -20,13 +20,14 @@ HRC's own pixels at the WAC's scale was measured: fewer matches, no better estim
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from ..rig import Rig
 from .panorama import SitePanorama
+from .ties import peak_offset
 
 
 @dataclass(frozen=True)
@@ -51,16 +52,13 @@ class HrcMatches:
     wac_uv: np.ndarray  # (M, 2) that feature's rectified left pixel
     predicted: int = 0  # WAC features predicted inside the frame
     seconds: float = 0.0
-    notes: dict = field(default_factory=dict)
 
 
 class HrcMatcher:
     """WAC features of a site into its HRC frames."""
 
     def __init__(self, rig: Rig, settings: HrcSettings | None = None):
-        if rig.hrc is None:
-            raise ValueError(f"rig {rig.name!r} has no HRC")
-        self.rig = rig
+        self.rig = rig  # with an HRC
         self.settings = settings or HrcSettings()
         self.scale = rig.hrc.fx / rig.wac.fx
 
@@ -68,7 +66,7 @@ class HrcMatcher:
         start = time.perf_counter()
         s = self.settings
         hrc = self.rig.hrc
-        k_h = hrc.matrix()
+        k_h, wac_k_inv = hrc.matrix(), np.linalg.inv(self.rig.wac.matrix())
         blurred = cv2.GaussianBlur(image.astype(np.float32), (0, 0), s.blur_per_scale * self.scale)
         hrc_T_body = np.linalg.inv(self.rig.body_T_hrc(pan_rad, tilt_rad).matrix())
         margin = (s.patch_px + s.search_px + 1) * self.scale
@@ -77,6 +75,7 @@ class HrcMatcher:
         predicted = 0
         offsets = np.arange(-(s.patch_px + s.search_px), s.patch_px + s.search_px + 1, dtype=np.float64)
         gx, gy = np.meshgrid(offsets, offsets)
+        size = 2 * s.patch_px + 1
         for index, view in enumerate(site.views):
             o = view.observations
             if len(o.track_ids) == 0:
@@ -90,32 +89,28 @@ class HrcMatcher:
                       & (uv_h[:, 0] >= margin) & (uv_h[:, 0] <= hrc.width - 1 - margin)
                       & (uv_h[:, 1] >= margin) & (uv_h[:, 1] <= hrc.height - 1 - margin))
             left = view.left.astype(np.float32)
-            ground_normal = view.body_T_camera[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+            n = view.body_T_camera[:3, :3].T @ np.array([0.0, 0.0, 1.0])  # the body's up, in the camera
             for j in np.flatnonzero(inside):
                 track = int(o.track_ids[j])
                 if track in seen:
                     continue
                 predicted += 1
                 u, v = float(o.uvv[j, 0]), float(o.uvv[j, 2])
+                template = cv2.getRectSubPix(left, (size, size), (u, v))
+                if float(template.std()) < s.min_texture_dn:
+                    continue
                 # the ground through the point (level in the body frame): its homography WAC -> HRC
-                n = ground_normal
-                h = k_h @ (hrc_T_cam[:3, :3] + np.outer(hrc_T_cam[:3, 3], n) / float(n @ p_cam[j])) \
-                    @ np.linalg.inv(self.rig.wac.matrix())
+                h = k_h @ (hrc_T_cam[:3, :3] + np.outer(hrc_T_cam[:3, 3], n) / float(n @ p_cam[j])) @ wac_k_inv
                 grid = np.stack([u + gx, v + gy, np.ones_like(gx)], axis=-1) @ h.T
                 map_x = (grid[..., 0] / grid[..., 2]).astype(np.float32)
                 map_y = (grid[..., 1] / grid[..., 2]).astype(np.float32)
                 synthetic = cv2.remap(blurred, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-                size = 2 * s.patch_px + 1
-                template = cv2.getRectSubPix(left, (size, size), (u, v))
-                if float(template.std()) < s.min_texture_dn:
-                    continue
                 score = cv2.matchTemplate(synthetic, template, cv2.TM_CCOEFF_NORMED)
                 _, best, _, (bx, by) = cv2.minMaxLoc(score)
                 if best < s.min_ncc or not (0 < bx < score.shape[1] - 1 and 0 < by < score.shape[0] - 1):
                     continue
-                dx = bx - s.search_px + _parabola(score[by, bx - 1:bx + 2])
-                dy = by - s.search_px + _parabola(score[by - 1:by + 2, bx])
-                q = h @ np.array([u + dx, v + dy, 1.0])
+                dx, dy = peak_offset(score, bx, by)
+                q = h @ np.array([u + bx - s.search_px + dx, v + by - s.search_px + dy, 1.0])
                 seen.add(track)
                 ids.append(track)
                 uvs.append(q[:2] / q[2])
@@ -124,10 +119,3 @@ class HrcMatcher:
         return HrcMatches(pan_rad, tilt_rad, np.array(ids, dtype=np.int64), np.array(uvs).reshape(-1, 2),
                           np.array(views, dtype=int), np.array(wac_uvs).reshape(-1, 2), predicted,
                           time.perf_counter() - start)
-
-
-def _parabola(values: np.ndarray) -> float:
-    """The sub-sample offset of a peak from three samples around it."""
-    a, b, c = (float(x) for x in values)
-    denominator = a - 2.0 * b + c
-    return 0.0 if denominator >= 0.0 else 0.5 * (a - c) / denominator

@@ -197,7 +197,7 @@ class TieMatcher:
         others[max(0, y - 4):y + 5, max(0, x - 4):x + 5] = -1.0
         if others.size and others.max() > best - s.distinct:
             return None
-        dx, dy = _peak_offset(score, x, y)
+        dx, dy = peak_offset(score, x, y)
         on_ground = p_a + ((x + dx - search) * e1 + (y + dy - search) * e2) * s.cell_m
         q = np.linalg.inv(camera_b_in_a) @ np.append(on_ground, 1.0)
         uv = self.camera.project(q[:3][None], distort=False)[0]
@@ -305,7 +305,7 @@ class _Ground:
         return n if n[2] > 0.9 else up  # steeper than 25 deg: a rock, not the ground
 
 
-def _peak_offset(score: np.ndarray, x: int, y: int) -> tuple[float, float]:
+def peak_offset(score: np.ndarray, x: int, y: int) -> tuple[float, float]:
     """Sub-cell position of a correlation peak (a parabola through it and its neighbours)."""
     def vertex(lo, mid, hi):
         den = lo - 2.0 * mid + hi

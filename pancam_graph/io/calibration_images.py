@@ -1,29 +1,20 @@
 """A folder of control-field stereo pairs, calibrated: every `NAME_left.png` with its
-`NAME_right.png` (at any depth), the field's surveyed targets, the targets found in each
-image and the fitted pair. Each image that cannot be read is named."""
+`NAME_right.png` (at any depth) and the field's surveyed targets, into the fitted pair. Each
+image that cannot be read is named."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
-
 from ..errors import InputError
-from ..frontend.calibrate import ControlField, Detections, StereoFit, calibrate_stereo, detect_targets
+from ..frontend.calibrate import StereoFit, calibrate_stereo, detect_targets
 from .calibration import read_control_field
+from .images import read_gray
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm")
-
-
-@dataclass
-class FolderCalibration:
-    fit: StereoFit
-    field: ControlField
-    pairs: list[tuple[Path, Path]]
-    left: list[Detections]
-    right: list[Detections]
+FIELD_FILE = "control_field.csv"  # the field's surveyed targets, beside the images
+TRUTH_FILE = "truth_calibration.yaml"  # a rendered field's true calibration
 
 
 def stereo_pairs(folder: Path) -> list[tuple[Path, Path]]:
@@ -43,26 +34,20 @@ def stereo_pairs(folder: Path) -> list[tuple[Path, Path]]:
 
 
 def calibrate_folder(folder: Path, field_path: Path | None = None,
-                     progress: Callable[[str, int, int], None] | None = None) -> FolderCalibration:
+                     progress: Callable[[str, int, int], None] | None = None) -> StereoFit:
     """Find the field's targets in every pair under `folder` and calibrate the pair;
     `field_path` defaults to FOLDER/control_field.csv."""
     folder = Path(folder)
-    field = read_control_field(field_path or folder / "control_field.csv")
+    field = read_control_field(field_path or folder / FIELD_FILE)
     pairs = stereo_pairs(folder)
     size = None
     left, right = [], []
     for i, pair in enumerate(pairs):
         for path, found in zip(pair, (left, right), strict=True):
-            image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-            if image is None:
-                raise InputError(f"{path}: not an image OpenCV can read")
-            if size is None:
-                size = (image.shape[1], image.shape[0])
-            elif (image.shape[1], image.shape[0]) != size:
-                raise InputError(f"{path}: {image.shape[1]} x {image.shape[0]} px, the first image is {size[0]} x "
-                                 f"{size[1]}")
+            image = read_gray(path, size and (size[1], size[0]), f"the first image ({pairs[0][0].name})")
+            size = size or (image.shape[1], image.shape[0])
             found.append(detect_targets(image, field))
         if progress is not None:
             progress("targets", i + 1, len(pairs))
     names = [str(p[0].relative_to(folder)) for p in pairs]
-    return FolderCalibration(calibrate_stereo(field, left, right, size, names), field, pairs, left, right)
+    return calibrate_stereo(field, left, right, size, names)

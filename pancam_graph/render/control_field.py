@@ -18,6 +18,7 @@ from ..config import Scenario
 from ..errors import ResultsError
 from ..frontend.calibrate import ARUCO_DICTIONARY, ControlField
 from ..io.calibration import write_control_field, write_opencv_yaml
+from ..io.calibration_images import FIELD_FILE, TRUTH_FILE
 from ..rig import Camera, rig_preset
 from .images import raw_stereo_pair
 
@@ -180,8 +181,8 @@ def render_control_field(scenario: Scenario, folder: Path, views: int = 8, seed:
     panels = standard_panels()
     folder = Path(folder)
     (folder / "views").mkdir(parents=True, exist_ok=True)
-    write_control_field(folder / "control_field.csv", control_field(panels))
-    write_opencv_yaml(folder / "truth_calibration.yaml", truth)
+    write_control_field(folder / FIELD_FILE, control_field(panels))
+    write_opencv_yaml(folder / TRUTH_FILE, truth)
     rng = np.random.default_rng([seed, 8])
     renderers = {"left": FieldRenderer(panels, left_camera), "right": FieldRenderer(panels, right_camera)}
     noise = scenario.render.sensor_noise_dn

@@ -43,8 +43,10 @@ class RenderedTruth:
         q = camera_T_world[:3, :3] @ world + camera_T_world[:3, 3]
         return (camera or self.camera).project(q[None], distort=False)[0]
 
-    def transfer_error(self, a: tuple[int, np.ndarray, np.ndarray], b: tuple[int, np.ndarray, np.ndarray]) -> float:
+    def transfer_error(self, a: tuple[int, np.ndarray, np.ndarray], b: tuple[int, np.ndarray, np.ndarray],
+                       camera_b: Camera | None = None) -> float:
         """Pixel distance between b's measurement and where the terrain under a's measurement is
-        in b's image; each of a and b is (stop, body_T_camera, rectified uv)."""
+        in b's image; each of a and b is (stop, body_T_camera, rectified uv); b's camera is
+        another than the rectified WAC (the HRC) if given."""
         world = self.world_point(*a)
-        return float(np.linalg.norm(self.pixel(b[0], b[1], world) - b[2]))
+        return float(np.linalg.norm(self.pixel(b[0], b[1], world, camera_b) - b[2]))

@@ -17,6 +17,7 @@ from ..config import FrontendConfig
 from ..errors import FrameError, InputError
 from ..frontend.motion import VoMotions
 from ..frontend.tracker import CameraMotion, StageTimes, StereoTracker
+from ..io.images import read_gray
 from ..records import Stop, Traverse
 from ..results import SourceInfo
 from .base import SourceData
@@ -40,26 +41,6 @@ def matches(path: Path) -> bool:
     from ..io.observations import is_image_folder
 
     return is_image_folder(path)
-
-
-def read_gray(path: Path, size: tuple[int, int]) -> np.ndarray:
-    """A grayscale image of the expected (height, width), or a message naming the file."""
-    import cv2
-
-    if not path.is_file():
-        raise InputError(f"{path}: missing")
-    data = path.read_bytes()
-    if path.suffix.lower() == ".png" and not data.rstrip(b"\x00").endswith(b"IEND\xaeB`\x82"):
-        raise InputError(f"{path}: truncated PNG (no IEND chunk)")
-    if path.suffix.lower() in (".jpg", ".jpeg") and not data.rstrip(b"\x00").endswith(b"\xff\xd9"):
-        raise InputError(f"{path}: truncated JPEG (no end marker)")
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise InputError(f"{path}: not a readable image")
-    if image.shape != size:
-        raise InputError(f"{path}: {image.shape[1]} x {image.shape[0]} px, but the calibration is "
-                         f"{size[1]} x {size[0]}")
-    return image
 
 
 class FramePairs:

@@ -74,11 +74,12 @@ class SiteReport:
         return min(later) if later else None
 
 
-def wac_images_by_stop(obs: ObservationSet) -> dict[int, list]:
-    """The folder's panorama WAC pairs (PanoramaImage), per site stop in stop order."""
+def images_by_stop(obs: ObservationSet, camera: str = "wac") -> dict[int, list]:
+    """The folder's panorama frames (PanoramaImage) of one camera ("wac" pairs or "hrc"), per
+    site stop in stop order."""
     by_stop: dict[int, list] = {}
     for image in obs.panorama_frames:
-        if image.camera == "wac":
+        if image.camera == camera:
             by_stop.setdefault(image.stop, []).append(image)
     return dict(sorted(by_stop.items()))
 
@@ -92,7 +93,7 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
     included). A panorama frame that cannot be read stops with the message naming it, or with
     `skip_bad_frames` is left out of its panorama."""
     report = SiteReport()
-    by_stop = {stop: images for stop, images in wac_images_by_stop(obs).items() if stop < len(stops)}
+    by_stop = {stop: images for stop, images in images_by_stop(obs).items() if stop < len(stops)}
     if not by_stop:
         return stops, report
     rig = obs.traverse.rig
@@ -100,10 +101,7 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
     matcher = PanoramaMatcher(rig.wac, rig.baseline_m, frontend, first_id=TRACK_OFFSET)
     ties = TieMatcher(rig, obs.traverse.image_noise_px)
     hrc_matcher = HrcMatcher(rig) if read_hrc is not None and rig.hrc is not None else None
-    hrc_images: dict[int, list] = {}
-    for image in obs.panorama_frames:
-        if image.camera == "hrc":
-            hrc_images.setdefault(image.stop, []).append(image)
+    hrc_images = images_by_stop(obs, "hrc")
     recent: list[SitePanorama] = []
     stops = list(stops)
     for done, (stop, images) in enumerate(by_stop.items()):
