@@ -3,4 +3,5 @@ interpreter it was started with)."""
 
 from .cli import main
 
-main()
+if __name__ == "__main__":  # not when a worker process imports it again (frontend/vo_ahead.py)
+    main()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import resource
@@ -193,6 +194,9 @@ def run_command(
                                        "loss, out of memory) from its last checkpoint: its <out>.partial folder; "
                                        "the run keeps its own source and options"),
     no_plots: bool = typer.Option(False, "--no-plots", help="no PNG figures (1-2 s per run: sweeps skip them)"),
+    one_process: bool = typer.Option(False, "--one-process", help="estimate stereo VO in this process too "
+                                     "(default: ahead of the run in a second process on traverses of 400 stops "
+                                     "or more; sweeps run on every core already)"),
     checkpoint_every: float = typer.Option(30.0, "--checkpoint-every", min=0.0, help="seconds between the "
                                            "checkpoints saved for --resume (and at most 5 % of the run's time); "
                                            "0: at every site and every 25 stops"),
@@ -227,11 +231,12 @@ def run_command(
             raise _fail(exc, bad_input=True) from None
         console.print(f"resuming {inputs.data.traverse.name} at stop {state.next_stop} of "
                       f"{len(inputs.data.traverse.stops)} (from {partial})")
-        _run_source(inputs.data, inputs.options, out, target, quiet, checkpoint_every, not no_plots, resume=state)
+        options = dataclasses.replace(inputs.options, vo_process=inputs.options.vo_process and not one_process)
+        _run_source(inputs.data, options, out, target, quiet, checkpoint_every, not no_plots, resume=state)
         return
     source = source or "denver_trail"
     try:
-        options = RunOptions(seed=seed, configs=_parse_configs(configs), batch=batch)
+        options = RunOptions(seed=seed, configs=_parse_configs(configs), batch=batch, vo_process=not one_process)
         target = _rerun_target(rerun, viewer_memory) if rerun is not None else None
         _check_out(out)
         data = _open_with_progress(source, SourceOptions(seed, gps_topic, odom_topic, holdout_every, geoid_height,
@@ -733,6 +738,7 @@ def bench_command(
         if workers:
             _bench_monte_carlo_sweep(scenario, seed, seeds, workers)
             return
+    load_before = os.getloadavg()
     try:
         sc = _load(scenario)
         first = sc.seed if seed is None else seed
@@ -740,7 +746,7 @@ def bench_command(
         memory = PeakMemory()
         for s in range(first, first + seeds):
             start = time.perf_counter()
-            results.append(run(sc, RunOptions(seed=s), listener=memory if s == first else None))
+            results.append(run(sc, RunOptions(seed=s, vo_process=True), listener=memory if s == first else None))
             walls.append(time.perf_counter() - start)
             if rerun:
                 recorded_walls.append(_time_recorded_run(sc, s))
@@ -762,6 +768,9 @@ def bench_command(
         "vo_s": float(np.mean([r.vo_s for r in results])),
         "wall_s": float(np.mean(walls)),
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        # the VO worker's own (frontend/vo_ahead.py), 0 when the VO ran in this process
+        "peak_rss_mb_vo_process": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0,
+        "load_average_1min": {"before": load_before[0], "after": os.getloadavg()[0]},
     }
     # the first seed's cost along the path: flat, or growing with the traverse?
     report["isam2_update_ms_per_km"] = cost_along(results[0], 1000.0)
@@ -811,6 +820,8 @@ def _bench_monte_carlo_sweep(scenario: str, seed: int | None, seeds: int, worker
     """bench --monte-carlo as a sweep: the same summary, the runs on a local Dask cluster."""
     import tempfile
 
+    import numpy as np
+
     from .config import resolve_scenario
     from .sweep.runner import run_sweep
     from .sweep.spec import SweepSpec, plan
@@ -834,6 +845,11 @@ def _bench_monte_carlo_sweep(scenario: str, seed: int | None, seeds: int, worker
     report = {"scenario": sc.name, "seeds": list(range(first, first + seeds)), "workers": workers,
               "wall_s": time.perf_counter() - start,
               "monte_carlo": {c: mc for c in configs if (mc := monte_carlo([r for r in rows if r["config"] == c]))}}
+    report["over_seeds"] = {
+        c: {stat: {"mean": float(np.mean(v)), "max": float(np.max(v))}
+            for stat in ("relative_closure_pct", "ate_rmse_m")
+            if (v := [r[stat] for r in rows if r["config"] == c and r.get(stat) is not None])}
+        for c in configs}
     print(json.dumps(report, indent=2))
 
 

@@ -204,8 +204,16 @@ class EstimatorConfig(_Strict):
                                  "two motion estimates is refused")
     start_sigma_deg: float = Field(0.05, gt=0.0)
     start_sigma_m: float = Field(0.02, gt=0.0)
-    relinearize_threshold: float = Field(0.05, gt=0.0)
+    relinearize_rotation_rad: float = Field(0.02, gt=0.0, description="iSAM2 relinearizes a pose whose "
+                                            "rotation moved this far from its linearization point")
+    relinearize_translation_m: float = Field(0.1, gt=0.0, description="... or whose position, or a landmark "
+                                             "whose position, moved this far (GPS moves whole stretches of "
+                                             "poses by centimetres: a 5 cm threshold relinearized hundreds a stop)")
+    relinearize_scalar: float = Field(0.05, gt=0.0, description="... or a scalar (wheel slip, VO scale) this far")
     relinearize_skip: int = Field(1, ge=1)
+    window_m: float = Field(1000.0, gt=0.0, description="iSAM2 smooths over this many metres of travel: a "
+                            "variable is marginalized once the rover has driven this far past the stop where "
+                            "it entered (bounded cost per stop on long traverses); inf: the whole traverse")
     configurations: dict[str, list[str]] = Field(default_factory=lambda: dict(DEFAULT_CONFIGURATIONS),
                                                  description="name -> measurement kinds (pancam_graph/kinds/)")
 

@@ -10,11 +10,11 @@ import gtsam
 import numpy as np
 
 from .config import EstimatorConfig
-from .errors import ConfigError
+from .errors import ConfigError, GraphError
 from .frontend.motion import Motion
 from .graph import factors
 from .graph.keys import T, X
-from .graph.smoother import Smoother, poses_array
+from .graph.smoother import RelinearizeThresholds, Smoother, batch_marginals, poses_array
 from .kinds import KINDS, Kind
 from .records import GroundTruth, Stop, Traverse
 
@@ -79,7 +79,9 @@ class Localizer:
         self.traverse = traverse
         self.kind_names = list(kinds)
         self.estimator = estimator
-        self.smoother = Smoother(estimator.relinearize_threshold, estimator.relinearize_skip)
+        thresholds = RelinearizeThresholds(estimator.relinearize_rotation_rad, estimator.relinearize_translation_m,
+                                           estimator.relinearize_scalar)
+        self.smoother = Smoother(thresholds, estimator.relinearize_skip, estimator.window_m)
         self.rng = np.random.default_rng(seed)
         self.stops: list[int] = []
         self.previous_stop: Stop | None = None
@@ -113,6 +115,7 @@ class Localizer:
             self.smoother.add(factors.start_prior(self.traverse.start_world_T_body, self.traverse.start_sigmas))
             self.smoother.insert(X(k), gtsam.Pose3(self.traverse.start_world_T_body))
         else:
+            self.smoother.clock_m += float(np.linalg.norm(motion.prev_T_curr.translation()))
             self._add_motion(self.previous_stop, stop, motion)
             self.bridged_stops += motion.bridged
         self.stops.append(k)
@@ -185,10 +188,28 @@ class Localizer:
         return self.smoother.pose(X(k)).matrix()
 
     def position_covariance(self, k: int) -> np.ndarray:
-        """3x3 covariance (m^2) of the body position at stop k in the world (ENU) frame."""
+        """3x3 covariance (m^2) of the body position at stop k, in the smoother's window, in the
+        world (ENU) frame."""
         cov = self.smoother.marginal_covariance(X(k))[3:, 3:]  # GTSAM: translation in the body frame
         rot = self.smoother.pose(X(k)).rotation().matrix()
         return rot @ cov @ rot.T
+
+    def position_covariances(self) -> np.ndarray:
+        """(N, 3, 3) position covariance of every stop so far, world frame: from the Bayes tree
+        in the smoother's window; for stops that left it, from the whole graph linearized at the
+        current estimate (their marginal left the Bayes tree with them)."""
+        left = [k for k in self.stops if not self.smoother.live(X(k))]
+        covariances = {}
+        if left:
+            values = self.smoother.estimate()
+            try:
+                marginals = batch_marginals(self.smoother.graph, values, [X(k) for k in left])
+            except RuntimeError as exc:
+                raise GraphError(f"marginals of the stops before the window failed: {exc}") from None
+            for k, cov in zip(left, marginals, strict=True):
+                rot = values.atPose3(X(k)).rotation().matrix()
+                covariances[k] = rot @ cov[3:, 3:] @ rot.T
+        return np.stack([covariances[k] if k in covariances else self.position_covariance(k) for k in self.stops])
 
     @property
     def landmarks(self) -> set[int]:

@@ -16,8 +16,9 @@ from .errors import ConfigError
 from .evaluation.consistency import consistency, crlb_position_covariances
 from .evaluation.metrics import GPS_REFERENCE_STEP_M, TrajectoryMetrics, compare, decimated_length
 from .evaluation.timed import poses_at_times
-from .frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_between
+from .frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_between, motion_from
 from .frontend.stereo_vo import StereoVO
+from .frontend.vo_ahead import VoAhead
 from .kinds import unavailable
 from .localizer import Localizer, StepResult
 from .records import GpsFix, GroundTruth, Stop, Traverse
@@ -210,29 +211,39 @@ def run_traverse(
 
     slip = traverse.wheel_slip
     motions, dr_motions, steps = state.motions, state.dr_motions, state.steps
-    for k in range(state.next_stop, n):
-        stop = traverse.stops[k]
-        if k > 0:
-            dr_motions.append(dead_reckoning_motion(stop, dr_motions[-1], slip))
-            if vo is not None:
-                t0 = time.perf_counter()
-                motions.append(known[k] if known is not None else
-                               motion_between(vo, traverse.stops[k - 1], stop, motions[-1], slip))
-                state.vo_s += time.perf_counter() - t0
-            else:
-                motions.append(dr_motions[-1])
-        now = {name: localizer.step(stop, motions[k] if localizer.uses_vo else dr_motions[k])
-               for name, localizer in localizers.items()}
-        for name, step in now.items():
-            steps[name].append(step)
-        listener.step(stop, motions[k], now)
-        if stop.is_site or (k + 1) % CHECKPOINT_EVERY_STOPS == 0:
-            state.next_stop, state.elapsed_s = k + 1, time.perf_counter() - start
-            if save is not None and k + 1 < n:
-                save(state)
-            listener.checkpoint(stop)
-        if progress is not None:
-            progress("stops", k + 1, n)
+    ahead = (VoAhead(traverse, estimator, state.next_stop) if vo is not None and known is None
+             and options.vo_process and VoAhead.worth_it(traverse, state.next_stop) else None)
+    try:
+        for k in range(state.next_stop, n):
+            stop = traverse.stops[k]
+            if k > 0:
+                dr_motions.append(dead_reckoning_motion(stop, dr_motions[-1], slip))
+                if vo is not None:
+                    t0 = time.perf_counter()
+                    if known is not None:
+                        motions.append(known[k])
+                    elif ahead is not None:  # the wait for the worker, not its work, is timed
+                        motions.append(motion_from(ahead.result(k), stop, motions[-1], slip))
+                    else:
+                        motions.append(motion_between(vo, traverse.stops[k - 1], stop, motions[-1], slip))
+                    state.vo_s += time.perf_counter() - t0
+                else:
+                    motions.append(dr_motions[-1])
+            now = {name: localizer.step(stop, motions[k] if localizer.uses_vo else dr_motions[k])
+                   for name, localizer in localizers.items()}
+            for name, step in now.items():
+                steps[name].append(step)
+            listener.step(stop, motions[k], now)
+            if stop.is_site or (k + 1) % CHECKPOINT_EVERY_STOPS == 0:
+                state.next_stop, state.elapsed_s = k + 1, time.perf_counter() - start
+                if save is not None and k + 1 < n:
+                    save(state)
+                listener.checkpoint(stop)
+            if progress is not None:
+                progress("stops", k + 1, n)
+    finally:
+        if ahead is not None:
+            ahead.close()
 
     results = {}
     for name, localizer in localizers.items():
@@ -243,7 +254,7 @@ def run_traverse(
         poses = final.world_T_body
         alignment = "none" if "gps" in localizer.kinds else "se3"
         metrics = consistency_result = None
-        covariance = np.stack([localizer.position_covariance(k) for k in localizer.stops])
+        covariance = localizer.position_covariances()
         if truth is not None:
             metrics = compare(poses[:, :3, 3], truth.positions, alignment, poses, truth.world_T_body)
             extra = localizer.true_values(truth)

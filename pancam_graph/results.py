@@ -23,6 +23,9 @@ class RunOptions:
     seed: int | None = None
     configs: tuple[str, ...] | None = None
     batch: bool = False
+    # Stereo VO ahead in a second process on long traverses (frontend/vo_ahead.py). The CLI turns
+    # it on; a script that does must guard its main module (Python's multiprocessing "spawn").
+    vo_process: bool = False
 
 
 @dataclass(frozen=True)

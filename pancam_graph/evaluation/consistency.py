@@ -17,6 +17,7 @@ from scipy.stats import chi2
 
 from ..errors import EvaluationError
 from ..graph.keys import L, X
+from ..graph.smoother import batch_marginals
 
 POSITION_DOF = 3
 
@@ -31,19 +32,12 @@ def crlb_position_covariances(graph: gtsam.NonlinearFactorGraph, stops: list[int
         values.insert(X(k), gtsam.Pose3(pose))
     for track, point in landmarks.items():
         values.insert(L(track), np.asarray(point, dtype=float))
-    params = gtsam.ISAM2Params()
-    params.setFactorization("QR")
-    params.relinearizeSkip = 1_000_000  # keep the linearization point at the truth
-    isam = gtsam.ISAM2(params)
     try:
-        isam.update(graph, values)
-        covs = []
-        for k, pose in zip(stops, world_T_body, strict=True):
-            rot = pose[:3, :3]
-            covs.append(rot @ isam.marginalCovariance(X(k))[3:, 3:] @ rot.T)
+        marginals = batch_marginals(graph, values, [X(k) for k in stops])
     except RuntimeError as exc:
         raise EvaluationError(f"CRLB: the graph at ground truth cannot be inverted: {exc}") from None
-    return np.stack(covs)
+    rot = world_T_body[:, :3, :3]
+    return rot @ np.stack(marginals)[:, 3:, 3:] @ rot.transpose(0, 2, 1)
 
 
 @dataclass(frozen=True)

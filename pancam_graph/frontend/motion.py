@@ -15,7 +15,7 @@ import numpy as np
 
 from ..config import EstimatorConfig
 from ..records import DeadReckoning, SlipPrior, Stop, Traverse
-from .stereo_vo import StereoVO
+from .stereo_vo import StereoVO, VoResult
 
 # Without any dead reckoning the bridge only says "the rover moved about as before":
 # 2 m per axis, 5 deg roll/pitch and 60 deg heading (1 sigma).
@@ -61,7 +61,11 @@ class VoMotions:
 
 def motion_between(vo: StereoVO, prev: Stop, curr: Stop, last: Motion | None, slip: SlipPrior) -> Motion:
     """Stereo VO, bridged by dead reckoning (or constant velocity) where VO fails."""
-    result = vo.estimate(prev.stereo, curr.stereo)
+    return motion_from(vo.estimate(prev.stereo, curr.stereo), curr, last, slip)
+
+
+def motion_from(result: VoResult, curr: Stop, last: Motion | None, slip: SlipPrior) -> Motion:
+    """The VO's motion to stop `curr`, bridged where it failed."""
     if result.ok:
         return Motion(result.prev_T_curr, result.covariance, "vo", result.inliers)
     return dead_reckoning_motion(curr, last, slip, result.inliers, result.reason)

@@ -61,9 +61,15 @@ class StereoVO:
     @classmethod
     def for_traverse(cls, traverse: Traverse, estimator: EstimatorConfig | None = None) -> StereoVO:
         """The VO of a traverse's navigation stereo pair (pan 0, traverse tilt)."""
+        return cls.configured(traverse.rig, traverse.body_T_nav(), traverse.image_noise_px, estimator)
+
+    @classmethod
+    def configured(cls, rig: Rig, body_T_left: gtsam.Pose3, pixel_sigma: float,
+                   estimator: EstimatorConfig | None = None) -> StereoVO:
+        """The VO of a stereo pair mounted at body_T_left, with the estimator's settings."""
         est = estimator or EstimatorConfig()
         return cls(
-            traverse.rig, traverse.body_T_nav(), traverse.image_noise_px,
+            rig, body_T_left, pixel_sigma,
             min_inliers=est.vo_min_inliers, ransac_px=est.vo_ransac_px, max_step_m=est.vo_max_step_m,
             pnp_iterations=est.vo_pnp_iterations, pnp_confidence=est.vo_pnp_confidence,
             max_range_m=est.vo_max_range_m, translation_floor=est.vo_translation_floor,

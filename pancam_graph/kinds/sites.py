@@ -8,7 +8,7 @@ bearing-range factor from the site that first triangulated it.
 
 from __future__ import annotations
 
-from collections import defaultdict
+from collections import defaultdict, deque
 from dataclasses import dataclass, field
 
 import gtsam
@@ -19,6 +19,9 @@ from ..graph.keys import L, X
 from ..graph.tie_gate import RelativePose, SitePoint
 from ..records import Stop, Traverse
 from .base import Kind
+
+# The last sites collected, for the other configurations stepping the same stop (Sites._collect)
+_RECENT_SITES: deque[tuple[tuple, Stop, SiteObservations]] = deque(maxlen=4)
 
 
 @dataclass
@@ -85,6 +88,18 @@ class Sites(Kind):
     # -- one site ------------------------------------------------------------------------------
 
     def _collect(self, stop: Stop) -> SiteObservations:
+        """The site's views and triangulations. Every configuration with sites steps the same
+        stop one after another: the last few are kept for the others (read-only), keyed by the
+        stop and what makes them differ (the pixel sigma, HRC views or not)."""
+        key = (id(stop), self.sigma_px, self.hrc is not None)
+        for cached_key, cached_stop, obs in _RECENT_SITES:
+            if cached_key == key and cached_stop is stop:
+                return obs
+        obs = self._collect_anew(stop)
+        _RECENT_SITES.append((key, stop, obs))
+        return obs
+
+    def _collect_anew(self, stop: Stop) -> SiteObservations:
         obs = SiteObservations(stop.index)
         for frame in stop.panorama:
             mount = self.rig.body_T_left(frame.pan_rad, frame.tilt_rad)
@@ -114,7 +129,8 @@ class Sites(Kind):
 
     def _add_site(self, stop: Stop) -> tuple[int, int]:
         current = self._collect(stop)
-        recent = self.sites[-self.memory:]
+        # sites that left the smoother's window can take no new factor
+        recent = [site for site in self.sites[-self.memory:] if self.loc.smoother.live(X(site.stop))]
         candidates: dict[int, SiteObservations] = {}
         for earlier in recent:
             for track in earlier.stereo.keys() & current.stereo.keys():
@@ -140,7 +156,8 @@ class Sites(Kind):
             if not self._agrees(reference, current.stop, now):
                 rejected += 1
                 continue
-            self.loc.smoother.insert(L(track), self.site_pose(earlier.stop).transformFrom(then.p_body))
+            self.loc.smoother.insert(L(track), self.site_pose(earlier.stop).transformFrom(then.p_body),
+                                     leaves_with=X(earlier.stop))
             self.loc.smoother.add(factors.landmark_anchor(earlier.stop, track, then.p_body, self.anchor_sigma_m))
             self.landmarks.add(track)
             self.references[track] = reference
@@ -148,9 +165,12 @@ class Sites(Kind):
                 self._add_observations(site, track, gated=site is not earlier)
             self._add_observations(current, track, gated=False)
             added += 1
-        # Landmarks already in the graph (tied earlier) seen again from here.
+        # Landmarks already in the graph (tied earlier) seen again from here, unless they left
+        # the window; a landmark that did is forgotten (no factor will touch it again).
         for track in sorted(current.stereo.keys() & (self.landmarks - set(tracks))):
-            self._add_observations(current, track, gated=True)
+            if track in self.references:
+                self._add_observations(current, track, gated=True)
+        self.references = {t: r for t, r in self.references.items() if self.loc.smoother.live(L(t))}
 
         self.rejected_ties += rejected
         self.sites.append(current)

@@ -33,7 +33,7 @@ class VoScale(Kind):
         super().__init__(localizer)
         model = gtsam.noiseModel.Isotropic.Sigma(1, localizer.estimator.vo_scale_sigma)
         localizer.smoother.add(gtsam.PriorFactorDouble(VO_SCALE, 0.0, model))
-        localizer.smoother.insert(VO_SCALE, 0.0)
+        localizer.smoother.insert(VO_SCALE, 0.0, shared=True)
         localizer.vo_factor = vo_scale_factor
 
     def true_values(self, truth, values: gtsam.Values) -> bool:

@@ -67,7 +67,7 @@ class WheelSlip(Kind):
         prior = localizer.traverse.wheel_slip
         model = gtsam.noiseModel.Isotropic.Sigma(1, prior.sigma)
         localizer.smoother.add(gtsam.PriorFactorDouble(SLIP, prior.mean, model))
-        localizer.smoother.insert(SLIP, prior.mean)
+        localizer.smoother.insert(SLIP, prior.mean, shared=True)
         localizer.odometry_factor = slip_odometry_factor  # every odometry step, bridges of VO included
 
     def true_values(self, truth, values: gtsam.Values) -> bool:

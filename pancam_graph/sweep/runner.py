@@ -30,7 +30,7 @@ class RunRecord:
 def run_one(run: SweepRun, timeout_s: float) -> RunRecord:
     """One run as its own `pancam-graph run` process (the task a worker executes)."""
     command = [sys.executable, "-m", "pancam_graph", "run", str(run.scenario_file), "--seed", str(run.seed),
-               "--out", str(run.folder), "--quiet", "--no-plots"]
+               "--out", str(run.folder), "--quiet", "--no-plots", "--one-process"]
     if run.configs:
         command += ["--configs", ",".join(run.configs)]
     start = time.perf_counter()

@@ -1,0 +1,83 @@
+"""Stereo VO of the stops ahead of the run, estimated in a worker process.
+
+The localizers of stop k need only stop k's motion, and the VO of the stops after it needs
+nothing the localizers compute: on a machine with a second core the VO runs there, a block of
+stops at a time, while the localizers work through the stops already estimated. The worker
+builds its own StereoVO (GTSAM's stereo calibration does not survive pickling) and sends back
+plain VoResults; the run turns them into motions in order, as before.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+from collections import deque
+from concurrent.futures import Future, ProcessPoolExecutor
+
+import gtsam
+import numpy as np
+
+from ..config import EstimatorConfig
+from ..errors import FrontendError
+from ..records import StereoObservations, Traverse
+from ..rig import Rig
+from .stereo_vo import StereoVO, VoResult
+
+BLOCK_STOPS = 64  # stops per task: enough to hide the pickling, few enough to start at once
+MIN_STOPS = 400  # below this, starting a process (about 2 s of imports) costs more than it saves
+
+_worker_vo: StereoVO | None = None
+
+
+def _start_worker(rig: Rig, body_T_nav: np.ndarray, pixel_sigma: float, estimator: EstimatorConfig) -> None:
+    global _worker_vo
+    _worker_vo = StereoVO.configured(rig, gtsam.Pose3(body_T_nav), pixel_sigma, estimator)
+
+
+def _estimate_block(pairs: list[tuple[StereoObservations, StereoObservations]]) -> list[VoResult]:
+    assert _worker_vo is not None
+    return [_worker_vo.estimate(prev, curr) for prev, curr in pairs]
+
+
+class VoAhead:
+    """VoResults of stops `first`.. in order, estimated ahead in one worker process."""
+
+    def __init__(self, traverse: Traverse, estimator: EstimatorConfig, first: int):
+        self.stops = traverse.stops
+        self.next = max(first, 1)
+        context = multiprocessing.get_context("spawn")  # no fork of a process with OpenCV's threads
+        self.pool = ProcessPoolExecutor(
+            1, mp_context=context, initializer=_start_worker,
+            initargs=(traverse.rig, traverse.body_T_nav().matrix(), traverse.image_noise_px, estimator))
+        self.blocks: deque[tuple[int, Future]] = deque()
+        for start in range(self.next, len(self.stops), BLOCK_STOPS):
+            end = min(start + BLOCK_STOPS, len(self.stops))
+            pairs = [(self.stops[k - 1].stereo, self.stops[k].stereo) for k in range(start, end)]
+            self.blocks.append((start, self.pool.submit(_estimate_block, pairs)))
+        self.ready: deque[VoResult] = deque()
+
+    @staticmethod
+    def worth_it(traverse: Traverse, first: int) -> bool:
+        """A second core, a long enough way to go, and not inside a daemon (a Dask worker may
+        not start processes; a sweep is parallel already)."""
+        import os
+
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        return (cores > 1 and len(traverse.stops) - first >= MIN_STOPS
+                and not multiprocessing.current_process().daemon)
+
+    def result(self, k: int) -> VoResult:
+        """The VO from stop k - 1 to stop k; stops are asked for in order."""
+        if k != self.next:
+            raise FrontendError(f"VO ahead: stop {k} asked for, stop {self.next} expected")
+        if not self.ready:
+            start, future = self.blocks.popleft()
+            try:
+                self.ready.extend(future.result())
+            except Exception as exc:  # a crashed worker: name it, nothing else was lost
+                raise FrontendError(f"the VO worker failed on stops {start}-{start + BLOCK_STOPS - 1}: "
+                                    f"{type(exc).__name__}: {exc}") from None
+        self.next += 1
+        return self.ready.popleft()
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=False, cancel_futures=True)

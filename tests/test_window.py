@@ -1,0 +1,129 @@
+"""The smoother's window (issue 16): variables leave the Bayes tree once the rover has driven
+`window_m` past them, the cost per update stops growing, the estimate stays that of the whole
+graph, and checkpoints still resume exactly."""
+
+import pickle
+
+import gtsam
+import numpy as np
+import pytest
+
+from pancam_graph.errors import GraphError
+from pancam_graph.frontend.motion import motion_between
+from pancam_graph.frontend.stereo_vo import StereoVO
+from pancam_graph.frontend.vo_ahead import VoAhead
+from pancam_graph.graph.keys import X
+from pancam_graph.graph.smoother import Smoother
+from pancam_graph.localizer import Localizer
+from pancam_graph.sim import simulate
+
+WINDOW_M = 60.0  # short_trail is 214 m, with sites about every 40 m
+
+
+def _traverse(scenario, seed=2):
+    traverse, truth = simulate(scenario, seed)
+    vo = StereoVO.for_traverse(traverse, scenario.estimator)
+    motions, last = [None], None
+    for k in range(1, len(traverse.stops)):
+        last = motion_between(vo, traverse.stops[k - 1], traverse.stops[k], last, traverse.wheel_slip)
+        motions.append(last)
+    return traverse, truth, motions
+
+
+@pytest.fixture(scope="module")
+def trail(short_scenario):
+    return _traverse(short_scenario)
+
+
+def _localizer(scenario, traverse, kinds, window_m):
+    estimator = scenario.estimator.model_copy(update={"window_m": window_m})
+    return Localizer(traverse, kinds, estimator, seed=2)
+
+
+def _solve(loc, traverse, motions, stops=None):
+    for stop, motion in list(zip(traverse.stops, motions, strict=True))[:stops]:
+        loc.step(stop, motion)
+    return loc
+
+
+def _position_rmse(loc, truth):
+    poses = loc.final().world_T_body
+    return float(np.sqrt(np.mean(np.sum((poses[:, :3, 3] - truth.positions) ** 2, axis=1))))
+
+
+@pytest.mark.parametrize("kinds", [["vo", "sites", "hrc"], ["vo", "sites", "hrc", "gps"]])
+def test_a_window_shorter_than_the_trail_keeps_the_estimate(short_scenario, trail, kinds):
+    traverse, truth, motions = trail
+    whole = _solve(_localizer(short_scenario, traverse, kinds, np.inf), traverse, motions)
+    windowed = _solve(_localizer(short_scenario, traverse, kinds, WINDOW_M), traverse, motions)
+    frozen = [k for k in windowed.stops if not windowed.smoother.live(X(k))]
+    assert len(frozen) > len(windowed.stops) / 3  # most of the trail left the window
+    assert windowed.smoother.isam.getISAM2().size() < 0.6 * whole.smoother.isam.getISAM2().size()
+    a, b = _position_rmse(whole, truth), _position_rmse(windowed, truth)
+    assert b < 1.15 * a + 0.005, (a, b)  # m
+    # covariances of the stops that left come from the whole graph: close to the full smoother's
+    cov_whole, cov_windowed = whole.position_covariances(), windowed.position_covariances()
+    sigma_ratio = np.sqrt(np.trace(cov_windowed, axis1=1, axis2=2) / np.trace(cov_whole, axis1=1, axis2=2))
+    assert np.all(np.abs(sigma_ratio - 1.0) < 0.15), sigma_ratio
+
+
+def test_variables_that_left_take_no_factor_and_have_no_marginal(short_scenario, trail):
+    traverse, _, motions = trail
+    loc = _solve(_localizer(short_scenario, traverse, ["vo"], WINDOW_M), traverse, motions)
+    gone, here = X(0), X(loc.stops[-1])
+    assert not loc.smoother.live(gone) and loc.smoother.live(here)
+    np.testing.assert_allclose(loc.pose(0), loc.smoother.frozen.atPose3(gone).matrix())
+    with pytest.raises(GraphError, match="left the smoother's window"):
+        loc.smoother.marginal_covariance(gone)
+    with pytest.raises(GraphError, match="left the smoother's window"):
+        loc.smoother.add(gtsam.BetweenFactorPose3(gone, here, gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1)))
+
+
+def test_a_windowed_run_resumes_from_its_checkpoint_exactly(short_scenario, trail):
+    traverse, _, motions = trail
+    kinds = ["vo", "sites", "hrc", "gps"]
+    whole = _solve(_localizer(short_scenario, traverse, kinds, WINDOW_M), traverse, motions)
+    first = _solve(_localizer(short_scenario, traverse, kinds, WINDOW_M), traverse, motions, stops=70)
+    assert not first.smoother.live(X(0))  # marginalization has begun before the checkpoint
+    resumed = pickle.loads(pickle.dumps(first))
+    for stop, motion in list(zip(traverse.stops, motions, strict=True))[70:]:
+        resumed.step(stop, motion)
+    np.testing.assert_array_equal(whole.final().world_T_body, resumed.final().world_T_body)
+
+
+def test_the_bayes_tree_stops_growing():
+    """A 3 km chain of 1 m steps with a 100 m window: the tree holds about the window."""
+    smoother = Smoother(window_m=100.0)
+    smoother.insert(X(0), gtsam.Pose3())
+    smoother.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 0.01)))
+    smoother.update()
+    step = gtsam.Pose3(gtsam.Rot3.Yaw(0.002), np.array([1.0, 0.0, 0.0]))
+    sizes = []
+    for k in range(1, 3000):
+        smoother.clock_m += 1.0
+        smoother.insert(X(k), smoother.pose(X(k - 1)).compose(step))
+        smoother.add(gtsam.BetweenFactorPose3(X(k - 1), X(k), step, gtsam.noiseModel.Isotropic.Sigma(6, 0.01)))
+        smoother.update()
+        sizes.append(smoother.isam.getISAM2().size())
+    assert max(sizes) <= 100 + 25 + 1  # the window moves in steps of a quarter
+    # a chain: what left is exactly where the whole chain would put it (no later factor moves it)
+    expected = gtsam.Pose3()
+    for k in range(3000):
+        np.testing.assert_allclose(smoother.pose(X(k)).matrix(), expected.matrix(), atol=1e-6)
+        expected = expected.compose(step)
+
+
+def test_vo_ahead_in_a_second_process_gives_the_vo_of_this_one(short_scenario, trail):
+    traverse, _, _ = trail
+    vo = StereoVO.for_traverse(traverse, short_scenario.estimator)
+    ahead = VoAhead(traverse, short_scenario.estimator, first=1)
+    try:
+        for k in range(1, len(traverse.stops)):
+            here = vo.estimate(traverse.stops[k - 1].stereo, traverse.stops[k].stereo)
+            there = ahead.result(k)
+            assert (there.ok, there.inliers, there.reason) == (here.ok, here.inliers, here.reason)
+            if here.ok:
+                np.testing.assert_allclose(there.prev_T_curr.matrix(), here.prev_T_curr.matrix(), atol=1e-12)
+                np.testing.assert_allclose(there.covariance, here.covariance, rtol=1e-9)
+    finally:
+        ahead.close()
