@@ -127,3 +127,14 @@ def test_vo_ahead_in_a_second_process_gives_the_vo_of_this_one(short_scenario, t
                 np.testing.assert_allclose(there.covariance, here.covariance, rtol=1e-9)
     finally:
         ahead.close()
+
+
+def test_a_site_that_leaves_the_window_at_the_next_site_is_not_searched_for_ties(short_scenario, trail):
+    """With a 45 m window the earlier site leaves in the update that puts the new site's pose
+    in the Bayes tree, before the tie gate asks for the two sites' joint marginal."""
+    traverse, truth, motions = trail
+    kinds = ["vo", "sites", "gps"]
+    narrow = _solve(_localizer(short_scenario, traverse, kinds, 45.0), traverse, motions)
+    wider = _solve(_localizer(short_scenario, traverse, kinds, 50.0), traverse, motions)
+    assert len(narrow.landmarks) == 0 < len(wider.landmarks)
+    assert _position_rmse(narrow, truth) < 0.3  # m: VO and GPS alone

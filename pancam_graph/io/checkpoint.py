@@ -29,7 +29,7 @@ if TYPE_CHECKING:
 CHECKPOINT_DIR = "checkpoint"
 INPUTS_FILE = "inputs.pkl"
 STATE_FILE = "state.pkl"
-FORMAT = 1  # a checkpoint of another format is refused, not misread
+FORMAT = 2  # a checkpoint of another format is refused, not misread (2: the smoother's window)
 
 
 @dataclass(frozen=True)

@@ -129,7 +129,10 @@ class Sites(Kind):
 
     def _add_site(self, stop: Stop) -> tuple[int, int]:
         current = self._collect(stop)
-        # sites that left the smoother's window can take no new factor
+        # The gate needs this site's pose in the Bayes tree (its relative covariance to the
+        # earlier sites); the motion factor alone puts it there. That update may move the
+        # smoother's window on: the sites that left it can take no new factor.
+        self.loc.smoother.update(context=f"at stop {stop.index}, before its tie points")
         recent = [site for site in self.sites[-self.memory:] if self.loc.smoother.live(X(site.stop))]
         candidates: dict[int, SiteObservations] = {}
         for earlier in recent:
@@ -140,9 +143,6 @@ class Sites(Kind):
         if len(tracks) > self.tie_points_per_site:
             tracks = sorted(self.loc.rng.choice(tracks, self.tie_points_per_site, replace=False).tolist())
 
-        # The gate needs this site's pose in the Bayes tree (its relative covariance to the
-        # earlier sites); the motion factor alone puts it there.
-        self.loc.smoother.update(context=f"at stop {stop.index}, before its tie points")
         self._relative_cache.clear()
         self._site_poses.clear()
         added = rejected = 0
