@@ -14,7 +14,7 @@ from .errors import ConfigError, GraphError
 from .frontend.motion import Motion
 from .graph import factors
 from .graph.keys import T, X
-from .graph.smoother import RelinearizeThresholds, Smoother, batch_marginals, poses_array
+from .graph.smoother import Smoother, batch_marginals, poses_array
 from .kinds import KINDS, Kind
 from .records import GroundTruth, Stop, Traverse
 
@@ -79,9 +79,7 @@ class Localizer:
         self.traverse = traverse
         self.kind_names = list(kinds)
         self.estimator = estimator
-        thresholds = RelinearizeThresholds(estimator.relinearize_rotation_rad, estimator.relinearize_translation_m,
-                                           estimator.relinearize_scalar)
-        self.smoother = Smoother(thresholds, estimator.relinearize_skip, estimator.window_m)
+        self.smoother = Smoother.configured(estimator)
         self.rng = np.random.default_rng(seed)
         self.stops: list[int] = []
         self.previous_stop: Stop | None = None

@@ -8,6 +8,7 @@ import gtsam
 import numpy as np
 import pytest
 
+from pancam_graph.config import EstimatorConfig
 from pancam_graph.errors import GraphError
 from pancam_graph.frontend.motion import motion_between
 from pancam_graph.frontend.stereo_vo import StereoVO
@@ -93,7 +94,7 @@ def test_a_windowed_run_resumes_from_its_checkpoint_exactly(short_scenario, trai
 
 def test_the_bayes_tree_stops_growing():
     """A 3 km chain of 1 m steps with a 100 m window: the tree holds about the window."""
-    smoother = Smoother(window_m=100.0)
+    smoother = Smoother.configured(EstimatorConfig(window_m=100.0))
     smoother.insert(X(0), gtsam.Pose3())
     smoother.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 0.01)))
     smoother.update()

@@ -10,6 +10,7 @@ plain VoResults; the run turns them into motions in order, as before.
 from __future__ import annotations
 
 import multiprocessing
+import os
 from collections import deque
 from concurrent.futures import Future, ProcessPoolExecutor
 
@@ -23,7 +24,7 @@ from ..rig import Rig
 from .stereo_vo import StereoVO, VoResult
 
 BLOCK_STOPS = 64  # stops per task: enough to hide the pickling, few enough to start at once
-MIN_STOPS = 400  # below this, starting a process (about 2 s of imports) costs more than it saves
+MIN_STOPS = 400  # a new interpreter imports GTSAM and OpenCV before its first stop: not worth it on short runs
 
 _worker_vo: StereoVO | None = None
 
@@ -59,8 +60,6 @@ class VoAhead:
     def worth_it(traverse: Traverse, first: int) -> bool:
         """A second core, a long enough way to go, and not inside a daemon (a Dask worker may
         not start processes; a sweep is parallel already)."""
-        import os
-
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
         return (cores > 1 and len(traverse.stops) - first >= MIN_STOPS
                 and not multiprocessing.current_process().daemon)

@@ -12,6 +12,7 @@ from typing import Any
 import gtsam
 import numpy as np
 
+from ..config import EstimatorConfig
 from ..errors import GraphError
 from .keys import L, S, T, X
 
@@ -28,9 +29,9 @@ class RelinearizeThresholds:
     trajectory by centimetres, which the factors hardly depend on: with one threshold of 0.05
     for everything, each fix relinearized hundreds of poses."""
 
-    rotation_rad: float = 0.02
-    translation_m: float = 0.1
-    scalar: float = 0.05
+    rotation_rad: float
+    translation_m: float
+    scalar: float
 
     def threshold_map(self) -> gtsam.ISAM2ThresholdMap:
         thresholds = gtsam.ISAM2ThresholdMap()
@@ -61,8 +62,7 @@ class Smoother:
     iSAM2.
     """
 
-    def __init__(self, relinearize: RelinearizeThresholds = RelinearizeThresholds(), relinearize_skip: int = 1,
-                 window_m: float = np.inf):
+    def __init__(self, relinearize: RelinearizeThresholds, relinearize_skip: int = 1, window_m: float = np.inf):
         self.relinearize = relinearize
         self.relinearize_skip = relinearize_skip
         self.window_m = window_m
@@ -85,6 +85,13 @@ class Smoother:
         self.update_ms: list[float] = []  # wall time of each update
         self.relinearized: list[int] = []  # variables relinearized by each update
 
+    @classmethod
+    def configured(cls, estimator: EstimatorConfig) -> Smoother:
+        """The smoother an estimator configuration asks for."""
+        thresholds = RelinearizeThresholds(estimator.relinearize_rotation_rad, estimator.relinearize_translation_m,
+                                           estimator.relinearize_scalar)
+        return cls(thresholds, estimator.relinearize_skip, estimator.window_m)
+
     def _new_isam(self) -> gtsam.IncrementalFixedLagSmoother:
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(self.relinearize.threshold_map())
@@ -95,10 +102,7 @@ class Smoother:
     def add(self, factor: gtsam.NonlinearFactor, rebuild: Rebuild | None = None) -> None:
         """Collect a factor; a Python CustomFactor needs `rebuild`, (function, arguments) that
         make it again, to survive a checkpoint."""
-        for key in factor.keys():
-            if self.frozen.exists(key):
-                raise GraphError(f"a new factor on {gtsam.Symbol(key).string()}, which left the smoother's "
-                                 f"window (it entered more than {self.window_m:g} m of travel ago)")
+        self._in_window(*factor.keys())
         if isinstance(factor, gtsam.CustomFactor):
             if rebuild is None:
                 raise GraphError("a CustomFactor needs its rebuild recipe to be checkpointed")
@@ -236,7 +240,7 @@ class Smoother:
                 factors.add(self.graph.at(i))
             try:
                 self.isam.update(factors, values, stamps)
-            except RuntimeError as exc:
+            except (RuntimeError, ValueError) as exc:
                 raise GraphError(f"rebuilding iSAM2 from a checkpoint failed: {exc}") from None
             start = end
 
@@ -268,8 +272,9 @@ class Smoother:
     def _in_window(self, *keys: int) -> None:
         for key in keys:
             if self.frozen.exists(key):
-                raise GraphError(f"{gtsam.Symbol(key).string()} left the smoother's window ({self.window_m:g} m): "
-                                 "its marginal is no longer in the Bayes tree")
+                raise GraphError(f"{gtsam.Symbol(key).string()} left the smoother's window: the rover drove "
+                                 f"{self.window_m:g} m past where it entered, and it takes no factor and has no "
+                                 "marginal any more")
 
     def marginal_covariance(self, key: int) -> np.ndarray:
         """Marginal covariance of a variable in the window, from the Bayes tree (tangent space;
