@@ -6,8 +6,11 @@ import dataclasses
 import json
 import os
 import resource
+import signal
+import threading
 import time
 from collections.abc import Callable
+from contextlib import contextmanager
 from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
@@ -30,7 +33,7 @@ from .errors import ConfigError, FolderInUse, FrameError, InputError, PancamGrap
 
 if TYPE_CHECKING:  # the heavy imports wait until a command needs them: --help stays fast
     from .frontend.calibrate import StereoFit
-    from .pipeline import RunState
+    from .group import RunState
     from .results import RunOptions, RunResult
     from .sources import SourceData
     from .stereo_pair import StereoCalibration
@@ -60,6 +63,20 @@ def _main(version: bool = typer.Option(False, "--version", callback=_version, is
     """Rover localization over long traverses with a GTSAM factor graph."""
 
 
+def _cores() -> int:
+    """The cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def _start_process_server(options) -> None:
+    """Worker processes come from a server that imports the package once: start it now, so it
+    imports while the source loads (processes.py)."""
+    if options.processes > 1:
+        from .processes import start_process_server
+
+        start_process_server()
+
+
 def _fail(exc: PancamGraphError, bad_input: bool = False) -> typer.Exit:
     """Print the error (as plain text: user text may contain [brackets]) and choose the exit code."""
     console.print(Text("error: ", style="bold red") + Text(str(exc)), soft_wrap=True)
@@ -82,14 +99,42 @@ def _progress_bar(quiet: bool = False) -> Progress:
 
 
 def _with_progress(name: str, quiet: bool, work: Callable[[ProgressCallback], RunResult]) -> RunResult:
-    """Run `work(progress)` under a progress bar labelled `name`."""
-    with _progress_bar(quiet) as bar:
+    """Run `work(progress)` under a progress bar labelled `name`; Ctrl-C stops it at its next
+    report."""
+    with _progress_bar(quiet) as bar, _ctrl_c_at_reports() as check:
         task = bar.add_task(f"{escape(name)}: stops", total=None)
 
         def report(stage: str, done: int, total: int) -> None:
+            check()
             bar.update(task, description=f"{escape(name)}: {stage}", completed=done, total=total)
 
         return work(report)
+
+
+@contextmanager
+def _ctrl_c_at_reports():
+    """Ctrl-C raises KeyboardInterrupt at the work's next progress report (a stop), not
+    wherever it lands: inside GTSAM's call of a Python factor it was lost and the run went on.
+    A second Ctrl-C stops at once."""
+    pressed = []
+
+    def handler(signum, frame):
+        if pressed:
+            raise KeyboardInterrupt
+        pressed.append(signum)
+
+    def check() -> None:
+        if pressed:
+            raise KeyboardInterrupt
+
+    if threading.current_thread() is not threading.main_thread():  # signals go to the main thread only
+        yield check
+        return
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield check
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _rerun_help(default_file: str) -> str:
@@ -194,9 +239,10 @@ def run_command(
                                        "loss, out of memory) from its last checkpoint: its <out>.partial folder; "
                                        "the run keeps its own source and options"),
     no_plots: bool = typer.Option(False, "--no-plots", help="no PNG figures (1-2 s per run: sweeps skip them)"),
-    one_process: bool = typer.Option(False, "--one-process", help="estimate stereo VO in this process too "
-                                     "(default: ahead of the run in a second process on traverses of 400 stops "
-                                     "or more; sweeps run on every core already)"),
+    one_process: bool = typer.Option(False, "--one-process", help="run everything in this process (default: on "
+                                     "traverses of 300 stops or more the configurations run in groups side by "
+                                     "side, one process per core, and on other long ones the stereo VO goes "
+                                     "ahead in a second process; sweeps run on every core already)"),
     checkpoint_every: float = typer.Option(30.0, "--checkpoint-every", min=0.0, help="seconds between the "
                                            "checkpoints saved for --resume (and at most 5 % of the run's time); "
                                            "0: at every site and every 25 stops"),
@@ -226,17 +272,22 @@ def run_command(
             partial, out = _partial_and_out(resume)
             from .io.checkpoint import read_checkpoint
 
-            inputs, state = read_checkpoint(partial)
+            inputs, states = read_checkpoint(partial)
         except PancamGraphError as exc:
             raise _fail(exc, bad_input=True) from None
-        console.print(f"resuming {inputs.data.traverse.name} at stop {state.next_stop} of "
-                      f"{len(inputs.data.traverse.stops)} (from {partial})")
-        options = dataclasses.replace(inputs.options, vo_process=inputs.options.vo_process and not one_process)
-        _run_source(inputs.data, options, out, target, quiet, checkpoint_every, not no_plots, resume=state)
+        n = len(inputs.data.traverse.stops)
+        where = (f"at stop {states[0].next_stop}" if len(states) == 1 else "with its groups of configurations at "
+                 + ", ".join(f"stop {s.next_stop} ({', '.join(s.localizers)})" for s in states))
+        console.print(f"resuming {inputs.data.traverse.name} {where} of {n} (from {partial})")
+        options = dataclasses.replace(inputs.options, processes=1 if one_process else inputs.options.processes)
+        _start_process_server(options)
+        _run_source(inputs.data, options, out, target, quiet, checkpoint_every, not no_plots, resume=states)
         return
     source = source or "denver_trail"
     try:
-        options = RunOptions(seed=seed, configs=_parse_configs(configs), batch=batch, vo_process=not one_process)
+        options = RunOptions(seed=seed, configs=_parse_configs(configs), batch=batch,
+                             processes=1 if one_process else _cores())
+        _start_process_server(options)
         target = _rerun_target(rerun, viewer_memory) if rerun is not None else None
         _check_out(out)
         data = _open_with_progress(source, SourceOptions(seed, gps_topic, odom_topic, holdout_every, geoid_height,
@@ -327,7 +378,7 @@ def _check_out(out: Path | None) -> None:
 
 
 def _run_source(data: SourceData, options: RunOptions, out: Path | None, target, quiet: bool,
-                checkpoint_every: float, figures: bool = True, resume: RunState | None = None) -> None:
+                checkpoint_every: float, figures: bool = True, resume: list[RunState] | None = None) -> None:
     """Run the back-end into a results folder; with `resume`, go on from that saved state in the
     killed run's own staging folder."""
     from .io.checkpoint import CheckpointWriter, RunInputs, remove_checkpoint
@@ -341,7 +392,7 @@ def _run_source(data: SourceData, options: RunOptions, out: Path | None, target,
     try:
         with results_folder(out, resume=resume is not None) as folder:
             checkpoints = CheckpointWriter(folder, RunInputs(data, options), checkpoint_every,
-                                           resumed_from=resume.next_stop if resume is not None else None)
+                                           resumed=bool(resume))
             listener = None
             if target is not None:
                 from dataclasses import replace
@@ -371,8 +422,8 @@ def _run_source(data: SourceData, options: RunOptions, out: Path | None, target,
         raise _fail(exc) from None
     except KeyboardInterrupt:
         partial = out.with_name(out.name + ".partial")
-        saved = checkpoints.saved_stop if checkpoints is not None else None
-        goes_on = (f"`pancam-graph run --resume {partial}` goes on from stop {saved}" if saved is not None
+        saved = checkpoints.saved_stops if checkpoints is not None else []
+        goes_on = (f"`pancam-graph run --resume {partial}` goes on from stop {min(saved)}" if saved
                    else "no checkpoint was saved yet")
         _interrupted(f"what was done is in {partial}; {goes_on}")
     import sys
@@ -722,8 +773,8 @@ def bench_command(
     times the image front-end per stage."""
     import numpy as np
 
-    from .pipeline import PeakMemory, run
-    from .results import RunOptions, cost_along, percentiles
+    from .pipeline import run
+    from .results import RunOptions, cost_along, memory_along, percentiles
 
     if scenario == "frontend":
         _bench_frontend(source, detector)
@@ -743,10 +794,10 @@ def bench_command(
         sc = _load(scenario)
         first = sc.seed if seed is None else seed
         results, walls, recorded_walls = [], [], []
-        memory = PeakMemory()
+        _start_process_server(RunOptions(processes=_cores()))
         for s in range(first, first + seeds):
             start = time.perf_counter()
-            results.append(run(sc, RunOptions(seed=s, vo_process=True), listener=memory if s == first else None))
+            results.append(run(sc, RunOptions(seed=s, processes=_cores())))
             walls.append(time.perf_counter() - start)
             if rerun:
                 recorded_walls.append(_time_recorded_run(sc, s))
@@ -767,16 +818,17 @@ def bench_command(
         },
         "vo_s": float(np.mean([r.vo_s for r in results])),
         "wall_s": float(np.mean(walls)),
-        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
-        # the VO worker's own (frontend/vo_ahead.py), 0 when the VO ran in this process
-        "peak_rss_mb_vo_process": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0,
+        "peak_memory_mb": _peak_memory(results[0]),
+        # the first seed's groups of configurations and how long each took in its process
+        "groups": [{"label": p.label, "configurations": list(p.configurations), "seconds": round(p.seconds, 2),
+                    "cpu_seconds": round(p.cpu_seconds, 2)} for p in results[0].processes],
         "load_average_1min": {"before": load_before[0], "after": os.getloadavg()[0]},
     }
     # the first seed's cost along the path: flat, or growing with the traverse?
     report["isam2_update_ms_per_km"] = cost_along(results[0], 1000.0)
     distance = results[0].reference_distance()
     report["peak_rss_mb_along_path"] = [{"at_m": round(float(distance[k]), 1), "peak_rss_mb": round(mb, 1)}
-                                        for k, mb in memory.samples]
+                                        for k, mb in memory_along(results[0])]
     if plot is not None:
         from .viz.plots import plot_cost_along
 
@@ -814,6 +866,25 @@ def bench_command(
                                  for n in results[0].configurations
                                  if all(r.configurations[n].consistency is not None for r in results)}
     print(json.dumps(report, indent=2))
+
+
+def _peak_memory(result) -> dict[str, dict[str, float]]:
+    """Peak memory (MB): the most the run's processes held at once (sampled), and each
+    process's own peak and their sum: this one, and those that ran groups of configurations
+    side by side. Resident set size counts the pages the workers share (the fork server's
+    imports) in each; the proportional set size (sampled at checkpoints) counts each its share."""
+    from .group import pss_mb
+
+    rss = {"this process": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+    pss = {"this process": pss_mb() or 0.0}
+    for process in result.processes:
+        if process.memory_mb and process.pid != os.getpid():
+            label = f"process {process.pid}"
+            rss[label] = max(rss.get(label, 0.0), max(mb for _, mb in process.memory_mb))
+            pss[label] = max(pss.get(label, 0.0), process.peak_pss_mb or 0.0)
+    return {"at_once": round(result.peak_memory_mb, 1) if result.peak_memory_mb is not None else None,
+            "rss": {**{k: round(v, 1) for k, v in rss.items()}, "sum": round(sum(rss.values()), 1)},
+            "pss": {**{k: round(v, 1) for k, v in pss.items()}, "sum": round(sum(pss.values()), 1)}}
 
 
 def _bench_monte_carlo_sweep(scenario: str, seed: int | None, seeds: int, workers: int) -> None:

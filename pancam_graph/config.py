@@ -211,6 +211,13 @@ class EstimatorConfig(_Strict):
                                              "poses by centimetres: a 5 cm threshold relinearized hundreds a stop)")
     relinearize_scalar: float = Field(0.05, gt=0.0, description="... or a scalar (wheel slip, VO scale) this far")
     relinearize_skip: int = Field(1, ge=1)
+    factorization: Literal["auto", "qr", "cholesky"] = Field(
+        "auto", description="iSAM2's: auto is Cholesky for configurations with GPS (a third faster; GPS bounds the "
+        "uncertainty) and QR for the others (Cholesky fails on long VO chains); a Cholesky that fails goes on as QR")
+    wildfire_threshold: float = Field(0.01, gt=0.0, description="iSAM2's back-substitution after an update stops "
+                                      "where the change falls below this (rad or m; GTSAM's default 0.001 made the "
+                                      "GPS fixes' updates reach the whole trajectory); the final estimate is "
+                                      "back-substituted in full")
     window_m: float = Field(1000.0, gt=0.0, description="iSAM2 smooths over this many metres of travel: a "
                             "variable is marginalized once the rover has driven this far past the stop where "
                             "it entered (bounded cost per stop on long traverses); inf: the whole traverse")

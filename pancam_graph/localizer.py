@@ -10,11 +10,11 @@ import gtsam
 import numpy as np
 
 from .config import EstimatorConfig
-from .errors import ConfigError, GraphError
+from .errors import ConfigError
 from .frontend.motion import Motion
 from .graph import factors
 from .graph.keys import T, X
-from .graph.smoother import Smoother, batch_marginals, poses_array
+from .graph.smoother import Smoother, poses_array
 from .kinds import KINDS, Kind
 from .records import GroundTruth, Stop, Traverse
 
@@ -79,7 +79,7 @@ class Localizer:
         self.traverse = traverse
         self.kind_names = list(kinds)
         self.estimator = estimator
-        self.smoother = Smoother.configured(estimator)
+        self.smoother = Smoother.configured(estimator, with_gps="gps" in kinds)
         self.rng = np.random.default_rng(seed)
         self.stops: list[int] = []
         self.previous_stop: Stop | None = None
@@ -194,20 +194,18 @@ class Localizer:
 
     def position_covariances(self) -> np.ndarray:
         """(N, 3, 3) position covariance of every stop so far, world frame: from the Bayes tree
-        in the smoother's window; for stops that left it, from the whole graph linearized at the
-        current estimate (their marginal left the Bayes tree with them)."""
-        left = [k for k in self.stops if not self.smoother.live(X(k))]
-        covariances = {}
-        if left:
-            values = self.smoother.estimate()
-            try:
-                marginals = batch_marginals(self.smoother.graph, values, [X(k) for k in left])
-            except RuntimeError as exc:
-                raise GraphError(f"marginals of the stops before the window failed: {exc}") from None
-            for k, cov in zip(left, marginals, strict=True):
-                rot = values.atPose3(X(k)).rotation().matrix()
-                covariances[k] = rot @ cov[3:, 3:] @ rot.T
-        return np.stack([covariances[k] if k in covariances else self.position_covariance(k) for k in self.stops])
+        in the smoother's window; for a stop that left it, its marginal as it left, which goes
+        with its estimate, frozen then (the whole graph would add what came after, which that
+        estimate never saw)."""
+        out = []
+        for k in self.stops:
+            cov = self.smoother.left_covariance.get(X(k))
+            if cov is None:
+                out.append(self.position_covariance(k))
+                continue
+            rot = self.smoother.pose(X(k)).rotation().matrix()
+            out.append(rot @ cov[3:, 3:] @ rot.T)
+        return np.stack(out)
 
     @property
     def landmarks(self) -> set[int]:

@@ -23,9 +23,12 @@ class RunOptions:
     seed: int | None = None
     configs: tuple[str, ...] | None = None
     batch: bool = False
-    # Stereo VO ahead in a second process on long traverses (frontend/vo_ahead.py). The CLI turns
-    # it on; a script that does must guard its main module (Python's multiprocessing "spawn").
-    vo_process: bool = False
+    # Processes the run may use. More than one: the configurations run in groups side by side
+    # (side_by_side.py) on traverses of `side_by_side_min_stops` or more, or with a listener or
+    # on a shorter one, the stereo VO goes ahead in a second process (frontend/vo_ahead.py). The
+    # CLI uses every core; a script that does must guard its main module (multiprocessing "spawn").
+    processes: int = 1
+    side_by_side_min_stops: int = 300  # below this, starting the processes costs more than they save
 
 
 @dataclass(frozen=True)
@@ -95,6 +98,22 @@ class ConfigurationResult:
 
 
 @dataclass(frozen=True)
+class ProcessUse:
+    """A group of configurations and the process that ran it: which configurations, for how
+    long (s, from its first stop to its configurations evaluated) and the process's peak
+    resident memory, (stop, MB) at the run's checkpoints (a process may run several groups),
+    and its largest proportional set size (shared pages counted as its share; None: unknown)."""
+
+    label: str
+    pid: int
+    configurations: tuple[str, ...]
+    seconds: float
+    cpu_seconds: float  # of the process in that time (less than `seconds`: it shared a core or waited)
+    memory_mb: list[tuple[int, float]]
+    peak_pss_mb: float | None = None
+
+
+@dataclass(frozen=True)
 class RunResult:
     source: SourceInfo
     scenario: Scenario | None  # the simulated scenario, resolved; None for recorded sources
@@ -109,6 +128,9 @@ class RunResult:
     skipped: dict[str, str]  # defined configurations the traverse cannot feed, with the reason
     wall_s: float
     vo_s: float
+    processes: list[ProcessUse] = field(default_factory=list)  # that ran the configurations
+    # the most resident memory the run's processes held at once (MB; in one process: its peak)
+    peak_memory_mb: float | None = None
 
     @property
     def update_ms(self) -> np.ndarray:
@@ -159,6 +181,24 @@ def cost_along(result: RunResult, window_m: float = 1000.0) -> dict[str, list[di
         ms = c.update_ms
         out[name] = [{"from_m": w * window_m, "updates": int((window == w).sum()), **percentiles(ms[window == w])}
                      for w in range(int(window.max()) + 1) if (window == w).any()]
+    return out
+
+
+def memory_along(result: RunResult) -> list[tuple[int, float]]:
+    """(stop, MB): at each checkpoint, the peak resident memory so far of the processes that
+    ran the configurations, summed (each at its latest sample by then)."""
+    by_pid: dict[int, dict[int, float]] = {}
+    for p in result.processes:  # a process's peak never falls: its later group's samples add to its earlier's
+        by_pid.setdefault(p.pid, {}).update(p.memory_mb)
+    per_process = [samples for samples in by_pid.values() if samples]
+    stops = sorted({k for samples in per_process for k in samples})
+    out = []
+    for k in stops:
+        total = 0.0
+        for samples in per_process:
+            before = [stop for stop in samples if stop <= k]
+            total += samples[max(before)] if before else 0.0
+        out.append((k, total))
     return out
 
 

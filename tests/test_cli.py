@@ -154,7 +154,9 @@ def test_bench_prints_json(tmp_path):
     report = json.loads(result.stdout)
     assert report["isam2_update_ms"]["median"] > 0
     assert report["isam2_update_ms"]["p99"] >= report["isam2_update_ms"]["median"]
-    assert report["wall_s"] > 0 and report["peak_rss_mb"] > 0
+    memory = report["peak_memory_mb"]
+    assert report["wall_s"] > 0 and memory["rss"]["sum"] >= memory["rss"]["this process"] > 0
+    assert memory["pss"]["sum"] >= memory["pss"]["this process"] > 0 and memory["at_once"] > 0
     # cost along the path, per 1 km window (short_trail: one window holding every stop's update)
     assert [w["updates"] for w in report["isam2_update_ms_per_km"]["vo"]] == [report["stops"][0]]
     along = report["peak_rss_mb_along_path"]

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from pancam_graph.errors import InputError
+from pancam_graph.group import gps_enu
 from pancam_graph.io.rosbag import read_navsatfix, read_odometry
-from pancam_graph.pipeline import gps_enu, run_traverse
+from pancam_graph.pipeline import run_traverse
 from pancam_graph.results import RunOptions
 from pancam_graph.sources import SourceOptions, open_source
 

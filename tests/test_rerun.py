@@ -13,7 +13,8 @@ from rrd import Recording, array
 from scipy.stats import chi2
 
 from pancam_graph.geodesy import LocalFrame
-from pancam_graph.pipeline import CHECKPOINT_EVERY_STOPS, RunOptions, run
+from pancam_graph.group import CHECKPOINT_EVERY_STOPS
+from pancam_graph.pipeline import RunOptions, run
 from pancam_graph.viz.rerun_live import RerunRecorder
 from pancam_graph.viz.rerun_sink import RerunTarget, open_recording
 

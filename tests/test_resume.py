@@ -41,7 +41,7 @@ def test_a_killed_run_resumes_to_the_same_estimate(tmp_path):
     assert killed.poll() is None, "the run ended before it could be killed"
     os.kill(killed.pid, signal.SIGKILL)
     killed.wait()
-    _, saved = read_checkpoint(tmp_path / "res.partial")
+    _, [saved] = read_checkpoint(tmp_path / "res.partial")  # short_trail runs in one process
     stops = len(saved.localizers["vo"].traverse.stops)
     assert 0 < saved.next_stop < stops  # killed midway
 
@@ -85,7 +85,7 @@ def test_ctrl_c_says_where_the_work_is_and_the_run_resumes_from_there(tmp_path):
     interrupted.send_signal(signal.SIGINT)
     _, err = interrupted.communicate(timeout=60)
     assert interrupted.returncode == 130
-    _, saved = read_checkpoint(tmp_path / "res.partial")
+    _, [saved] = read_checkpoint(tmp_path / "res.partial")
     assert err == ("interrupted: what was done is in res.partial; `pancam-graph run --resume res.partial` goes on "
                    f"from stop {saved.next_stop}\n")
     resumed = _run("run", "--resume", "res.partial", "--quiet", cwd=tmp_path)

@@ -14,7 +14,7 @@ from pancam_graph.frontend.motion import motion_between
 from pancam_graph.frontend.stereo_vo import StereoVO
 from pancam_graph.frontend.vo_ahead import VoAhead
 from pancam_graph.graph.keys import X
-from pancam_graph.graph.smoother import Smoother
+from pancam_graph.graph.smoother import RelinearizeThresholds, Smoother
 from pancam_graph.localizer import Localizer
 from pancam_graph.sim import simulate
 
@@ -62,7 +62,7 @@ def test_a_window_shorter_than_the_trail_keeps_the_estimate(short_scenario, trai
     assert windowed.smoother.isam.getISAM2().size() < 0.6 * whole.smoother.isam.getISAM2().size()
     a, b = _position_rmse(whole, truth), _position_rmse(windowed, truth)
     assert b < 1.15 * a + 0.005, (a, b)  # m
-    # covariances of the stops that left come from the whole graph: close to the full smoother's
+    # a stop that left has its marginal as it left: close to the full smoother's (the later stops add little)
     cov_whole, cov_windowed = whole.position_covariances(), windowed.position_covariances()
     sigma_ratio = np.sqrt(np.trace(cov_windowed, axis1=1, axis2=2) / np.trace(cov_whole, axis1=1, axis2=2))
     assert np.all(np.abs(sigma_ratio - 1.0) < 0.15), sigma_ratio
@@ -139,3 +139,31 @@ def test_a_site_that_leaves_the_window_at_the_next_site_is_not_searched_for_ties
     wider = _solve(_localizer(short_scenario, traverse, kinds, 50.0), traverse, motions)
     assert len(narrow.landmarks) == 0 < len(wider.landmarks)
     assert _position_rmse(narrow, truth) < 0.3  # m: VO and GPS alone
+
+
+def _chain(factorization: str, n: int = 200) -> Smoother:
+    """A drive of n 1 m steps with micrometre step noise and nothing absolute but the start:
+    its uncertainty grows ~1e10 times the step's, past what Cholesky's Hessian can hold."""
+    smoother = Smoother(RelinearizeThresholds(0.02, 0.1, 0.05), factorization=factorization)
+    noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-7] * 3 + [1e-6] * 3))
+    smoother.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)))
+    smoother.insert(X(0), gtsam.Pose3())
+    smoother.update()
+    step = gtsam.Pose3(gtsam.Rot3.Yaw(0.01), np.array([1.0, 0.0, 0.0]))
+    for k in range(1, n):
+        smoother.add(gtsam.BetweenFactorPose3(X(k - 1), X(k), step, noise))
+        smoother.insert(X(k), smoother.pose(X(k - 1)).compose(step))
+        smoother.update()
+    return smoother
+
+
+def test_a_failing_cholesky_goes_on_as_qr_to_qr_s_estimate():
+    """Configurations with GPS factor with Cholesky (faster); where it fails, the smoother
+    replays its updates with QR and goes on: the estimate is QR's own."""
+    qr, cholesky = _chain("QR"), _chain("CHOLESKY")
+    assert cholesky.factorization == "QR"  # it failed and fell back
+    for k in (1, 100, 199):
+        np.testing.assert_array_equal(cholesky.pose(X(k)).matrix(), qr.pose(X(k)).matrix())
+    assert Smoother.configured(EstimatorConfig(), with_gps=True).factorization == "CHOLESKY"
+    assert Smoother.configured(EstimatorConfig(), with_gps=False).factorization == "QR"
+    assert Smoother.configured(EstimatorConfig(factorization="qr"), with_gps=True).factorization == "QR"

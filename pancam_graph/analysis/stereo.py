@@ -10,9 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
-from .. import rig
+from .. import chi2, rig
 
 
 def triangulation_jacobian(x_m: float, z_m: float, baseline_m: float, focal_px: float) -> np.ndarray:
@@ -61,7 +60,7 @@ class Ellipse:
 def error_ellipse(cov: np.ndarray, confidence: float = 0.95) -> Ellipse:
     """The region holding `confidence` of a 2-D Gaussian: semi-axes sqrt(chi2_2(p) * eigenvalue)."""
     values, vectors = np.linalg.eigh(np.asarray(cov, dtype=float))
-    scale = chi2.ppf(confidence, 2)
+    scale = chi2.quantile(confidence, 2)
     major = vectors[:, 1]
     return Ellipse(float(np.sqrt(scale * values[1])), float(np.sqrt(scale * max(values[0], 0.0))),
                    float(np.arctan2(major[1], major[0])), confidence)

@@ -13,8 +13,8 @@ from dataclasses import asdict, dataclass
 
 import gtsam
 import numpy as np
-from scipy.stats import chi2
 
+from .. import chi2
 from ..errors import EvaluationError
 from ..graph.keys import L, X
 from ..graph.smoother import batch_marginals
@@ -56,7 +56,7 @@ def anees_band(samples: int, dof: int = POSITION_DOF, confidence: float = 0.95) 
     """Two-sided band of the mean of `samples` independent chi-square(dof)/dof values."""
     tail = (1 - confidence) / 2
     n = samples * dof
-    return float(chi2.ppf(tail, n) / n), float(chi2.ppf(1 - tail, n) / n)
+    return float(chi2.quantile(tail, n) / n), float(chi2.quantile(1 - tail, n) / n)
 
 
 def nees(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:

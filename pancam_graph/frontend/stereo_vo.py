@@ -101,7 +101,7 @@ class StereoVO:
         curr_T_prev_cam = gtsam.Pose3(gtsam.Rot3(rot), tvec.ravel())
         guess = self.body_T_left.compose(curr_T_prev_cam.inverse()).compose(self.left_T_body)
 
-        pose, cov, keep = self._bundle_adjust(a[inl], b[inl], p_prev[inl], guess)
+        pose, _, keep = self._bundle_adjust(a[inl], b[inl], p_prev[inl], guess, covariance=False)
         if keep.sum() < self.min_inliers:
             return VoResult(False, None, None, matches, int(keep.sum()), "too few inliers after BA")
         # RANSAC judged the matches by reprojecting the previous triangulation, whose range error
@@ -146,7 +146,8 @@ class StereoVO:
         d2[ok] = np.einsum("ni,ni->n", diff[ok], np.linalg.solve(cov[ok], diff[ok][:, :, None])[:, :, 0])
         return d2 < _CHI2_3DOF_999
 
-    def _bundle_adjust(self, a, b, p_prev_cam, guess: gtsam.Pose3):
+    def _bundle_adjust(self, a, b, p_prev_cam, guess: gtsam.Pose3, covariance: bool = True):
+        """(pose, its 6x6 covariance or None without `covariance`, which matches pass the outlier gate)."""
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         # A tight prior rather than a hard equality: Marginals needs an ordinary Gaussian system.
@@ -159,12 +160,19 @@ class StereoVO:
             graph.add(gtsam.GenericStereoFactor3D(
                 gtsam.StereoPoint2(*b[j]), self.noise, X(1), L(j), self.calibration, self.body_T_left))
             values.insert(L(j), self.body_T_left.transformFrom(p_prev_cam[j]))
+        # The landmarks first, then the poses: the Schur complement, without COLAMD every iteration.
+        ordering = gtsam.Ordering()
+        for j in range(len(a)):
+            ordering.push_back(L(j))
+        ordering.push_back(X(0))
+        ordering.push_back(X(1))
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(15)
+        params.setOrdering(ordering)
         result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
         # Whitened residual of each stereo pair of factors: index 1 + 2j and 2 + 2j.
         err = np.array([graph.at(1 + 2 * j).error(result) + graph.at(2 + 2 * j).error(result)
                         for j in range(len(a))])
         keep = 2.0 * err < _CHI2_6DOF_99
-        cov = gtsam.Marginals(graph, result).marginalCovariance(X(1))
+        cov = gtsam.Marginals(graph, result).marginalCovariance(X(1)) if covariance else None
         return result.atPose3(X(1)), cov, keep

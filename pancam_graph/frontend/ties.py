@@ -28,15 +28,15 @@ import cv2
 import gtsam
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.stats import chi2
 
+from .. import chi2
 from ..graph.tie_gate import RelativePose, SitePoint, site_points
 from ..rig import Rig, triangulate_rectified, triangulation_covariance
 from .panorama import SitePanorama
 from .tracker import StereoTracker
 
-_GATE_3D = float(chi2.ppf(0.999, 3))
-_GATE_6D = float(chi2.ppf(0.999, 6))
+_GATE_3D = chi2.quantile(0.999, 3)
+_GATE_6D = chi2.quantile(0.999, 6)
 
 
 @dataclass(frozen=True)

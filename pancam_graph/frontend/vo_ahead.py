@@ -11,14 +11,17 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import uuid
 from collections import deque
 from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
 
 from ..config import EstimatorConfig
 from ..errors import FrontendError
+from ..processes import process_context
 from ..records import StereoObservations, Traverse
 from ..rig import Rig
 from .stereo_vo import StereoVO, VoResult
@@ -26,17 +29,37 @@ from .stereo_vo import StereoVO, VoResult
 BLOCK_STOPS = 64  # stops per task: enough to hide the pickling, few enough to start at once
 MIN_STOPS = 400  # a new interpreter imports GTSAM and OpenCV before its first stop: not worth it on short runs
 
-_worker_vo: StereoVO | None = None
+@dataclass(frozen=True)
+class VoSetup:
+    """What a worker process needs to build the run's StereoVO (GTSAM's stereo calibration does
+    not survive pickling): built once per process and setup."""
+
+    rig: Rig
+    body_T_nav: np.ndarray
+    pixel_sigma: float
+    estimator: EstimatorConfig
+    token: str = field(default_factory=lambda: uuid.uuid4().hex)
+
+    @staticmethod
+    def of(traverse: Traverse, estimator: EstimatorConfig) -> VoSetup:
+        return VoSetup(traverse.rig, traverse.body_T_nav().matrix(), traverse.image_noise_px, estimator)
 
 
-def _start_worker(rig: Rig, body_T_nav: np.ndarray, pixel_sigma: float, estimator: EstimatorConfig) -> None:
-    global _worker_vo
-    _worker_vo = StereoVO.configured(rig, gtsam.Pose3(body_T_nav), pixel_sigma, estimator)
+_worker_vo: dict[str, StereoVO] = {}  # this process's StereoVO per setup token
 
 
-def _estimate_block(pairs: list[tuple[StereoObservations, StereoObservations]]) -> list[VoResult]:
-    assert _worker_vo is not None
-    return [_worker_vo.estimate(prev, curr) for prev, curr in pairs]
+def estimate_block(setup: VoSetup, pairs: list[tuple[StereoObservations, StereoObservations]]) -> list[VoResult]:
+    """The VO of consecutive stereo observations (prev, curr), in a worker process."""
+    if setup.token not in _worker_vo:
+        _worker_vo.clear()
+        _worker_vo[setup.token] = StereoVO.configured(setup.rig, gtsam.Pose3(setup.body_T_nav), setup.pixel_sigma,
+                                                      setup.estimator)
+    vo = _worker_vo[setup.token]
+    return [vo.estimate(prev, curr) for prev, curr in pairs]
+
+
+def block_pairs(traverse: Traverse, start: int, end: int) -> list[tuple[StereoObservations, StereoObservations]]:
+    return [(traverse.stops[k - 1].stereo, traverse.stops[k].stereo) for k in range(start, end)]
 
 
 class VoAhead:
@@ -45,15 +68,12 @@ class VoAhead:
     def __init__(self, traverse: Traverse, estimator: EstimatorConfig, first: int):
         self.stops = traverse.stops
         self.next = max(first, 1)
-        context = multiprocessing.get_context("spawn")  # no fork of a process with OpenCV's threads
-        self.pool = ProcessPoolExecutor(
-            1, mp_context=context, initializer=_start_worker,
-            initargs=(traverse.rig, traverse.body_T_nav().matrix(), traverse.image_noise_px, estimator))
+        self.pool = ProcessPoolExecutor(1, mp_context=process_context())
+        setup = VoSetup.of(traverse, estimator)
         self.blocks: deque[tuple[int, Future]] = deque()
         for start in range(self.next, len(self.stops), BLOCK_STOPS):
             end = min(start + BLOCK_STOPS, len(self.stops))
-            pairs = [(self.stops[k - 1].stereo, self.stops[k].stereo) for k in range(start, end)]
-            self.blocks.append((start, self.pool.submit(_estimate_block, pairs)))
+            self.blocks.append((start, self.pool.submit(estimate_block, setup, block_pairs(traverse, start, end))))
         self.ready: deque[VoResult] = deque()
 
     @staticmethod

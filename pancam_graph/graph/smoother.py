@@ -17,6 +17,7 @@ from ..errors import GraphError
 from .keys import L, S, T, X
 
 WINDOW_STEPS = 4  # the window moves in steps of a quarter of its length
+_POSE_CHR = gtsam.Symbol(X(0)).chr()
 
 # How to make a factor again: (function, arguments). Python CustomFactors do not pickle.
 Rebuild = tuple[Callable[..., gtsam.NonlinearFactor], tuple[Any, ...]]
@@ -49,8 +50,11 @@ class Smoother:
     factors, so the graph is always determined. Still, Cholesky declares long VO chains
     without GPS "indeterminate" (denver_trail: at stop 400): the accumulated uncertainty
     (metres) is ~1e6 times the per-step one (millimetres), and forming the Hessian squares
-    that ratio past double precision. QR never forms the Hessian; on these graphs it costs
-    little (see `pancam-graph bench`).
+    that ratio past double precision. QR never forms the Hessian. GPS bounds the uncertainty,
+    and there Cholesky is a third faster on the waves of relinearization a fix sets off
+    (`full` on 2.3 km of long_traverse: 7.6 -> 5.1 s of updates, the same estimate to 1e-10 m):
+    configurations with GPS use it, and a smoother whose Cholesky fails goes on with QR
+    (iSAM2 rebuilt by replaying its updates, as from a checkpoint).
 
     The window: GTSAM 4.3's iSAM2 walks its whole Bayes tree on every update (it counts the
     tree's non-zeros), so an update costs in proportion to everything solved so far (a
@@ -62,9 +66,12 @@ class Smoother:
     iSAM2.
     """
 
-    def __init__(self, relinearize: RelinearizeThresholds, relinearize_skip: int = 1, window_m: float = np.inf):
+    def __init__(self, relinearize: RelinearizeThresholds, relinearize_skip: int = 1, window_m: float = np.inf,
+                 wildfire_threshold: float = 0.001, factorization: str = "QR"):
         self.relinearize = relinearize
+        self.factorization = factorization
         self.relinearize_skip = relinearize_skip
+        self.wildfire_threshold = wildfire_threshold
         self.window_m = window_m
         self.isam = self._new_isam()
         self.graph = gtsam.NonlinearFactorGraph()  # every factor ever added
@@ -79,6 +86,8 @@ class Smoother:
         self._followers: dict[int, list[int]] = {}  # key in the window -> keys that leave with it
         self._leader: dict[int, int] = {}  # and back
         self.frozen = gtsam.Values()  # marginalized variables as they stood when they left the window
+        # the marginal covariance of each pose variable (X) as it left, with its frozen estimate
+        self.left_covariance: dict[int, np.ndarray] = {}
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
         self._new_rebuild: dict[int, Rebuild] = {}
@@ -86,17 +95,22 @@ class Smoother:
         self.relinearized: list[int] = []  # variables relinearized by each update
 
     @classmethod
-    def configured(cls, estimator: EstimatorConfig) -> Smoother:
-        """The smoother an estimator configuration asks for."""
+    def configured(cls, estimator: EstimatorConfig, with_gps: bool = False) -> Smoother:
+        """The smoother an estimator configuration asks for (`with_gps`: for a configuration with GPS)."""
         thresholds = RelinearizeThresholds(estimator.relinearize_rotation_rad, estimator.relinearize_translation_m,
                                            estimator.relinearize_scalar)
-        return cls(thresholds, estimator.relinearize_skip, estimator.window_m)
+        factorization = estimator.factorization.upper()
+        if factorization == "AUTO":
+            factorization = "CHOLESKY" if with_gps else "QR"
+        return cls(thresholds, estimator.relinearize_skip, estimator.window_m, estimator.wildfire_threshold,
+                   factorization)
 
     def _new_isam(self) -> gtsam.IncrementalFixedLagSmoother:
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(self.relinearize.threshold_map())
         params.relinearizeSkip = self.relinearize_skip
-        params.setFactorization("QR")  # see the class docstring
+        params.setOptimizationParams(gtsam.ISAM2GaussNewtonParams(self.wildfire_threshold))
+        params.setFactorization(self.factorization)  # see the class docstring
         return gtsam.IncrementalFixedLagSmoother(self.window_m, params)
 
     def add(self, factor: gtsam.NonlinearFactor, rebuild: Rebuild | None = None) -> None:
@@ -136,7 +150,14 @@ class Smoother:
         try:
             self.isam.update(self._new_factors, self._new_values, stamps)
         except (RuntimeError, ValueError) as exc:  # GTSAM's exceptions arrive as either
-            raise GraphError(f"iSAM2 update failed {context}: {exc}") from None
+            if self.factorization != "CHOLESKY":
+                raise GraphError(f"iSAM2 update failed {context}: {exc}") from None
+            self.factorization = "QR"  # see the class docstring
+            self._replay()
+            try:
+                self.isam.update(self._new_factors, self._new_values, stamps)
+            except (RuntimeError, ValueError) as exc:
+                raise GraphError(f"iSAM2 update failed {context}: {exc}") from None
         elapsed = (time.perf_counter() - start) * 1e3
         first = self.graph.size()
         self.rebuild.update({first + i: r for i, r in self._new_rebuild.items()})
@@ -190,7 +211,11 @@ class Smoother:
                 leaving.append(follower)
         if leaving:
             try:
-                self.frozen.insert(self.isam.getISAM2().calculateEstimate(leaving))
+                isam2 = self.isam.getISAM2()
+                self.frozen.insert(isam2.calculateEstimate(leaving))
+                for key in leaving:
+                    if gtsam.Symbol(key).chr() == _POSE_CHR:
+                        self.left_covariance[key] = isam2.marginalCovariance(key)
             except RuntimeError as exc:
                 raise GraphError(f"iSAM2 estimate of the variables leaving the window failed: {exc}") from None
         return stamps
@@ -232,6 +257,10 @@ class Smoother:
                 taken += 1
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
+        self._replay()
+
+    def _replay(self) -> None:
+        """iSAM2 made anew by replaying every update (the state it had before them)."""
         self.isam = self._new_isam()
         start = 0
         for end, values, stamps in self.batches:
@@ -241,7 +270,7 @@ class Smoother:
             try:
                 self.isam.update(factors, values, stamps)
             except (RuntimeError, ValueError) as exc:
-                raise GraphError(f"rebuilding iSAM2 from a checkpoint failed: {exc}") from None
+                raise GraphError(f"rebuilding iSAM2 by replaying its updates failed: {exc}") from None
             start = end
 
     def settle(self, iterations: int = 3) -> None:

@@ -16,12 +16,12 @@ from dataclasses import dataclass
 
 import gtsam
 import numpy as np
-from scipy.stats import chi2
 
+from .. import chi2
 from ..rig import Rig, triangulate_rectified, triangulation_covariance
 
 # Squared Mahalanobis distance of a 3-D disagreement that passes: chi-square, 3 dof, 99.9 %.
-AGREEMENT_GATE = float(chi2.ppf(0.999, 3))
+AGREEMENT_GATE = chi2.quantile(0.999, 3)
 MIN_RANGE_M = 0.5  # a triangulation closer than this is a wrong match
 
 

@@ -1,8 +1,9 @@
 """A run's checkpoints in its staging folder, so a killed run can go on (`run --resume`).
 
-The run's inputs are written once; its state (pipeline.RunState) at checkpoints. Each file is
-written whole under a temporary name and renamed into place, so a kill at any moment leaves
-the last complete checkpoint. The state refers to the inputs' traverse, stops and truth by
+The run's inputs are written once; its state (group.RunState) at checkpoints, one file per
+group of configurations when groups run side by side (each group's process writes its own).
+Each file is written whole under a temporary name and renamed into place, so a kill at any
+moment leaves the last complete checkpoint. The state refers to the inputs' traverse, stops and truth by
 name instead of copying them (pickle's persistent ids): a checkpoint holds only what the run
 built. Saving costs time that grows with the graph, so a state is saved at most every
 `min_interval_s` and never more than `max_overhead` of the run's time (0: at every checkpoint).
@@ -10,6 +11,7 @@ built. Saving costs time that grows with the graph, so a state is saved at most 
 
 from __future__ import annotations
 
+import copy
 import io
 import os
 import pickle
@@ -22,14 +24,15 @@ from typing import TYPE_CHECKING, Any
 from ..errors import ResultsError
 
 if TYPE_CHECKING:
-    from ..pipeline import RunState
+    from ..group import RunState
     from ..results import RunOptions
     from ..sources.base import SourceData
 
 CHECKPOINT_DIR = "checkpoint"
 INPUTS_FILE = "inputs.pkl"
-STATE_FILE = "state.pkl"
-FORMAT = 2  # a checkpoint of another format is refused, not misread (2: the smoother's window)
+STATE_FILE = "state.pkl"  # a run in one process; side by side, group g's is state-g.pkl
+STATE_HEADER = "pancam-graph state; next stop"
+FORMAT = 3  # a checkpoint of another format is refused, not misread (2: the smoother's window; 3: groups)
 
 
 @dataclass(frozen=True)
@@ -45,13 +48,14 @@ class CheckpointWriter:
     """Called by the run loop at every checkpoint with the run's state."""
 
     def __init__(self, folder: Path, inputs: RunInputs, min_interval_s: float = 30.0, max_overhead: float = 0.05,
-                 resumed_from: int | None = None):
-        """`resumed_from`: the stop a resumed run goes on from (its inputs and state are there)."""
+                 resumed: bool = False):
+        """`resumed`: the writer of a resumed run (its inputs and states are there)."""
         self.folder = Path(folder) / CHECKPOINT_DIR
+        self.state_file = STATE_FILE
+        self.parts: list[str] = []  # the state files of the groups handed out by `part`
         self.shared = _shared(inputs)
         self.min_interval_s = min_interval_s
         self.max_overhead = max_overhead
-        self.saved_stop = resumed_from  # the stop a resumed run would go on from
         self.saves = 0
         self.save_s = 0.0
         self._last_end = time.perf_counter()
@@ -60,7 +64,7 @@ class CheckpointWriter:
             self.folder.mkdir(exist_ok=True)
         except OSError as exc:
             raise ResultsError(f"{self.folder}: cannot create the checkpoint folder: {exc.strerror}") from None
-        if resumed_from is None:
+        if not resumed:
             _write_atomically(self.folder / INPUTS_FILE, _dumps(inputs, {}))
 
     def __call__(self, state: RunState) -> None:
@@ -68,27 +72,47 @@ class CheckpointWriter:
         if self.min_interval_s > 0 and since < max(self.min_interval_s, self._last_cost / self.max_overhead):
             return
         start = time.perf_counter()
-        _write_atomically(self.folder / STATE_FILE, _dumps(state, self.shared))
+        # the stop first, in plain text: whoever must say where the run would go on reads just that
+        # (a group's process saves its own states; the run's process only reads them)
+        header = f"{STATE_HEADER} {state.next_stop}\n".encode()
+        _write_atomically(self.folder / self.state_file, header + _dumps(state, self.shared))
         self._last_end = time.perf_counter()
         self._last_cost = self._last_end - start
-        self.saved_stop = state.next_stop
         self.saves += 1
         self.save_s += self._last_cost
 
+    def part(self, index: int) -> CheckpointWriter:
+        """The writer of group `index`'s states (pickled to the group's process with the run's
+        inputs, which its states refer to)."""
+        writer = copy.copy(self)
+        writer.state_file = f"state-{index}.pkl"
+        writer.parts = []
+        self.parts.append(writer.state_file)
+        return writer
 
-def read_checkpoint(folder: Path) -> tuple[RunInputs, RunState]:
-    """The inputs and last saved state of the run whose staging folder is `folder`."""
+    @property
+    def saved_stops(self) -> list[int]:
+        """The stop each group would go on from, as saved on disk (empty: nothing saved yet; a
+        group that saved nothing starts again, at 0)."""
+        stops = [_saved_stop(self.folder / name) for name in (self.parts or [self.state_file])]
+        return [stop or 0 for stop in stops] if any(stop is not None for stop in stops) else []
+
+
+def read_checkpoint(folder: Path) -> tuple[RunInputs, list[RunState]]:
+    """The inputs and last saved states (one per group of configurations) of the run whose
+    staging folder is `folder`."""
     where = Path(folder) / CHECKPOINT_DIR
-    inputs_path, state_path = where / INPUTS_FILE, where / STATE_FILE
-    if not state_path.is_file():
+    inputs_path = where / INPUTS_FILE
+    state_paths = sorted(where.glob("state*.pkl"), key=lambda p: (len(p.name), p.name))
+    if not state_paths:
         saved = "has its inputs but no state yet (killed before its first checkpoint was saved)" \
             if inputs_path.is_file() else "has no checkpoint"
         raise ResultsError(f"{folder}: {saved}; start the run again")
     inputs = _loads(inputs_path, {})
     if not isinstance(inputs, RunInputs) or inputs.format != FORMAT:
         raise ResultsError(f"{inputs_path}: not a checkpoint of this version of pancam-graph")
-    state = _loads(state_path, _shared(inputs))
-    return inputs, state
+    shared = _shared(inputs)
+    return inputs, [_loads(path, shared, header=True) for path in state_paths]
 
 
 def remove_checkpoint(folder: Path) -> None:
@@ -132,10 +156,26 @@ def _dumps(obj, shared: dict[str, Any]) -> bytes:
     return buffer.getvalue()
 
 
-def _loads(path: Path, shared: dict[str, Any]):
+def _saved_stop(path: Path) -> int | None:
+    """The stop a saved state goes on from, from its first line (None: no state there)."""
     try:
         with path.open("rb") as f:
+            line = f.readline(200).decode("ascii", "replace")
+    except OSError:
+        return None
+    head, _, stop = line.rpartition(" ")
+    return int(stop) if head == STATE_HEADER and stop.strip().isdigit() else None
+
+
+def _loads(path: Path, shared: dict[str, Any], header: bool = False):
+    """The object pickled in `path` (after the state's first line, with `header`)."""
+    try:
+        with path.open("rb") as f:
+            if header and not f.readline(200).startswith(STATE_HEADER.encode()):
+                raise ResultsError(f"{path}: not a readable checkpoint (no state header)")
             return _Unpickler(f, shared).load()
+    except ResultsError:
+        raise
     except OSError as exc:
         raise ResultsError(f"{path}: cannot read the checkpoint: {exc.strerror}") from None
     except Exception as exc:  # a truncated or foreign file: pickle raises many kinds of errors

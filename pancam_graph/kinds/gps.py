@@ -6,8 +6,8 @@ antenna lever arm, a robust kernel, and a chi-square test at the updated estimat
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2
 
+from .. import chi2
 from ..graph import factors, noise
 from ..graph.keys import X
 from ..records import GpsFix, Stop, Traverse
@@ -28,7 +28,7 @@ class Gps(Kind):
     def __init__(self, localizer):
         super().__init__(localizer)
         est = localizer.estimator
-        self.gate = float(chi2.ppf(est.gps_outlier_probability, 3))
+        self.gate = chi2.quantile(est.gps_outlier_probability, 3)
         self.interpolate = est.gps_time_association == "interpolate"
         self.max_gap_s = est.gps_max_gap_s
         self.refused: list[str] = []

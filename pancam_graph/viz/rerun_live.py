@@ -7,8 +7,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import rerun as rr
 
+from ..group import CHECKPOINT_EVERY_STOPS, gps_enu
 from ..localizer import Localizer, StepResult
-from ..pipeline import CHECKPOINT_EVERY_STOPS, gps_enu
 from ..records import GroundTruth, Stop, Traverse
 from . import rerun_scene as scene
 

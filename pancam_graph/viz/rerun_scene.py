@@ -25,8 +25,8 @@ import gtsam
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
-from scipy.stats import chi2
 
+from .. import chi2
 from ..geodesy import LocalFrame
 from ..rig import Camera, Rig
 
@@ -43,7 +43,7 @@ TIE_ALPHA = 50  # tie links are many: faint, so the trajectories stay visible
 GPS_COLOUR = (150, 150, 150)
 OUTLIER_COLOUR = (230, 30, 30)
 HELD_OUT_COLOUR = (60, 120, 230)  # fixes kept out of the graph for scoring
-ELLIPSOID_SCALE_95 = float(np.sqrt(chi2.ppf(0.95, 3)))  # 95 % of a 3-D Gaussian
+ELLIPSOID_SCALE_95 = float(np.sqrt(chi2.quantile(0.95, 3)))  # 95 % of a 3-D Gaussian
 FRUSTUM_DEPTH_M = 0.6
 SERIES = {  # entity under plots/ -> (title, per configuration)
     "error_m": ("position error vs truth (m)", True),

@@ -1,0 +1,214 @@
+"""Groups of configurations side by side, one worker process each.
+
+The configurations of a run share the traverse and its motions and nothing else. Each worker
+runs a group over the whole traverse, saves its own checkpoints and evaluates its
+configurations. The pool has one worker per core and no more: the group without VO and the
+stereo VO's blocks of stops first, then the groups with VO on the motions. More processes
+than cores, each taking a share of a core (the VO's motions streamed to the groups as they
+came in), made long_traverse 28 % slower: iSAM2 lives in the caches, and each switch to
+another process empties them (the dead-reckoning group: 96 s of a core instead of 55).
+
+A group's estimate is the one it would get in a single process: the same motions in the same
+order, the same updates (group.run_group is the loop either way).
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from concurrent.futures import FIRST_EXCEPTION, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import replace
+
+from .errors import GraphError
+from .frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_from
+from .frontend.vo_ahead import BLOCK_STOPS, VoSetup, block_pairs, estimate_block
+from .group import (
+    Checkpoints,
+    GroupJob,
+    GroupOutcome,
+    ProgressCallback,
+    RunState,
+    new_state,
+    release_memory,
+    run_group,
+)
+from .processes import process_context
+from .records import Traverse
+
+_stops_done = None  # in a worker: the shared count of stops each group has stepped, then "stop now"
+_run_pid = 0  # in a worker: the process it works for
+
+
+def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: list[RunState] | None,
+                     known: VoMotions | None, save: Checkpoints | None, progress: ProgressCallback | None,
+                     start: float, memory: MemoryWatch) -> list[GroupOutcome]:
+    """Each group of configurations in a worker of a pool of `job.options.processes` (its
+    state from `resume` when it has one): the groups without VO at once, the stereo VO in
+    blocks beside them, then the groups with VO; their outcomes in the order of `groups`.
+    `memory` watches the run's processes meanwhile."""
+    n = len(job.traverse.stops)
+    context = process_context()
+    done = context.Array("l", len(groups) + 1, lock=False)
+    workers = min(job.options.processes, len(groups))
+    pids = context.Array("l", workers)
+    pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker,
+                               initargs=(done, pids, os.getpid()))
+    memory.watch(pids)
+    try:
+        dr_motions = dead_reckoning_motions(job.traverse)
+        futures: dict[int, Future] = {}
+
+        def submit(g: int, motions: list[Motion | None], vo_s: float) -> None:
+            state = resume[g] if resume and g < len(resume) else None
+            part = save.part(g) if save is not None else None
+            futures[g] = pool.submit(_run_group_in_worker, replace(job, configs=groups[g]), g, state, motions,
+                                     dr_motions, vo_s, part, start)
+
+        for g, configs in enumerate(groups):
+            if not _uses_vo(configs):
+                submit(g, list(dr_motions), 0.0)
+        if len(futures) < len(groups):
+            motions, vo_s = _vo_motions(job, resume, known, pool, progress)
+            for g, configs in enumerate(groups):
+                if _uses_vo(configs):
+                    submit(g, motions, vo_s)
+        ordered = [futures[g] for g in range(len(groups))]
+        release_memory()  # the jobs' pickles (the traverse, once per group) are the workers' now
+        _wait(ordered, groups, done, n, progress)
+        return [f.result() for f in ordered]
+    except BrokenProcessPool as exc:
+        raise GraphError(f"a process running configurations stopped unexpectedly (killed, or out of memory?): "
+                         f"{exc}") from None
+    finally:
+        done[-1] = 1  # when one group failed or the run was interrupted, the others stop at their next stop
+        pool.shutdown(wait=True, cancel_futures=True)
+        memory.stop()
+
+
+def _uses_vo(configs: dict[str, list[str]]) -> bool:
+    return any("vo" in kinds for kinds in configs.values())
+
+
+def dead_reckoning_motions(traverse: Traverse) -> list[Motion | None]:
+    slip = traverse.wheel_slip
+    motions: list[Motion | None] = [None]
+    for k in range(1, len(traverse.stops)):
+        motions.append(dead_reckoning_motion(traverse.stops[k], motions[-1], slip))
+    return motions
+
+
+def _vo_motions(job: GroupJob, resume: list[RunState] | None, known: VoMotions | None, pool: ProcessPoolExecutor,
+                progress: ProgressCallback | None) -> tuple[list[Motion | None], float]:
+    """Every stop's VO motion (bridged where VO fails) and the seconds it took: from a saved
+    group with VO that has them all, from the source, or estimated in blocks over the pool."""
+    traverse = job.traverse
+    n, slip = len(traverse.stops), traverse.wheel_slip
+    for state in resume or ():
+        if len(state.motions) == n and any(loc.uses_vo for loc in state.localizers.values()):
+            return state.motions, state.vo_s
+    if known is not None:
+        return list(known.motions), known.seconds
+    t0 = time.perf_counter()
+    setup = VoSetup.of(traverse, job.estimator)
+    blocks = [(s, pool.submit(estimate_block, setup, block_pairs(traverse, s, min(s + BLOCK_STOPS, n))))
+              for s in range(1, n, BLOCK_STOPS)]
+    motions: list[Motion | None] = [None]
+    for first, future in blocks:
+        for k, result in enumerate(future.result(), start=first):
+            motions.append(motion_from(result, traverse.stops[k], motions[-1], slip))
+        if progress is not None:
+            progress("stereo VO", len(motions) - 1, n - 1)
+    return motions, time.perf_counter() - t0
+
+
+def _wait(futures: list[Future], groups: list[dict[str, list[str]]], done, n: int,
+          progress: ProgressCallback | None) -> None:
+    """Until every group is done; the first to fail stops the wait (its error is raised by
+    its result)."""
+    pending = set(futures)
+    while pending:
+        finished, pending = wait(pending, timeout=0.5, return_when=FIRST_EXCEPTION)
+        if any(f.exception() is not None for f in finished):
+            return
+        if progress is not None:
+            progress(f"stops ({len(groups)} groups side by side)", min(done[:-1]), n)
+
+
+class MemoryWatch:
+    """The largest sum of the resident memory of this process and its workers, sampled four
+    times a second (Linux; None elsewhere): what the run asked of the machine at once. The
+    sum of each process's own peak would add peaks that came at different times."""
+
+    def __init__(self):
+        self.peak_mb: float | None = None
+        self._stopped = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def watch(self, pids) -> None:
+        self._thread = threading.Thread(target=self._sample, args=(pids,), daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stopped.set()
+        if self._thread is not None:
+            self._thread.join()
+
+    def _sample(self, pids) -> None:
+        page_mb = os.sysconf("SC_PAGE_SIZE") / 2**20
+        while not self._stopped.wait(0.25):
+            total = 0.0
+            for pid in [os.getpid(), *(p for p in pids[:] if p)]:
+                try:
+                    with open(f"/proc/{pid}/statm") as f:
+                        total += int(f.read().split()[1]) * page_mb
+                except (OSError, ValueError, IndexError):  # not Linux, or the worker has gone
+                    continue
+            if total:
+                self.peak_mb = max(self.peak_mb or 0.0, total)
+
+
+def _start_worker(done, pids, run_pid: int) -> None:
+    global _stops_done, _run_pid
+    _stops_done, _run_pid = done, run_pid
+    with pids.get_lock():
+        free = list(pids[:]).index(0)
+        pids[free] = os.getpid()
+    # An idle worker waits for work on a pipe that it holds open itself: it would outlive a
+    # killed run (and keep the fork server alive) without this watch.
+    threading.Thread(target=_watch_the_run, daemon=True).start()
+
+
+def _watch_the_run() -> None:
+    while True:
+        time.sleep(1.0)
+        _stop_if_the_run_stopped()
+
+
+def _stop_if_the_run_stopped() -> None:
+    """Exit when the run's process is gone (killed: stop before its resumption starts saving
+    too), was interrupted, or another group failed."""
+    if _stops_done is not None and _stops_done[-1]:
+        os._exit(1)
+    try:
+        os.kill(_run_pid, 0)
+    except ProcessLookupError:
+        os._exit(1)
+
+
+def _run_group_in_worker(job: GroupJob, index: int, state: RunState | None, motions: list[Motion | None],
+                         dr_motions: list[Motion | None], vo_s: float, save: Checkpoints | None,
+                         start: float) -> GroupOutcome:
+    if state is None:
+        state = new_state(job)
+        state.dr_motions, state.vo_s = dr_motions, vo_s
+    if len(state.motions) < len(motions):  # a saved group has the motions up to its stop
+        state.motions.extend(motions[len(state.motions):])
+
+    def progress(stage: str, k: int, total: int) -> None:
+        _stop_if_the_run_stopped()
+        if stage == "stops" and _stops_done is not None:
+            _stops_done[index] = k
+
+    return run_group(job, state, None, save, progress, None, start, f"group {index + 1}")

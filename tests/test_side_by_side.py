@@ -1,0 +1,76 @@
+"""Configurations in groups side by side (one process each) give exactly the estimate of a run
+in one process, and a run checkpointed in groups goes on from each group's last state to that
+same estimate."""
+
+import numpy as np
+import pytest
+
+from pancam_graph.io.checkpoint import CheckpointWriter, RunInputs, read_checkpoint
+from pancam_graph.pipeline import configuration_groups, run_traverse
+from pancam_graph.results import RunOptions
+from pancam_graph.sources import open_source
+
+SIDE_BY_SIDE = RunOptions(processes=2, side_by_side_min_stops=0)
+
+
+@pytest.fixture(scope="module")
+def short_trail():
+    return open_source("short_trail")
+
+
+def _run(data, options, **kwargs):
+    return run_traverse(data.traverse, data.truth, data.estimator, data.seed, options, **kwargs)
+
+
+def _assert_same(a, b):
+    assert list(a.configurations) == list(b.configurations)
+    for name in a.configurations:
+        x, y = a.configurations[name], b.configurations[name]
+        np.testing.assert_array_equal(x.world_T_body, y.world_T_body, err_msg=name)
+        np.testing.assert_array_equal(x.position_covariance, y.position_covariance, err_msg=name)
+        np.testing.assert_array_equal(x.landmark_positions, y.landmark_positions, err_msg=name)
+        assert x.consistency == y.consistency, name
+
+
+def test_groups_balance_the_dearest_configuration_against_the_rest(short_trail):
+    chosen = dict(short_trail.estimator.configurations)
+    groups = configuration_groups(chosen, SIDE_BY_SIDE, None, None, 1000)
+    # the configurations without VO start while it is estimated; the dearest against the rest
+    assert [list(g) for g in groups] == [["dead_reckoning", "dead_reckoning_gps"], ["full"],
+                                         ["vo_sites", "vo_sites_hrc", "vo"]]
+    # a listener watches every localizer, and a short traverse does not pay for the processes
+    assert len(configuration_groups(chosen, SIDE_BY_SIDE, object(), None, 1000)) == 1
+    assert len(configuration_groups(chosen, RunOptions(processes=2), None, None, 299)) == 1
+
+
+def test_side_by_side_equals_one_process(short_trail):
+    one = _run(short_trail, RunOptions())
+    two = _run(short_trail, SIDE_BY_SIDE)
+    _assert_same(one, two)
+    assert [p.label for p in one.processes] == ["run"]
+    assert [p.configurations for p in two.processes] == [("dead_reckoning", "dead_reckoning_gps"), ("full",),
+                                                         ("vo_sites", "vo_sites_hrc", "vo")]
+    assert all(p.memory_mb and p.seconds > 0 for p in two.processes)
+    assert len({p.pid for p in two.processes}) == 2  # three groups, one worker per core
+    # the run's processes at once: more than the largest worker's own peak, less than all peaks summed
+    peaks = {p.pid: max(mb for _, mb in p.memory_mb) for p in two.processes}
+    assert max(peaks.values()) < two.peak_memory_mb
+    np.testing.assert_array_equal([m.prev_T_curr.matrix() for m in one.motions[1:]],
+                                  [m.prev_T_curr.matrix() for m in two.motions[1:]])
+
+
+def test_a_run_checkpointed_in_groups_resumes_to_the_same_estimate(short_trail, tmp_path):
+    whole = _run(short_trail, SIDE_BY_SIDE)
+    writer = CheckpointWriter(tmp_path, RunInputs(short_trail, SIDE_BY_SIDE), min_interval_s=0)
+    _run(short_trail, SIDE_BY_SIDE, save=writer)
+    inputs, states = read_checkpoint(tmp_path)  # the last states saved before the end: as if killed there
+    groups = configuration_groups(dict(short_trail.estimator.configurations), SIDE_BY_SIDE, None, None, 1000)
+    assert [list(s.localizers) for s in states] == [list(g) for g in groups]
+    n = len(short_trail.traverse.stops)
+    assert all(0 < s.next_stop < n for s in states)
+    assert writer.saved_stops == [s.next_stop for s in states]
+    resumed = _run(inputs.data, inputs.options, resume=states)
+    _assert_same(whole, resumed)
+    # and in this process, one group after the other
+    inputs, states = read_checkpoint(tmp_path)
+    _assert_same(whole, _run(inputs.data, RunOptions(), resume=states))
