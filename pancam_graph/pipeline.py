@@ -92,8 +92,8 @@ def run_traverse(
     has estimated them already (with this estimator configuration).
 
     With `options.processes` > 1 and no listener, the configurations run in groups side by
-    side, one process each (side_by_side.py); a listener watches every localizer at every
-    stop, so with one they all stay in this process."""
+    side in that many worker processes (side_by_side.py); a listener watches every localizer
+    at every stop, so with one they all stay in this process."""
     start = time.perf_counter() if started is None else started
     source = source or SourceInfo("traverse", traverse.name, "truth" if truth is not None else "none")
     chosen, skipped = select_configurations(estimator, traverse, options.configs)
