@@ -30,6 +30,7 @@ from rich.table import Table
 from rich.text import Text
 
 from .errors import ConfigError, FolderInUse, FrameError, InputError, PancamGraphError, ResultsError, ViewerUnavailable
+from .processes import cores
 
 if TYPE_CHECKING:  # the heavy imports wait until a command needs them: --help stays fast
     from .frontend.calibrate import StereoFit
@@ -61,11 +62,6 @@ def _version(value: bool) -> None:
 def _main(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
                                        help="print the version and exit")) -> None:
     """Rover localization over long traverses with a GTSAM factor graph."""
-
-
-def _cores() -> int:
-    """The cores this process may run on."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def _start_process_server(options) -> None:
@@ -286,7 +282,7 @@ def run_command(
     source = source or "denver_trail"
     try:
         options = RunOptions(seed=seed, configs=_parse_configs(configs), batch=batch,
-                             processes=1 if one_process else _cores())
+                             processes=1 if one_process else cores())
         _start_process_server(options)
         target = _rerun_target(rerun, viewer_memory) if rerun is not None else None
         _check_out(out)
@@ -794,10 +790,11 @@ def bench_command(
         sc = _load(scenario)
         first = sc.seed if seed is None else seed
         results, walls, recorded_walls = [], [], []
-        _start_process_server(RunOptions(processes=_cores()))
+        options = RunOptions(processes=cores())
+        _start_process_server(options)
         for s in range(first, first + seeds):
             start = time.perf_counter()
-            results.append(run(sc, RunOptions(seed=s, processes=_cores())))
+            results.append(run(sc, dataclasses.replace(options, seed=s)))
             walls.append(time.perf_counter() - start)
             if rerun:
                 recorded_walls.append(_time_recorded_run(sc, s))

@@ -7,9 +7,15 @@ from __future__ import annotations
 
 import multiprocessing
 import multiprocessing.context
+import os
 from multiprocessing import forkserver
 
 PRELOAD = ["pancam_graph.side_by_side"]  # imports everything a worker runs
+
+
+def cores() -> int:
+    """The cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def process_context() -> multiprocessing.context.BaseContext:

@@ -23,7 +23,7 @@ from dataclasses import replace
 
 from .errors import GraphError
 from .frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_from
-from .frontend.vo_ahead import BLOCK_STOPS, VoSetup, block_pairs, estimate_block
+from .frontend.vo_ahead import BLOCK_STOPS, VoAhead
 from .group import (
     Checkpoints,
     GroupJob,
@@ -111,15 +111,12 @@ def _vo_motions(job: GroupJob, resume: list[RunState] | None, known: VoMotions |
     if known is not None:
         return list(known.motions), known.seconds
     t0 = time.perf_counter()
-    setup = VoSetup.of(traverse, job.estimator)
-    blocks = [(s, pool.submit(estimate_block, setup, block_pairs(traverse, s, min(s + BLOCK_STOPS, n))))
-              for s in range(1, n, BLOCK_STOPS)]
+    ahead = VoAhead(traverse, job.estimator, 1, pool)
     motions: list[Motion | None] = [None]
-    for first, future in blocks:
-        for k, result in enumerate(future.result(), start=first):
-            motions.append(motion_from(result, traverse.stops[k], motions[-1], slip))
-        if progress is not None:
-            progress("stereo VO", len(motions) - 1, n - 1)
+    for k in range(1, n):
+        motions.append(motion_from(ahead.result(k), traverse.stops[k], motions[-1], slip))
+        if progress is not None and (k % BLOCK_STOPS == 0 or k == n - 1):
+            progress("stereo VO", k, n - 1)
     return motions, time.perf_counter() - t0
 
 

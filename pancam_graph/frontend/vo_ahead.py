@@ -10,7 +10,6 @@ plain VoResults; the run turns them into motions in order, as before.
 from __future__ import annotations
 
 import multiprocessing
-import os
 import uuid
 from collections import deque
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -21,13 +20,14 @@ import numpy as np
 
 from ..config import EstimatorConfig
 from ..errors import FrontendError
-from ..processes import process_context
+from ..processes import cores, process_context
 from ..records import StereoObservations, Traverse
 from ..rig import Rig
 from .stereo_vo import StereoVO, VoResult
 
 BLOCK_STOPS = 64  # stops per task: enough to hide the pickling, few enough to start at once
-MIN_STOPS = 400  # a new interpreter imports GTSAM and OpenCV before its first stop: not worth it on short runs
+MIN_STOPS = 400  # below this, a worker process's start is not paid back
+
 
 @dataclass(frozen=True)
 class VoSetup:
@@ -63,12 +63,15 @@ def block_pairs(traverse: Traverse, start: int, end: int) -> list[tuple[StereoOb
 
 
 class VoAhead:
-    """VoResults of stops `first`.. in order, estimated ahead in one worker process."""
+    """VoResults of stops `first`.. in order, estimated ahead in blocks by one worker process,
+    or by the workers of `pool` (which stays open)."""
 
-    def __init__(self, traverse: Traverse, estimator: EstimatorConfig, first: int):
+    def __init__(self, traverse: Traverse, estimator: EstimatorConfig, first: int,
+                 pool: ProcessPoolExecutor | None = None):
         self.stops = traverse.stops
         self.next = max(first, 1)
-        self.pool = ProcessPoolExecutor(1, mp_context=process_context())
+        self.own_pool = pool is None
+        self.pool = ProcessPoolExecutor(1, mp_context=process_context()) if pool is None else pool
         setup = VoSetup.of(traverse, estimator)
         self.blocks: deque[tuple[int, Future]] = deque()
         for start in range(self.next, len(self.stops), BLOCK_STOPS):
@@ -80,8 +83,7 @@ class VoAhead:
     def worth_it(traverse: Traverse, first: int) -> bool:
         """A second core, a long enough way to go, and not inside a daemon (a Dask worker may
         not start processes; a sweep is parallel already)."""
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        return (cores > 1 and len(traverse.stops) - first >= MIN_STOPS
+        return (cores() > 1 and len(traverse.stops) - first >= MIN_STOPS
                 and not multiprocessing.current_process().daemon)
 
     def result(self, k: int) -> VoResult:
@@ -99,4 +101,5 @@ class VoAhead:
         return self.ready.popleft()
 
     def close(self) -> None:
-        self.pool.shutdown(wait=False, cancel_futures=True)
+        if self.own_pool:
+            self.pool.shutdown(wait=False, cancel_futures=True)

@@ -145,7 +145,8 @@ class Smoother:
     def update(self, context: str = "") -> float:
         """One iSAM2 update with the collected factors; returns its wall time in ms. Variables
         that entered the window's length ago are marginalized in it."""
-        stamps = self._stamp_and_freeze()
+        stamps, leaving = self._stamps()
+        self._freeze(leaving)
         start = time.perf_counter()
         try:
             self.isam.update(self._new_factors, self._new_values, stamps)
@@ -154,6 +155,7 @@ class Smoother:
                 raise GraphError(f"iSAM2 update failed {context}: {exc}") from None
             self.factorization = "QR"  # see the class docstring
             self._replay()
+            self._freeze(leaving)  # as QR's iSAM2 has them
             try:
                 self.isam.update(self._new_factors, self._new_values, stamps)
             except (RuntimeError, ValueError) as exc:
@@ -180,10 +182,10 @@ class Smoother:
         step = self.window_m / WINDOW_STEPS
         return step * np.floor(self.clock_m / step)
 
-    def _stamp_and_freeze(self) -> dict[int, float]:
-        """The clock of this update's new variables and of the shared ones (which never leave);
-        the estimates of the variables this update marginalizes (GTSAM's rule: entered more
-        than the window before the latest) copied into `frozen` while iSAM2 still has them.
+    def _stamps(self) -> tuple[dict[int, float], list[int]]:
+        """The clock of this update's new variables and of the shared ones (which never leave),
+        and the variables this update marginalizes (GTSAM's rule: entered more than the window
+        before the latest).
 
         A variable leaves by when it entered, not by when a factor last touched it: a site pose
         that a later tie touches must not outlive the poses around it, or the variables would
@@ -197,7 +199,7 @@ class Smoother:
             elif key not in self.shared:
                 stamps[key] = self._entered[key] = now
         if not np.isfinite(self.window_m):
-            return stamps
+            return stamps, []
         cutoff = now - self.window_m
         leaving = []
         for key, entered in self._entered.items():
@@ -209,16 +211,21 @@ class Smoother:
             for follower in self._followers.pop(key, ()):
                 del self._leader[follower]
                 leaving.append(follower)
-        if leaving:
-            try:
-                isam2 = self.isam.getISAM2()
-                self.frozen.insert(isam2.calculateEstimate(leaving))
-                for key in leaving:
-                    if gtsam.Symbol(key).chr() == _POSE_CHR:
-                        self.left_covariance[key] = isam2.marginalCovariance(key)
-            except RuntimeError as exc:
-                raise GraphError(f"iSAM2 estimate of the variables leaving the window failed: {exc}") from None
-        return stamps
+        return stamps, leaving
+
+    def _freeze(self, leaving: list[int]) -> None:
+        """The leaving variables' estimates into `frozen`, and the poses' marginal covariances
+        into `left_covariance`, while iSAM2 still has them."""
+        if not leaving:
+            return
+        try:
+            isam2 = self.isam.getISAM2()
+            self.frozen.insert_or_assign(isam2.calculateEstimate(leaving))
+            for key in leaving:
+                if gtsam.Symbol(key).chr() == _POSE_CHR:
+                    self.left_covariance[key] = isam2.marginalCovariance(key)
+        except RuntimeError as exc:
+            raise GraphError(f"iSAM2 estimate of the variables leaving the window failed: {exc}") from None
 
     # -- checkpoints ---------------------------------------------------------------------------
 

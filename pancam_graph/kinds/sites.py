@@ -91,7 +91,7 @@ class Sites(Kind):
         """The site's views and triangulations. Every configuration with sites steps the same
         stop one after another: the last few are kept for the others (read-only), keyed by the
         stop and what makes them differ (the pixel sigma, HRC views or not)."""
-        key = (id(stop), self.sigma_px, self.hrc is not None)
+        key = (self.sigma_px, self.hrc is not None)
         for cached_key, cached_stop, obs in _RECENT_SITES:
             if cached_key == key and cached_stop is stop:
                 return obs
