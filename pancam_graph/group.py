@@ -285,7 +285,7 @@ def _configuration_result(job: GroupJob, name: str, localizer: Localizer, steps:
                                      for j in localizer.landmarks):
             if progress is not None:
                 progress(f"CRLB of {name}", 0, 1)
-            crlb = crlb_position_covariances(localizer.smoother.graph, localizer.stops, truth.world_T_body,
+            crlb = crlb_position_covariances(localizer.smoother, localizer.stops, truth.world_T_body,
                                              {j: truth.landmarks[j] for j in localizer.landmarks}, extra)
             consistency_result = consistency(poses[:, :3, 3], truth.positions, covariance, crlb)
     return ConfigurationResult(

@@ -32,12 +32,12 @@ def _assert_same(a, b):
         assert x.consistency == y.consistency, name
 
 
-def test_groups_balance_the_dearest_configuration_against_the_rest(short_trail):
+def test_groups_balance_the_configurations_by_cost(short_trail):
     chosen = dict(short_trail.estimator.configurations)
     groups = configuration_groups(chosen, SIDE_BY_SIDE, None, None, 1000)
-    # the configurations without VO start while it is estimated; the dearest against the rest
-    assert [list(g) for g in groups] == [["dead_reckoning", "dead_reckoning_gps"], ["full"],
-                                         ["vo_sites", "vo_sites_hrc", "vo"]]
+    # the configurations without VO start while it is estimated; the others in groups of equal cost
+    assert [list(g) for g in groups] == [["dead_reckoning", "dead_reckoning_gps"], ["vo_sites", "full"],
+                                         ["vo_sites_hrc", "vo"]]
     # a listener watches every localizer, and a short traverse does not pay for the processes
     assert len(configuration_groups(chosen, SIDE_BY_SIDE, object(), None, 1000)) == 1
     assert len(configuration_groups(chosen, RunOptions(processes=2), None, None, 299)) == 1
@@ -48,8 +48,8 @@ def test_side_by_side_equals_one_process(short_trail):
     two = _run(short_trail, SIDE_BY_SIDE)
     _assert_same(one, two)
     assert [p.label for p in one.processes] == ["run"]
-    assert [p.configurations for p in two.processes] == [("dead_reckoning", "dead_reckoning_gps"), ("full",),
-                                                         ("vo_sites", "vo_sites_hrc", "vo")]
+    assert [p.configurations for p in two.processes] == [("dead_reckoning", "dead_reckoning_gps"),
+                                                         ("vo_sites", "full"), ("vo_sites_hrc", "vo")]
     assert all(p.memory_mb and p.seconds > 0 for p in two.processes)
     assert len({p.pid for p in two.processes}) == 2  # three groups, one worker per core
     # the run's processes at once: more than the largest worker's own peak, less than all peaks summed

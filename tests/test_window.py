@@ -13,7 +13,7 @@ from pancam_graph.errors import GraphError
 from pancam_graph.frontend.motion import motion_between
 from pancam_graph.frontend.stereo_vo import StereoVO
 from pancam_graph.frontend.vo_ahead import VoAhead
-from pancam_graph.graph.keys import X
+from pancam_graph.graph.keys import L, X
 from pancam_graph.graph.smoother import RelinearizeThresholds, Smoother
 from pancam_graph.localizer import Localizer
 from pancam_graph.sim import simulate
@@ -167,3 +167,38 @@ def test_a_failing_cholesky_goes_on_as_qr_to_qr_s_estimate():
     assert Smoother.configured(EstimatorConfig(), with_gps=True).factorization == "CHOLESKY"
     assert Smoother.configured(EstimatorConfig(), with_gps=False).factorization == "QR"
     assert Smoother.configured(EstimatorConfig(factorization="qr"), with_gps=True).factorization == "QR"
+
+
+def test_the_bound_through_the_window_is_each_stops_information_as_it_left(short_scenario, trail, monkeypatch):
+    """At the truth nothing is relinearized, so marginalizing is exact: a stop still in the
+    window at the end has the whole graph's bound, and a stop that left has the bound of the
+    graph as it stood when it left."""
+    traverse, truth, motions = trail
+    graph_when_left = {}
+    freeze = Smoother._freeze
+
+    def recording_freeze(self, leaving):
+        graph_when_left.update(dict.fromkeys(leaving, self.graph.size()))
+        freeze(self, leaving)
+
+    monkeypatch.setattr(Smoother, "_freeze", recording_freeze)
+    loc = _solve(_localizer(short_scenario, traverse, ["vo", "sites", "hrc", "gps"], WINDOW_M), traverse, motions)
+    values = loc.true_values(truth)
+    for k in loc.stops:
+        values.insert(X(k), gtsam.Pose3(truth.world_T_body[k]))
+    for j in loc.landmarks:
+        values.insert(L(j), truth.landmarks[j])
+    keys = [X(k) for k in loc.stops]
+    bound = loc.smoother.marginals_at(values, keys)
+
+    left = [key for key in keys if key in graph_when_left]
+    assert len(left) > len(keys) / 3
+    for key in left[:: len(left) // 4] + [k for k in keys if k not in graph_when_left][::40]:
+        graph = gtsam.NonlinearFactorGraph()
+        for i in range(graph_when_left.get(key, loc.smoother.graph.size())):
+            graph.add(loc.smoother.graph.at(i))
+        used = gtsam.Values()
+        for k in graph.keyVector():
+            used.insert(k, values.atPose3(k) if gtsam.Symbol(k).chr() in (ord("x"), ord("t")) else values.atPoint3(k))
+        expected = gtsam.Marginals(graph, used).marginalCovariance(key)
+        np.testing.assert_allclose(bound[key], expected, rtol=1e-6, atol=1e-12)

@@ -3,8 +3,9 @@ whether its covariance tells the truth about its errors (NEES).
 
 CRLB: the graph's information evaluated at the ground truth (every pose and landmark at its
 true value), inverted by iSAM2 with QR (batch Cholesky calls long VO chains indeterminate; see
-`graph.smoother`). Errors are not aligned: the start prior fixes the gauge of both the estimate
-and the bound.
+`graph.smoother`) through the smoother's own window: a stop that left the window is bounded by
+the information it had as it left, as its estimate was frozen then. Errors are not aligned: the
+start prior fixes the gauge of both the estimate and the bound.
 """
 
 from __future__ import annotations
@@ -15,29 +16,29 @@ import gtsam
 import numpy as np
 
 from .. import chi2
-from ..errors import EvaluationError
+from ..errors import EvaluationError, GraphError
 from ..graph.keys import L, X
-from ..graph.smoother import batch_marginals
+from ..graph.smoother import Smoother
 
 POSITION_DOF = 3
 
 
-def crlb_position_covariances(graph: gtsam.NonlinearFactorGraph, stops: list[int], world_T_body: np.ndarray,
+def crlb_position_covariances(smoother: Smoother, stops: list[int], world_T_body: np.ndarray,
                               landmarks: dict[int, np.ndarray], extra: gtsam.Values | None = None) -> np.ndarray:
-    """(N, 3, 3) world-frame position covariances of X(stop) from `graph` linearized at the truth:
-    `world_T_body` (N, 4, 4) for `stops`, `landmarks` track -> true position, `extra` the true
-    values of any other variable."""
+    """(N, 3, 3) world-frame position covariances of X(stop) from the smoother's graph linearized
+    at the truth, through its window: `world_T_body` (N, 4, 4) for `stops`, `landmarks` track ->
+    true position, `extra` the true values of any other variable."""
     values = gtsam.Values() if extra is None else gtsam.Values(extra)
     for k, pose in zip(stops, world_T_body, strict=True):
         values.insert(X(k), gtsam.Pose3(pose))
     for track, point in landmarks.items():
         values.insert(L(track), np.asarray(point, dtype=float))
     try:
-        marginals = batch_marginals(graph, values, [X(k) for k in stops])
-    except RuntimeError as exc:
+        marginals = smoother.marginals_at(values, [X(k) for k in stops])
+    except GraphError as exc:
         raise EvaluationError(f"CRLB: the graph at ground truth cannot be inverted: {exc}") from None
     rot = world_T_body[:, :3, :3]
-    return rot @ np.stack(marginals)[:, 3:, 3:] @ rot.transpose(0, 2, 1)
+    return rot @ np.stack([marginals[X(k)] for k in stops])[:, 3:, 3:] @ rot.transpose(0, 2, 1)
 
 
 @dataclass(frozen=True)

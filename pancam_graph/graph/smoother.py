@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import time
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -17,6 +17,7 @@ from ..errors import GraphError
 from .keys import L, S, T, X
 
 WINDOW_STEPS = 4  # the window moves in steps of a quarter of its length
+GPS_RELINEARIZE_SKIP = 10  # GTSAM's default; see EstimatorConfig.relinearize_skip
 _POSE_CHR = gtsam.Symbol(X(0)).chr()
 
 # How to make a factor again: (function, arguments). Python CustomFactors do not pickle.
@@ -67,8 +68,9 @@ class Smoother:
     """
 
     def __init__(self, relinearize: RelinearizeThresholds, relinearize_skip: int = 1, window_m: float = np.inf,
-                 wildfire_threshold: float = 0.001, factorization: str = "QR"):
+                 wildfire_threshold: float = 0.001, factorization: str = "QR", partial_check: bool = False):
         self.relinearize = relinearize
+        self.partial_check = partial_check
         self.factorization = factorization
         self.relinearize_skip = relinearize_skip
         self.wildfire_threshold = wildfire_threshold
@@ -102,13 +104,17 @@ class Smoother:
         factorization = estimator.factorization.upper()
         if factorization == "AUTO":
             factorization = "CHOLESKY" if with_gps else "QR"
-        return cls(thresholds, estimator.relinearize_skip, estimator.window_m, estimator.wildfire_threshold,
-                   factorization)
+        check, skip = estimator.relinearize_check, estimator.relinearize_skip
+        partial = check == "partial" or (check == "auto" and with_gps)
+        if skip == "auto":
+            skip = GPS_RELINEARIZE_SKIP if with_gps else 1
+        return cls(thresholds, skip, estimator.window_m, estimator.wildfire_threshold, factorization, partial)
 
     def _new_isam(self) -> gtsam.IncrementalFixedLagSmoother:
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(self.relinearize.threshold_map())
         params.relinearizeSkip = self.relinearize_skip
+        params.enablePartialRelinearizationCheck = self.partial_check
         params.setOptimizationParams(gtsam.ISAM2GaussNewtonParams(self.wildfire_threshold))
         params.setFactorization(self.factorization)  # see the class docstring
         return gtsam.IncrementalFixedLagSmoother(self.window_m, params)
@@ -160,6 +166,7 @@ class Smoother:
                 self.isam.update(self._new_factors, self._new_values, stamps)
             except (RuntimeError, ValueError) as exc:
                 raise GraphError(f"iSAM2 update failed {context}: {exc}") from None
+        self._back_substitute()
         elapsed = (time.perf_counter() - start) * 1e3
         first = self.graph.size()
         self.rebuild.update({first + i: r for i, r in self._new_rebuild.items()})
@@ -276,9 +283,18 @@ class Smoother:
                 factors.add(self.graph.at(i))
             try:
                 self.isam.update(factors, values, stamps)
+                self._back_substitute()
             except (RuntimeError, ValueError) as exc:
                 raise GraphError(f"rebuilding iSAM2 by replaying its updates failed: {exc}") from None
             start = end
+
+    def _back_substitute(self) -> None:
+        """iSAM2's back-substitution, which it runs lazily: at the next estimate asked for, or at
+        the next update that checks relinearization. Where it stops (the wildfire threshold)
+        depends on when it runs, and what it leaves decides what is relinearized: run after
+        every update, it leaves the same state whatever was asked in between, which a replay
+        does not repeat (checking every 10 updates, a resumed run differed without this)."""
+        self.isam.getISAM2().getDelta()
 
     def settle(self, iterations: int = 3) -> None:
         """Extra relinearization passes at the end of a traverse (not counted as per-stop updates)."""
@@ -343,6 +359,64 @@ class Smoother:
         values.insert(self.frozen)
         return values
 
+    def marginals_at(self, values: gtsam.Values, keys: list[int]) -> dict[int, np.ndarray]:
+        """Marginal covariances (tangent spaces) of `keys` from this smoother's graph linearized
+        at `values` and never relinearized (the bound at the truth), through the same window: a
+        variable that left it has the marginal it had as it left, the others the window's at the
+        end. That is the bound for the estimate this smoother gives (frozen as it left, which
+        what came after never reached), and it holds a window of the traverse in memory, not
+        all of it (the whole graph of long_traverse's vo_sites: 340 MB).
+
+        The updates are replayed one window step at a time: variables leave by steps, so each
+        step's first update is where they do."""
+        params = gtsam.ISAM2Params()
+        params.setFactorization("QR")  # see the class docstring
+        params.enableRelinearization = False
+        isam = gtsam.IncrementalFixedLagSmoother(self.window_m, params)
+        wanted = set(keys)
+        out: dict[int, np.ndarray] = {}
+        clock: dict[int, float] = {}  # key in the window -> its stamp
+        start = 0
+        for factors, inserted, stamps in self._steps():
+            now = max(stamps.values(), default=max(clock.values(), default=0.0))
+            try:
+                leaving = [k for k, stamp in clock.items() if stamp < now - self.window_m]
+                for key in leaving:
+                    if key in wanted:
+                        out[key] = isam.getISAM2().marginalCovariance(key)
+                    del clock[key]
+                clock.update(stamps)
+                isam.update(factors, _subset(values, inserted), stamps)
+            except (RuntimeError, ValueError) as exc:
+                raise GraphError(f"marginals at the given values failed (update log from factor {start}): "
+                                 f"{exc}") from None
+            start += factors.size()
+        try:
+            out.update({key: isam.getISAM2().marginalCovariance(key) for key in wanted - out.keys()})
+        except RuntimeError as exc:
+            raise GraphError(f"marginals at the given values failed: {exc}") from None
+        return out
+
+    def _steps(self) -> Iterator[tuple[gtsam.NonlinearFactorGraph, list[int], dict[int, float]]]:
+        """The update log merged into one update per step of the window's clock: (factors, keys
+        inserted, stamps)."""
+        start, step = 0, None
+        factors, inserted, stamps = gtsam.NonlinearFactorGraph(), [], {}
+        for end, values, batch_stamps in self.batches:
+            # a batch may insert only landmarks, stamped with their anchor's (earlier) clock
+            now = max([*batch_stamps.values(), *([] if step is None else [step])], default=None)
+            if now != step and (factors.size() or inserted):
+                yield factors, inserted, stamps
+                factors, inserted, stamps = gtsam.NonlinearFactorGraph(), [], {}
+            step = now
+            for i in range(start, end):
+                factors.add(self.graph.at(i))
+            inserted.extend(values.keys())
+            stamps.update(batch_stamps)
+            start = end
+        if factors.size() or inserted:
+            yield factors, inserted, stamps
+
     def batch_polish(self, start: gtsam.Values, max_iterations: int = 50) -> gtsam.Values:
         """Levenberg-Marquardt over the whole graph, started from `start`."""
         params = gtsam.LevenbergMarquardtParams()
@@ -353,15 +427,17 @@ class Smoother:
             raise GraphError(f"batch Levenberg-Marquardt failed: {exc}") from None
 
 
-def batch_marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: list[int]) -> list[np.ndarray]:
-    """Marginal covariances (tangent spaces) of `keys` from the whole `graph` linearized at
-    `values`, eliminated once by iSAM2 with QR (see Smoother) and never relinearized."""
-    params = gtsam.ISAM2Params()
-    params.setFactorization("QR")
-    params.relinearizeSkip = 1_000_000  # keep the linearization point at `values`
-    isam = gtsam.ISAM2(params)
-    isam.update(graph, values)
-    return [isam.marginalCovariance(key) for key in keys]
+_VALUE_TYPE = {gtsam.Symbol(X(0)).chr(): "Pose3", gtsam.Symbol(T(0)).chr(): "Pose3",
+               gtsam.Symbol(L(0)).chr(): "Point3", gtsam.Symbol(S(0)).chr(): "Double"}
+
+
+def _subset(values: gtsam.Values, keys: list[int]) -> gtsam.Values:
+    """The `keys` of `values` (their types by kind of variable, keys.py)."""
+    out = gtsam.Values()
+    for key in keys:
+        at = getattr(values, f"at{_VALUE_TYPE[gtsam.Symbol(key).chr()]}")
+        out.insert(key, at(key))
+    return out
 
 
 def _picklable(values: gtsam.Values) -> tuple[gtsam.Values, dict[int, float]]:

@@ -32,7 +32,8 @@ CHECKPOINT_DIR = "checkpoint"
 INPUTS_FILE = "inputs.pkl"
 STATE_FILE = "state.pkl"  # a run in one process; side by side, group g's is state-g.pkl
 STATE_HEADER = "pancam-graph state; next stop"
-FORMAT = 3  # a checkpoint of another format is refused, not misread (2: the smoother's window; 3: groups)
+FORMAT = 4  # a checkpoint of another format is refused, not misread (2: the smoother's window; 3: groups;
+# 4: the partial relinearization check)
 
 
 @dataclass(frozen=True)
