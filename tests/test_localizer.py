@@ -25,7 +25,7 @@ def test_batch_polish_does_not_increase_graph_error(short_scenario):
     loc.smoother.settle()
     incremental = loc.smoother.estimate()
     polished = loc.smoother.batch_polish(incremental)
-    graph = loc.smoother.graph
+    graph = loc.smoother.log.all_factors()
     assert graph.error(polished) <= graph.error(incremental) * (1 + 1e-9)
     # and both are close to the truth
     last = len(loc.stops) - 1
@@ -39,7 +39,7 @@ def test_every_stop_has_a_pose_and_sites_add_landmarks(short_scenario):
     assert len(loc.landmarks) > 50
     # tie points only: each landmark in the graph has stereo factors from two sites or more
     poses_seeing = {}
-    graph = loc.smoother.graph
+    graph = loc.smoother.log.all_factors()
     for i in range(graph.size()):
         factor = graph.at(i)
         if isinstance(factor, gtsam.GenericStereoFactor3D):
@@ -58,7 +58,7 @@ def test_no_false_match_reaches_the_graph_and_true_ties_do(short_scenario):
         values.insert(X(k), gtsam.Pose3(truth.world_T_body[k]))
     for j in loc.landmarks:
         values.insert(L(j), truth.landmarks[j])
-    graph = loc.smoother.graph
+    graph = loc.smoother.log.all_factors()
     pixels_off = np.array([np.linalg.norm(graph.at(i).unwhitenedError(values)) for i in range(graph.size())
                            if isinstance(graph.at(i), gtsam.GenericStereoFactor3D)])
     assert len(pixels_off) > 500

@@ -11,24 +11,28 @@ from pathlib import Path
 
 import numpy as np
 
-from pancam_graph.io.checkpoint import read_checkpoint
+from pancam_graph.io.checkpoint import read_checkpoint, saved_stop
 from pancam_graph.io.trajectories import read_tum
 
 EXE = Path(sys.executable).parent / "pancam-graph"
 CONFIGS = ("dead_reckoning", "vo", "vo_sites_hrc", "full")  # wheel slip, VO, site landmarks and HRC, GPS
 
 
+# the smoothers' update logs in files of 2 updates, so the checkpoint refers to some
+ENV = {**os.environ, "PANCAM_GRAPH_LOG_CHUNK_UPDATES": "2"}
+
+
 def _run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([str(EXE), *args], cwd=cwd, capture_output=True, text=True, timeout=300)
+    return subprocess.run([str(EXE), *args], cwd=cwd, capture_output=True, text=True, timeout=300, env=ENV)
 
 
-def _start_until_first_checkpoint(tmp_path: Path) -> subprocess.Popen:
-    """A run of short_trail saving at every checkpoint, once its first state is saved."""
+def _start_until_first_checkpoint(tmp_path: Path, past_stop: int = 0) -> subprocess.Popen:
+    """A run of short_trail saving at every checkpoint, once it has saved a state past `past_stop`."""
     run = subprocess.Popen([str(EXE), "run", "short_trail", "--out", "res", "--quiet", "--checkpoint-every", "0"],
-                           cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                           cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=ENV)
     state = tmp_path / "res.partial" / "checkpoint" / "state.pkl"
     deadline = time.time() + 120
-    while not state.is_file() and run.poll() is None and time.time() < deadline:
+    while (saved_stop(state) or -1) <= past_stop and run.poll() is None and time.time() < deadline:
         time.sleep(0.01)
     return run
 
@@ -37,13 +41,15 @@ def test_a_killed_run_resumes_to_the_same_estimate(tmp_path):
     whole = _run("run", "short_trail", "--out", "whole", "--quiet", cwd=tmp_path)
     assert whole.returncode == 0, whole.stderr
 
-    killed = _start_until_first_checkpoint(tmp_path)
+    killed = _start_until_first_checkpoint(tmp_path, past_stop=10)
     assert killed.poll() is None, "the run ended before it could be killed"
     os.kill(killed.pid, signal.SIGKILL)
     killed.wait()
     _, [saved] = read_checkpoint(tmp_path / "res.partial")  # short_trail runs in one process
     stops = len(saved.localizers["vo"].traverse.stops)
     assert 0 < saved.next_stop < stops  # killed midway
+    log = saved.localizers["vo"].smoother.log
+    assert log.files >= 1 and (tmp_path / "res.partial" / "checkpoint" / "log" / "vo" / "chunk-00000.pkl").is_file()
 
     resumed = _run("run", "--resume", "res.partial", "--quiet", cwd=tmp_path)
     assert resumed.returncode == 0, resumed.stderr

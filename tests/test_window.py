@@ -13,6 +13,7 @@ from pancam_graph.errors import GraphError
 from pancam_graph.frontend.motion import motion_between
 from pancam_graph.frontend.stereo_vo import StereoVO
 from pancam_graph.frontend.vo_ahead import VoAhead
+from pancam_graph.graph import update_log
 from pancam_graph.graph.keys import L, X
 from pancam_graph.graph.smoother import RelinearizeThresholds, Smoother
 from pancam_graph.localizer import Localizer
@@ -80,16 +81,51 @@ def test_variables_that_left_take_no_factor_and_have_no_marginal(short_scenario,
         loc.smoother.add(gtsam.BetweenFactorPose3(gone, here, gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1)))
 
 
-def test_a_windowed_run_resumes_from_its_checkpoint_exactly(short_scenario, trail):
+@pytest.mark.parametrize("log", ["in memory", "temporary files", "checkpoint folder"])
+def test_a_windowed_run_resumes_from_its_checkpoint_exactly(short_scenario, trail, log, tmp_path, monkeypatch):
+    """The update log in memory, spilled to files carried in the pickle, or in files the
+    checkpoint refers to: the resumed run is the uninterrupted one to the bit."""
     traverse, _, motions = trail
     kinds = ["vo", "sites", "hrc", "gps"]
     whole = _solve(_localizer(short_scenario, traverse, kinds, WINDOW_M), traverse, motions)
-    first = _solve(_localizer(short_scenario, traverse, kinds, WINDOW_M), traverse, motions, stops=70)
+    if log != "in memory":
+        monkeypatch.setattr(update_log, "CHUNK_UPDATES", 16)
+    first = _localizer(short_scenario, traverse, kinds, WINDOW_M)
+    if log == "checkpoint folder":
+        first.smoother.log.keep_in(tmp_path / "log")
+    _solve(first, traverse, motions, stops=70)
     assert not first.smoother.live(X(0))  # marginalization has begun before the checkpoint
-    resumed = pickle.loads(pickle.dumps(first))
+    assert first.smoother.log.files == (0 if log == "in memory" else 4)
+    saved = pickle.dumps(first)
+    for stop, motion in list(zip(traverse.stops, motions, strict=True))[70:]:
+        first.step(stop, motion)  # and writes more of its log's files, which the saved state does not know
+    resumed = pickle.loads(saved)
     for stop, motion in list(zip(traverse.stops, motions, strict=True))[70:]:
         resumed.step(stop, motion)
+    np.testing.assert_array_equal(whole.final().world_T_body, first.final().world_T_body)
     np.testing.assert_array_equal(whole.final().world_T_body, resumed.final().world_T_body)
+    if log == "checkpoint folder":
+        assert sorted(p.name for p in (tmp_path / "log").iterdir())[:2] == ["chunk-00000.pkl", "chunk-00001.pkl"]
+        (tmp_path / "log" / "chunk-00002.pkl").unlink()
+        with pytest.raises(GraphError, match="chunk-00002.pkl: the smoother's update log is missing"):
+            pickle.loads(saved)
+
+
+def test_a_spilled_update_log_reads_back_every_update_in_order(short_scenario, trail, monkeypatch):
+    traverse, _, motions = trail
+    kinds = ["vo", "sites", "hrc", "gps"]
+    in_memory = _solve(_localizer(short_scenario, traverse, kinds, WINDOW_M), traverse, motions)
+    monkeypatch.setattr(update_log, "CHUNK_UPDATES", 7)
+    spilled = _solve(_localizer(short_scenario, traverse, kinds, WINDOW_M), traverse, motions)
+    a, b = in_memory.smoother.log, spilled.smoother.log
+    assert a.files == 0 and b.files == b.update_count // 7 > 10 and len(b.tail) == b.update_count % 7
+    assert (a.update_count, a.factor_count) == (b.update_count, b.factor_count)
+    assert a.update_count >= len(traverse.stops) and a.factor_count == b.all_factors().size()
+    values = in_memory.smoother.estimate()
+    for x, y in zip(a, b, strict=True):  # CustomFactors remade from their recipes included
+        assert x.stamps == y.stamps and list(x.values.keys()) == list(y.values.keys())
+        assert x.factors.size() == y.factors.size()
+        assert x.factors.error(values) == pytest.approx(y.factors.error(values), rel=1e-12, abs=1e-12)
 
 
 def test_the_bayes_tree_stops_growing():
@@ -178,7 +214,7 @@ def test_the_bound_through_the_window_is_each_stops_information_as_it_left(short
     freeze = Smoother._freeze
 
     def recording_freeze(self, leaving):
-        graph_when_left.update(dict.fromkeys(leaving, self.graph.size()))
+        graph_when_left.update(dict.fromkeys(leaving, self.log.factor_count))
         freeze(self, leaving)
 
     monkeypatch.setattr(Smoother, "_freeze", recording_freeze)
@@ -190,13 +226,14 @@ def test_the_bound_through_the_window_is_each_stops_information_as_it_left(short
         values.insert(L(j), truth.landmarks[j])
     keys = [X(k) for k in loc.stops]
     bound = loc.smoother.marginals_at(values, keys)
+    whole = loc.smoother.log.all_factors()
 
     left = [key for key in keys if key in graph_when_left]
     assert len(left) > len(keys) / 3
     for key in left[:: len(left) // 4] + [k for k in keys if k not in graph_when_left][::40]:
         graph = gtsam.NonlinearFactorGraph()
-        for i in range(graph_when_left.get(key, loc.smoother.graph.size())):
-            graph.add(loc.smoother.graph.at(i))
+        for i in range(graph_when_left.get(key, whole.size())):
+            graph.add(whole.at(i))
         used = gtsam.Values()
         for k in graph.keyVector():
             used.insert(k, values.atPose3(k) if gtsam.Symbol(k).chr() in (ord("x"), ord("t")) else values.atPoint3(k))

@@ -2,6 +2,19 @@
 pose at the time of a measurement between two stops (j counts them), S(0) the traverse's wheel
 slip."""
 
+import gtsam
 from gtsam.symbol_shorthand import L, S, T, X
 
-__all__ = ["L", "S", "T", "X"]
+__all__ = ["L", "S", "T", "X", "subset"]
+
+_VALUE_TYPE = {gtsam.Symbol(X(0)).chr(): "Pose3", gtsam.Symbol(T(0)).chr(): "Pose3",
+               gtsam.Symbol(L(0)).chr(): "Point3", gtsam.Symbol(S(0)).chr(): "Double"}
+
+
+def subset(values: gtsam.Values, keys: list[int]) -> gtsam.Values:
+    """The `keys` of `values` (each of the type of its kind of variable)."""
+    out = gtsam.Values()
+    for key in keys:
+        at = getattr(values, f"at{_VALUE_TYPE[gtsam.Symbol(key).chr()]}")
+        out.insert(key, at(key))
+    return out

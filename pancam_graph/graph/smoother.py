@@ -1,27 +1,24 @@
-"""iSAM2 over a window of the traverse (GTSAM's incremental fixed-lag smoother), keeping the
-whole graph for batch polishing, the bounds and checkpoints."""
+"""iSAM2 over a window of the traverse (GTSAM's incremental fixed-lag smoother), with a log of
+its updates for batch polishing, the bounds and checkpoints."""
 
 from __future__ import annotations
 
 import time
 from collections import OrderedDict
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any
 
 import gtsam
 import numpy as np
 
 from ..config import EstimatorConfig
 from ..errors import GraphError
-from .keys import L, S, T, X
+from .keys import L, S, T, X, subset
+from .update_log import Rebuild, UpdateLog, picklable, with_scalars
 
 WINDOW_STEPS = 4  # the window moves in steps of a quarter of its length
 GPS_RELINEARIZE_SKIP = 10  # GTSAM's default; see EstimatorConfig.relinearize_skip
 _POSE_CHR = gtsam.Symbol(X(0)).chr()
-
-# How to make a factor again: (function, arguments). Python CustomFactors do not pickle.
-Rebuild = tuple[Callable[..., gtsam.NonlinearFactor], tuple[Any, ...]]
 
 
 @dataclass(frozen=True)
@@ -76,12 +73,9 @@ class Smoother:
         self.wildfire_threshold = wildfire_threshold
         self.window_m = window_m
         self.isam = self._new_isam()
-        self.graph = gtsam.NonlinearFactorGraph()  # every factor ever added
-        # Each update's end in `graph`, the initial values it inserted and its key clocks:
-        # replaying them into a fresh smoother rebuilds exactly this one (a checkpoint's way
-        # back: iSAM2 does not pickle).
-        self.batches: list[tuple[int, gtsam.Values, dict[int, float]]] = []
-        self.rebuild: dict[int, Rebuild] = {}  # index in `graph` -> how to make a CustomFactor again
+        # every update's factors, initial values and key clocks: replaying them into a fresh
+        # smoother rebuilds exactly this one (a checkpoint's way back: iSAM2 does not pickle)
+        self.log = UpdateLog()
         self.clock_m = 0.0  # distance travelled: the window's clock
         self._entered: OrderedDict[int, float] = OrderedDict()  # key in the window -> clock when it entered
         self.shared: set[int] = set()  # variables of the whole traverse (wheel slip, VO scale)
@@ -168,10 +162,7 @@ class Smoother:
                 raise GraphError(f"iSAM2 update failed {context}: {exc}") from None
         self._back_substitute()
         elapsed = (time.perf_counter() - start) * 1e3
-        first = self.graph.size()
-        self.rebuild.update({first + i: r for i, r in self._new_rebuild.items()})
-        self.graph.push_back(self._new_factors)
-        self.batches.append((self.graph.size(), self._new_values, stamps))
+        self.log.append(self._new_factors, self._new_values, stamps, self._new_rebuild)
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
         self._new_rebuild = {}
@@ -237,38 +228,18 @@ class Smoother:
     # -- checkpoints ---------------------------------------------------------------------------
 
     def __getstate__(self) -> dict:
-        """Everything but the iSAM2 object: the graph (CustomFactors as their recipes), the
-        update log. Only between updates."""
+        """Everything but the iSAM2 object (the update log rebuilds it). Only between updates."""
         if self._new_factors.size() or self._new_values.size():
             raise GraphError("a smoother with factors not yet updated cannot be checkpointed")
-        plain = gtsam.NonlinearFactorGraph()
-        for i in range(self.graph.size()):
-            if i not in self.rebuild:
-                plain.add(self.graph.at(i))
-        state = {k: v for k, v in vars(self).items()
-                 if k not in ("isam", "graph", "frozen", "_new_factors", "_new_values")}
-        state["plain_graph"] = plain
-        state["batches"] = [(end, *_picklable(values), stamps) for end, values, stamps in self.batches]
-        state["frozen"] = _picklable(self.frozen)
+        state = {k: v for k, v in vars(self).items() if k not in ("isam", "frozen", "_new_factors", "_new_values")}
+        state["frozen"] = picklable(self.frozen)
         return state
 
     def __setstate__(self, state: dict) -> None:
-        """The graph put back in its order, and iSAM2 rebuilt by replaying every update."""
-        plain = state.pop("plain_graph")
-        batches = state.pop("batches")
+        """iSAM2 rebuilt by replaying every update."""
         frozen = state.pop("frozen")
         vars(self).update(state)
-        self.batches = [(end, _values(values, scalars), stamps) for end, values, scalars, stamps in batches]
-        self.frozen = _values(*frozen)
-        self.graph = gtsam.NonlinearFactorGraph()
-        taken = 0
-        for i in range(plain.size() + len(self.rebuild)):
-            if i in self.rebuild:
-                function, arguments = self.rebuild[i]
-                self.graph.add(function(*arguments))
-            else:
-                self.graph.add(plain.at(taken))
-                taken += 1
+        self.frozen = with_scalars(*frozen)
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
         self._replay()
@@ -276,17 +247,12 @@ class Smoother:
     def _replay(self) -> None:
         """iSAM2 made anew by replaying every update (the state it had before them)."""
         self.isam = self._new_isam()
-        start = 0
-        for end, values, stamps in self.batches:
-            factors = gtsam.NonlinearFactorGraph()
-            for i in range(start, end):
-                factors.add(self.graph.at(i))
+        for update in self.log:
             try:
-                self.isam.update(factors, values, stamps)
+                self.isam.update(update.factors, update.values, update.stamps)
                 self._back_substitute()
             except (RuntimeError, ValueError) as exc:
                 raise GraphError(f"rebuilding iSAM2 by replaying its updates failed: {exc}") from None
-            start = end
 
     def _back_substitute(self) -> None:
         """iSAM2's back-substitution, which it runs lazily: at the next estimate asked for, or at
@@ -386,7 +352,7 @@ class Smoother:
                         out[key] = isam.getISAM2().marginalCovariance(key)
                     del clock[key]
                 clock.update(stamps)
-                isam.update(factors, _subset(values, inserted), stamps)
+                isam.update(factors, subset(values, inserted), stamps)
             except (RuntimeError, ValueError) as exc:
                 raise GraphError(f"marginals at the given values failed (update log from factor {start}): "
                                  f"{exc}") from None
@@ -400,67 +366,29 @@ class Smoother:
     def _steps(self) -> Iterator[tuple[gtsam.NonlinearFactorGraph, list[int], dict[int, float]]]:
         """The update log merged into one update per step of the window's clock: (factors, keys
         inserted, stamps)."""
-        start, step = 0, None
+        step = None
         factors, inserted, stamps = gtsam.NonlinearFactorGraph(), [], {}
-        for end, values, batch_stamps in self.batches:
-            # a batch may insert only landmarks, stamped with their anchor's (earlier) clock
-            now = max([*batch_stamps.values(), *([] if step is None else [step])], default=None)
+        for update in self.log:
+            # an update may insert only landmarks, stamped with their anchor's (earlier) clock
+            now = max([*update.stamps.values(), *([] if step is None else [step])], default=None)
             if now != step and (factors.size() or inserted):
                 yield factors, inserted, stamps
                 factors, inserted, stamps = gtsam.NonlinearFactorGraph(), [], {}
             step = now
-            for i in range(start, end):
-                factors.add(self.graph.at(i))
-            inserted.extend(values.keys())
-            stamps.update(batch_stamps)
-            start = end
+            factors.push_back(update.factors)
+            inserted.extend(update.values.keys())
+            stamps.update(update.stamps)
         if factors.size() or inserted:
             yield factors, inserted, stamps
 
     def batch_polish(self, start: gtsam.Values, max_iterations: int = 50) -> gtsam.Values:
-        """Levenberg-Marquardt over the whole graph, started from `start`."""
+        """Levenberg-Marquardt over the whole graph (all of it in memory), started from `start`."""
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(max_iterations)
         try:
-            return gtsam.LevenbergMarquardtOptimizer(self.graph, start, params).optimize()
+            return gtsam.LevenbergMarquardtOptimizer(self.log.all_factors(), start, params).optimize()
         except RuntimeError as exc:
             raise GraphError(f"batch Levenberg-Marquardt failed: {exc}") from None
-
-
-_VALUE_TYPE = {gtsam.Symbol(X(0)).chr(): "Pose3", gtsam.Symbol(T(0)).chr(): "Pose3",
-               gtsam.Symbol(L(0)).chr(): "Point3", gtsam.Symbol(S(0)).chr(): "Double"}
-
-
-def _subset(values: gtsam.Values, keys: list[int]) -> gtsam.Values:
-    """The `keys` of `values` (their types by kind of variable, keys.py)."""
-    out = gtsam.Values()
-    for key in keys:
-        at = getattr(values, f"at{_VALUE_TYPE[gtsam.Symbol(key).chr()]}")
-        out.insert(key, at(key))
-    return out
-
-
-def _picklable(values: gtsam.Values) -> tuple[gtsam.Values, dict[int, float]]:
-    """Values pickle, except scalars (GTSAM does not register them for serialization): those
-    are taken out as floats."""
-    scalars = {}
-    for key in values.keys():
-        try:
-            scalars[key] = values.atDouble(key)
-        except RuntimeError:  # not a scalar
-            pass
-    if not scalars:
-        return values, scalars
-    others = gtsam.Values(values)
-    for key in scalars:
-        others.erase(key)
-    return others, scalars
-
-
-def _values(values: gtsam.Values, scalars: dict[int, float]) -> gtsam.Values:
-    for key, value in scalars.items():
-        values.insert(key, value)
-    return values
 
 
 def poses_array(values: gtsam.Values, keys: list[int]) -> np.ndarray:

@@ -32,8 +32,9 @@ CHECKPOINT_DIR = "checkpoint"
 INPUTS_FILE = "inputs.pkl"
 STATE_FILE = "state.pkl"  # a run in one process; side by side, group g's is state-g.pkl
 STATE_HEADER = "pancam-graph state; next stop"
-FORMAT = 4  # a checkpoint of another format is refused, not misread (2: the smoother's window; 3: groups;
-# 4: the partial relinearization check)
+FORMAT = 5  # a checkpoint of another format is refused, not misread (2: the smoother's window; 3: groups;
+# 4: the partial relinearization check; 5: the smoothers' update logs in files beside the states)
+LOG_DIR = "log"  # the smoothers' update logs, one folder per configuration
 
 
 @dataclass(frozen=True)
@@ -91,11 +92,15 @@ class CheckpointWriter:
         self.parts.append(writer.state_file)
         return writer
 
+    def log_folder(self, configuration: str) -> Path:
+        """Where a configuration's smoother writes its update log, which the states refer to."""
+        return self.folder / LOG_DIR / configuration
+
     @property
     def saved_stops(self) -> list[int]:
         """The stop each group would go on from, as saved on disk (empty: nothing saved yet; a
         group that saved nothing starts again, at 0)."""
-        stops = [_saved_stop(self.folder / name) for name in (self.parts or [self.state_file])]
+        stops = [saved_stop(self.folder / name) for name in (self.parts or [self.state_file])]
         return [stop or 0 for stop in stops] if any(stop is not None for stop in stops) else []
 
 
@@ -157,7 +162,7 @@ def _dumps(obj, shared: dict[str, Any]) -> bytes:
     return buffer.getvalue()
 
 
-def _saved_stop(path: Path) -> int | None:
+def saved_stop(path: Path) -> int | None:
     """The stop a saved state goes on from, from its first line (None: no state there)."""
     try:
         with path.open("rb") as f:
