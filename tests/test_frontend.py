@@ -252,3 +252,35 @@ def test_the_ground_homography_maps_ground_points_and_leaves_out_rocks():
     mapped = cv2.perspectiveTransform(uv0[:60].reshape(-1, 1, 2), homography).reshape(-1, 2)
     assert np.abs(uv1[:60] - uv0[:60]).max() > 50  # the ground really moved in the image
     np.testing.assert_allclose(mapped, uv1[:60], atol=1e-3)
+
+
+def test_an_hrc_frames_footprint_in_a_wac_view_holds_the_ground_it_sees():
+    from pancam_graph.frontend.hrc import hrc_footprints
+    from pancam_graph.frontend.panorama import PanoramaView
+    from pancam_graph.rig import rig_preset
+
+    rig = rig_preset("exomars")
+    pan, tilt = 0.4, -0.25  # the HRC frame; the ground it sees is 5-7 m off
+    blank = np.zeros((rig.wac.height, rig.wac.width), np.uint8)
+    views = [PanoramaView(p, t, rig.body_T_left(p, t).matrix(), blank, blank) for p, t in
+             ((pan, tilt), (pan + 0.2, tilt + 0.1), (pan + np.pi, tilt))]
+    regions = hrc_footprints(rig, views, [(pan, tilt)])
+    assert regions[2] == []  # a view looking the other way
+    (x0, y0, x1, y1), = regions[0]
+    # about the HRC's field of view in WAC pixels (1024 x 82 / 580 = 145) and the 10 px margins
+    assert 150 < x1 - x0 < 240 and 150 < y1 - y0 < 240
+    # every HRC pixel's ground point is inside, in each view that sees it
+    rng = np.random.default_rng(0)
+    uv = rng.uniform(0, rig.hrc.width - 1, (200, 2))
+    body_T_hrc = rig.body_T_hrc(pan, tilt).matrix()
+    rays = np.column_stack([uv, np.ones(len(uv))]) @ np.linalg.inv(rig.hrc.matrix()).T @ body_T_hrc[:3, :3].T
+    ground = body_T_hrc[:3, 3] - (body_T_hrc[2, 3] / rays[:, 2])[:, None] * rays
+    for view, found in zip(views[:2], regions[:2], strict=True):
+        camera_T_body = np.linalg.inv(view.body_T_camera)
+        p = ground @ camera_T_body[:3, :3].T + camera_T_body[:3, 3]
+        q = rig.wac.project(p, distort=False)
+        seen = rig.wac.in_image(q)
+        assert seen.any() and len(found) == 1
+        x0, y0, x1, y1 = found[0]
+        q = q[seen]
+        assert np.all((q[:, 0] >= x0) & (q[:, 0] <= x1) & (q[:, 1] >= y0) & (q[:, 1] <= y1))

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..config import FrontendConfig
 from ..records import StereoObservations
@@ -23,6 +24,10 @@ from ..rig import Camera, triangulate_rectified
 from .tracker import StereoTracker
 
 LINK_PX = 1.5  # a flow end point this near the other frame's feature is that feature
+FOCUS_FEATURES = 150  # corners looked for in each focus region (an HRC frame's footprint: ~145 x 145 px)
+
+# A region of a view's left image, (x0, y0, x1, y1) pixels, where features are wanted densely.
+Region = tuple[int, int, int, int]
 
 
 @dataclass
@@ -74,15 +79,61 @@ class PanoramaMatcher:
         self._next_id += n
         return ids
 
-    def __call__(self, stop: int, site: int, views: list[PanoramaView]) -> SitePanorama:
+    def __call__(self, stop: int, site: int, views: list[PanoramaView],
+                 focus: list[list[Region]] | None = None) -> SitePanorama:
+        """`focus`: per view, regions of its left image where features are also looked for on
+        their own (the footprints of the site's HRC frames: the frame's strongest corners,
+        which the whole image's quality threshold leaves out where the ground is less contrasted
+        than elsewhere in the view)."""
         start = time.perf_counter()
-        for view in views:
+        for k, view in enumerate(views):
             found = StereoTracker(self.config)(view.left, view.right)
-            view.observations = StereoObservations(self.new_ids(len(found)), found.uvv)
+            uvv = found.uvv
+            if focus is not None and focus[k]:
+                uvv = self._with_focus(view, uvv, focus[k])
+            view.observations = StereoObservations(self.new_ids(len(uvv)), uvv)
         panorama = SitePanorama(stop, site, views)
         panorama.links = self._link_overlaps(views)
         panorama.seconds = time.perf_counter() - start
         return panorama
+
+    def _with_focus(self, view: PanoramaView, uvv: np.ndarray, regions: list[Region]) -> np.ndarray:
+        """The view's features and the focus regions' own corners, stereo-matched as the frame's
+        were and checked for disparity smoothness with them."""
+        c = self.config
+        corners = []
+        for x0, y0, x1, y1 in regions:
+            f = cv2.goodFeaturesToTrack(view.left[y0:y1, x0:x1], FOCUS_FEATURES, c.gftt_quality, c.min_distance_px,
+                                        blockSize=7)
+            if f is not None:
+                corners.append(f.reshape(-1, 2) + np.float32((x0, y0)))
+        if not corners:
+            return uvv
+        fresh = np.concatenate(corners)
+        taken = uvv[:, [0, 2]]
+        if len(taken):  # not on a feature the frame already has
+            distance = np.min(np.linalg.norm(fresh[:, None, :] - taken[None, :, :], axis=2), axis=1)
+            fresh = fresh[distance > c.min_distance_px]
+        fresh = fresh[_spaced(fresh, c.min_distance_px)]  # regions may overlap
+        if not len(fresh):
+            return uvv
+        fresh = cv2.cornerSubPix(view.left, fresh.reshape(-1, 1, 2).copy(), (5, 5), (-1, -1),
+                                 (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.01)).reshape(-1, 2)
+        # started at the nearest feature's disparity: the ground's is tens of pixels at 10-20 m,
+        # past what the flow finds from the default start
+        start = None
+        if len(taken):
+            _, nearest = cKDTree(taken).query(fresh)
+            start = (uvv[:, 0] - uvv[:, 1])[nearest]
+        ok, disparity = self._tracker.stereo_matches(view.left, view.right, fresh, start)
+        fresh, disparity = fresh[ok], disparity[ok]
+        uv = np.vstack([taken, fresh])
+        d = np.concatenate([uvv[:, 0] - uvv[:, 1], disparity])
+        keep = self._tracker.smooth(uv, d)
+        keep[: len(uvv)] = True  # the frame's own passed the check among themselves
+        new = keep[len(uvv):]
+        added = np.column_stack([fresh[new, 0], fresh[new, 0] - disparity[new], fresh[new, 1]])
+        return np.vstack([uvv, added])
 
     # -- pan/tilt-aided matching between overlapping frames ----------------------------------------
 
@@ -177,3 +228,13 @@ def unaided_matches(a: PanoramaView, b: PanoramaView, features: int = 2000) -> t
         return none
     keep = inliers.ravel() == 1
     return pa[keep].astype(float), pb[keep].astype(float)
+
+
+def _spaced(points: np.ndarray, min_distance: float) -> np.ndarray:
+    """Which points to keep so that none is within `min_distance` of one kept before it."""
+    keep = np.ones(len(points), dtype=bool)
+    for i in range(len(points)):
+        if keep[i]:
+            near = np.linalg.norm(points[i + 1:] - points[i], axis=1) <= min_distance
+            keep[i + 1:][near] = False
+    return keep

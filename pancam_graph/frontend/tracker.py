@@ -302,6 +302,17 @@ class StereoTracker:
         matched, ok = self.flow(left, right, uv, guess, accept=lambda right_uv: self.stereo_ok(uv, right_uv))
         return ok, (uv[:, 0] - matched[:, 0]).astype(np.float32)
 
+    def stereo_matches(self, left: np.ndarray, right: np.ndarray, uv: np.ndarray,
+                       start: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """New left features' right matches as a frame's own are found, the flow started at
+        `start` disparities (NaN or None: the configured initial one): (ok, disparity)."""
+        start = np.full(len(uv), np.nan, np.float32) if start is None else start.astype(np.float32)
+        return self._stereo_flow(left, right, uv.astype(np.float32), start)
+
+    def smooth(self, uv: np.ndarray, disparity: np.ndarray) -> np.ndarray:
+        """Which stereo matches agree with a Delaunay neighbour's disparity (see `_smooth`)."""
+        return self._smooth(uv, disparity)
+
     def stereo_ok(self, left_uv: np.ndarray, right_uv: np.ndarray) -> np.ndarray:
         """The same row (rectified) and a disparity in range."""
         c = self.config

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..config import FrontendConfig
 from ..errors import InputError
-from ..frontend.hrc import HrcMatcher, HrcMatches
+from ..frontend.hrc import HrcMatcher, HrcMatches, hrc_footprints
 from ..frontend.motion import VoMotions
 from ..frontend.panorama import PanoramaMatcher, PanoramaView, SitePanorama
 from ..frontend.ties import TieMatcher, TieResult
@@ -107,7 +107,9 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
     for done, (stop, images) in enumerate(by_stop.items()):
         views = [PanoramaView(im.pan_rad, im.tilt_rad, rig.body_T_left(im.pan_rad, im.tilt_rad).matrix(), *pair)
                  for im, pair in _readable(images, read_pair, "frame", skip_bad_frames, report)]
-        site = matcher(stop, images[0].site, views)
+        hrc_frames = hrc_images.get(stop, ()) if hrc_matcher is not None else ()
+        focus = hrc_footprints(rig, views, [(im.pan_rad, im.tilt_rad) for im in hrc_frames]) if hrc_frames else None
+        site = matcher(stop, images[0].site, views, focus)
         for earlier in reversed(recent):
             prediction = RelativePose.compose([(motions[k].prev_T_curr, motions[k].covariance)
                                                for k in range(earlier.stop + 1, stop + 1)])
