@@ -1025,6 +1025,8 @@ def _bench_sites(source: str | None, compared_sites: int = 3) -> None:
             hrc_errors += errors
             hrc_rows.append({"stop": stop, "pan_deg": round(float(np.rad2deg(m.pan_rad)), 1),
                              "predicted": m.predicted, "matched": len(m.track_ids),
+                             "dropped_for_shift": m.disagreeing,
+                             "shift_hrc_px": [round(float(x), 1) for x in m.shift_px],
                              "correct_within_7px": int(np.sum(np.array(errors) < 7.0)) if truth is not None else None,
                              "seconds": round(m.seconds, 3)})
     print(json.dumps({

@@ -94,10 +94,12 @@ def test_wac_features_are_found_in_the_hrc_frames(sites):
             errors += error
     errors = np.array(errors)
     assert len(counts) == 3 * 12
-    # measured: at least 58 matched per frame, median 85, with the HRC footprints' own WAC
-    # features (at least 17, median 59, without them)
+    # measured: at least 58 correct per frame, median 79, 97.9 % correct, median error 1.3 px,
+    # with the HRC footprints' own WAC features (at least 17, median 59, without them) and the
+    # frame's shift check (denver_trail's seed-0 / seed-1 renders: 96.5 / 95.7 % with it,
+    # 95.7 / 94.7 % without)
     assert min(counts) >= 30, counts
-    assert np.mean(errors < 7.0) >= 0.95 and np.median(errors) < 3.0
+    assert np.mean(errors < 7.0) >= 0.97 and np.median(errors) < 2.0
 
 
 def test_vo_sites_from_images(sites):
@@ -122,7 +124,7 @@ def test_vo_sites_from_images(sites):
     # (the draw without HRC frames: vo_sites 1.6 / 2.5).
     hrc = result.configurations["vo_sites_hrc"]
     assert hrc.counters["hrc_measurements"] > 50  # measured 104, on the 300 tied landmarks
-    assert hrc.metrics.relative_closure_pct < vo_sites.metrics.relative_closure_pct + 0.02  # measured 0.285 %
+    assert hrc.metrics.relative_closure_pct < vo_sites.metrics.relative_closure_pct + 0.02  # measured 0.297 %
     for c in (vo_sites, hrc):
         error = c.world_T_body[:, :3, 3] - tracked.truth.positions
         nees = np.einsum("ni,ni->n", error, np.linalg.solve(c.position_covariance, error[..., None])[..., 0])

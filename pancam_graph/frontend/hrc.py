@@ -8,7 +8,10 @@ resolution and resampled through the homography of the local ground (level in th
 frame) through the point. That synthetic WAC patch is correlated (NCC) with the WAC's own patch
 within a few WAC pixels of the prediction; the peak, refined to sub-pixel, maps back into the
 HRC image. The HRC pixel found is where the WAC's pixel is: it carries that pixel's error
-(docs/frontend.md, "What the HRC views are worth from images").
+(docs/frontend.md, "What the HRC views are worth from images"). The frame's matches are then
+checked against each other: they sit where predicted plus one shift, the mast's pointing error,
+give or take the parallax of the WAC's range error, and a match whose offset is unlike the
+frame's median shift by more than that is dropped.
 
 Seed 4.3.2 detects scale-space Harris corners in both images (sigma_d 1 for the WAC, about 7 for
 the HRC) and searches along the epipolar line. Predicting through the mast and correlating at
@@ -25,16 +28,27 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from ..rig import Rig
+from ..rig import Rig, triangulation_covariance
 from .panorama import PanoramaView, Region, SitePanorama
 from .ties import peak_offset
 
 
 @dataclass(frozen=True)
 class HrcSettings:
-    patch_px: int = 7  # WAC pixels either side of the feature in the correlated patch
+    # WAC pixels either side of the feature in the correlated patch: 21 x 21 px at NCC 0.80 with
+    # the frame's check below gave 96.5 / 95.7 % within one WAC pixel on the seed-0 / seed-1
+    # denver_trail renders; 15 x 15 px at NCC 0.88 without it 95.6 / 94.5 % and four / eight
+    # textured frames with fewer than 30 correct against none / three (docs/frontend.md)
+    patch_px: int = 10
     search_px: int = 4  # WAC pixels either side of the prediction searched (mast errors of 0.1 deg: 3 px)
-    min_ncc: float = 0.88  # 0.85 kept 94.7 % within one WAC pixel on the seed-0 denver_trail render, 0.88 95.7 %
+    min_ncc: float = 0.80
+    # The frame's own check: a frame's matches sit where predicted plus one shift (the mast's
+    # pointing error) and the parallax of the WAC's range error (the HRC is 0.4 m from the left
+    # WAC). A match whose offset from the frame's median shift is beyond the 99 % ellipse of
+    # that range error and `agreement_sigma_px` (WAC px) is dropped (docs/frontend.md).
+    agreement_sigma_px: float = 0.5  # WAC px: the feature's and the peak's error, and the stereo disparity's
+    agreement_chi2: float = 9.21  # 99 % for 2 dof
+    min_frame_matches: int = 5  # fewer matches than this: no shift to check them by, none kept
     min_texture_dn: float = 3.0  # the WAC patch's standard deviation: below it, no position to find
     min_range_m: float = 2.0
     blur_per_scale: float = 0.6  # Gaussian sigma (HRC px) per unit of HRC/WAC scale: a WAC pixel and its optics
@@ -54,6 +68,9 @@ class HrcMatches:
     seconds: float = 0.0
     ncc: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (M,) each match's correlation peak
     texture_dn: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (M,) its WAC patch's standard deviation
+    predicted_uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (M, 2) HRC pixels predicted
+    shift_px: np.ndarray = field(default_factory=lambda: np.zeros(2))  # median of found - predicted: the mast's error
+    disagreeing: int = 0  # matches dropped for a shift unlike the frame's
 
 
 class HrcMatcher:
@@ -73,7 +90,7 @@ class HrcMatcher:
         hrc_T_body = np.linalg.inv(self.rig.body_T_hrc(pan_rad, tilt_rad).matrix())
         margin = (s.patch_px + s.search_px + 1) * self.scale
         seen: set[int] = set()
-        ids, uvs, views, wac_uvs, nccs, textures = [], [], [], [], [], []
+        ids, uvs, views, wac_uvs, nccs, textures, predictions, spreads = [], [], [], [], [], [], [], []
         predicted = 0
         offsets = np.arange(-(s.patch_px + s.search_px), s.patch_px + s.search_px + 1, dtype=np.float64)
         gx, gy = np.meshgrid(offsets, offsets)
@@ -91,6 +108,7 @@ class HrcMatcher:
                       & (uv_h[:, 0] >= margin) & (uv_h[:, 0] <= hrc.width - 1 - margin)
                       & (uv_h[:, 1] >= margin) & (uv_h[:, 1] <= hrc.height - 1 - margin))
             left = view.left.astype(np.float32)
+            cov_cam = triangulation_covariance(p_cam, self.rig.wac, self.rig.baseline_m, s.agreement_sigma_px)
             n = view.body_T_camera[:3, :3].T @ np.array([0.0, 0.0, 1.0])  # the body's up, in the camera
             for j in np.flatnonzero(inside):
                 track = int(o.track_ids[j])
@@ -121,9 +139,22 @@ class HrcMatcher:
                 wac_uvs.append((u, v))
                 nccs.append(best)
                 textures.append(texture)
-        return HrcMatches(pan_rad, tilt_rad, np.array(ids, dtype=np.int64), np.array(uvs).reshape(-1, 2),
-                          np.array(views, dtype=int), np.array(wac_uvs).reshape(-1, 2), predicted,
-                          time.perf_counter() - start, np.array(nccs), np.array(textures))
+                predictions.append(uv_h[j])
+                x, y, z = p_h[j]
+                jac = np.array([[hrc.fx, 0.0, -hrc.fx * x / z], [0.0, hrc.fy, -hrc.fy * y / z]]) / z @ hrc_T_cam[:3, :3]
+                spreads.append(jac @ cov_cam[j] @ jac.T + (s.agreement_sigma_px * self.scale) ** 2 * np.eye(2))
+        uvs, predictions = np.array(uvs).reshape(-1, 2), np.array(predictions).reshape(-1, 2)
+        shift = np.median(uvs - predictions, axis=0) if len(uvs) else np.zeros(2)
+        if len(uvs) < s.min_frame_matches:
+            agree = np.zeros(len(uvs), dtype=bool)
+        else:
+            r = uvs - predictions - shift
+            mahalanobis2 = np.einsum("ni,ni->n", r, np.linalg.solve(np.array(spreads), r[..., None])[..., 0])
+            agree = mahalanobis2 < s.agreement_chi2
+        return HrcMatches(pan_rad, tilt_rad, np.array(ids, dtype=np.int64)[agree], uvs[agree],
+                          np.array(views, dtype=int)[agree], np.array(wac_uvs).reshape(-1, 2)[agree], predicted,
+                          time.perf_counter() - start, np.array(nccs)[agree], np.array(textures)[agree],
+                          predictions[agree], shift, int(len(uvs) - agree.sum()))
 
 
 def hrc_footprints(rig: Rig, views: list[PanoramaView], frames: list[tuple[float, float]],

@@ -65,7 +65,8 @@ class SiteReport:
         if frames:
             found = [len(m.track_ids) for m in frames]
             text += (f"; {sum(found)} WAC features found in {len(frames)} HRC frames (median {int(np.median(found))}, "
-                     f"fewest {min(found)})")
+                     f"fewest {min(found)}; {sum(m.disagreeing for m in frames)} dropped for a shift unlike "
+                     "their frame's)")
             seconds += sum(m.seconds for m in frames)
         return text + f"; {seconds:.0f} s"
 
