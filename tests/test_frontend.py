@@ -284,3 +284,38 @@ def test_an_hrc_frames_footprint_in_a_wac_view_holds_the_ground_it_sees():
         x0, y0, x1, y1 = found[0]
         q = q[seen]
         assert np.all((q[:, 0] >= x0) & (q[:, 0] <= x1) & (q[:, 1] >= y0) & (q[:, 1] <= y1))
+
+
+def test_an_hrc_frames_matches_share_one_pointing_error_and_the_odd_ones_are_dropped():
+    from pancam_graph.frontend.hrc import HrcSettings, frame_agreement
+
+    rng = np.random.default_rng(3)
+    settings = HrcSettings()
+    shift = np.array([-6.0, 2.0])  # HRC px: the mast's pointing error, the same for the whole frame
+    predicted = rng.uniform(50, 970, (68, 2))
+    # far matches spread along one direction (the WAC's range error seen from the HRC 0.4 m away)
+    directions = rng.normal(size=(68, 2))
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    along = rng.uniform(3.5, 20.0, 68)  # HRC px, one sigma
+    outer = np.einsum("ni,nj->nij", directions, directions)
+    covariances = 3.5**2 * np.eye(2) + (along**2 - 3.5**2)[:, None, None] * outer
+    noise = np.array([rng.multivariate_normal(np.zeros(2), c) for c in covariances])
+    found = predicted + shift + noise
+    wrong = np.arange(60, 68)  # wrong peaks: off by 25-40 px across their spread
+    across = np.column_stack([-directions[wrong, 1], directions[wrong, 0]])
+    found[wrong] = predicted[wrong] + shift + rng.uniform(25, 40, (8, 1)) * across
+
+    estimated, agree = frame_agreement(found, predicted, covariances, settings)
+    assert np.linalg.norm(estimated - shift) < 1.5
+    assert not agree[wrong].any()
+    assert agree[:60].sum() >= 57  # 99 % ellipses
+    # as far along a far match's spread as across it, the same offset is kept along, dropped across
+    far = np.argmax(along[:60])
+    offset = 0.9 * along[far] * directions[far]
+    assert along[far] > 3 * 3.5
+    for turned, kept in ((offset, True), (np.array([-offset[1], offset[0]]), False)):
+        one = found.copy()
+        one[far] = predicted[far] + estimated + turned
+        assert frame_agreement(one, predicted, covariances, settings)[1][far] == kept
+    # too few matches to find the frame's shift by: none kept
+    assert not frame_agreement(found[:4], predicted[:4], covariances[:4], settings)[1].any()

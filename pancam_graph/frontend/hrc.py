@@ -144,17 +144,25 @@ class HrcMatcher:
                 jac = np.array([[hrc.fx, 0.0, -hrc.fx * x / z], [0.0, hrc.fy, -hrc.fy * y / z]]) / z @ hrc_T_cam[:3, :3]
                 spreads.append(jac @ cov_cam[j] @ jac.T + (s.agreement_sigma_px * self.scale) ** 2 * np.eye(2))
         uvs, predictions = np.array(uvs).reshape(-1, 2), np.array(predictions).reshape(-1, 2)
-        shift = np.median(uvs - predictions, axis=0) if len(uvs) else np.zeros(2)
-        if len(uvs) < s.min_frame_matches:
-            agree = np.zeros(len(uvs), dtype=bool)
-        else:
-            r = uvs - predictions - shift
-            mahalanobis2 = np.einsum("ni,ni->n", r, np.linalg.solve(np.array(spreads), r[..., None])[..., 0])
-            agree = mahalanobis2 < s.agreement_chi2
+        shift, agree = frame_agreement(uvs, predictions, np.array(spreads).reshape(-1, 2, 2), s)
         return HrcMatches(pan_rad, tilt_rad, np.array(ids, dtype=np.int64)[agree], uvs[agree],
                           np.array(views, dtype=int)[agree], np.array(wac_uvs).reshape(-1, 2)[agree], predicted,
                           time.perf_counter() - start, np.array(nccs)[agree], np.array(textures)[agree],
                           predictions[agree], shift, int(len(uvs) - agree.sum()))
+
+
+def frame_agreement(found: np.ndarray, predicted: np.ndarray, covariances: np.ndarray,
+                    settings: HrcSettings) -> tuple[np.ndarray, np.ndarray]:
+    """The frame's shift (the median of found - predicted: the mast's pointing error, HRC px) and
+    which matches agree with it: found - predicted - shift inside the `agreement_chi2` ellipse of
+    the prediction's covariance (N, 2, 2). Fewer than `min_frame_matches` matches give no shift to
+    check them by: none agree."""
+    shift = np.median(found - predicted, axis=0) if len(found) else np.zeros(2)
+    if len(found) < settings.min_frame_matches:
+        return shift, np.zeros(len(found), dtype=bool)
+    r = found - predicted - shift
+    mahalanobis2 = np.einsum("ni,ni->n", r, np.linalg.solve(covariances, r[..., None])[..., 0])
+    return shift, mahalanobis2 < settings.agreement_chi2
 
 
 def hrc_footprints(rig: Rig, views: list[PanoramaView], frames: list[tuple[float, float]],
