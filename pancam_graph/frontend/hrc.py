@@ -68,7 +68,6 @@ class HrcMatches:
     seconds: float = 0.0
     ncc: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (M,) each match's correlation peak
     texture_dn: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (M,) its WAC patch's standard deviation
-    predicted_uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (M, 2) HRC pixels predicted
     shift_px: np.ndarray = field(default_factory=lambda: np.zeros(2))  # median of found - predicted: the mast's error
     disagreeing: int = 0  # matches dropped for a shift unlike the frame's
 
@@ -90,7 +89,8 @@ class HrcMatcher:
         hrc_T_body = np.linalg.inv(self.rig.body_T_hrc(pan_rad, tilt_rad).matrix())
         margin = (s.patch_px + s.search_px + 1) * self.scale
         seen: set[int] = set()
-        ids, uvs, views, wac_uvs, nccs, textures, predictions, spreads = [], [], [], [], [], [], [], []
+        ids, uvs, views, wac_uvs, nccs, textures, predictions = [], [], [], [], [], [], []
+        points_cam, points_hrc, hrc_R_cams = [], [], []  # each match's WAC triangulation, in both cameras
         predicted = 0
         offsets = np.arange(-(s.patch_px + s.search_px), s.patch_px + s.search_px + 1, dtype=np.float64)
         gx, gy = np.meshgrid(offsets, offsets)
@@ -108,7 +108,6 @@ class HrcMatcher:
                       & (uv_h[:, 0] >= margin) & (uv_h[:, 0] <= hrc.width - 1 - margin)
                       & (uv_h[:, 1] >= margin) & (uv_h[:, 1] <= hrc.height - 1 - margin))
             left = view.left.astype(np.float32)
-            cov_cam = triangulation_covariance(p_cam, self.rig.wac, self.rig.baseline_m, s.agreement_sigma_px)
             n = view.body_T_camera[:3, :3].T @ np.array([0.0, 0.0, 1.0])  # the body's up, in the camera
             for j in np.flatnonzero(inside):
                 track = int(o.track_ids[j])
@@ -140,15 +139,33 @@ class HrcMatcher:
                 nccs.append(best)
                 textures.append(texture)
                 predictions.append(uv_h[j])
-                x, y, z = p_h[j]
-                jac = np.array([[hrc.fx, 0.0, -hrc.fx * x / z], [0.0, hrc.fy, -hrc.fy * y / z]]) / z @ hrc_T_cam[:3, :3]
-                spreads.append(jac @ cov_cam[j] @ jac.T + (s.agreement_sigma_px * self.scale) ** 2 * np.eye(2))
+                points_cam.append(p_cam[j])
+                points_hrc.append(p_h[j])
+                hrc_R_cams.append(hrc_T_cam[:3, :3])
         uvs, predictions = np.array(uvs).reshape(-1, 2), np.array(predictions).reshape(-1, 2)
-        shift, agree = frame_agreement(uvs, predictions, np.array(spreads).reshape(-1, 2, 2), s)
+        covariances = self._prediction_covariances(np.array(points_cam).reshape(-1, 3),
+                                                   np.array(points_hrc).reshape(-1, 3),
+                                                   np.array(hrc_R_cams).reshape(-1, 3, 3))
+        shift, agree = frame_agreement(uvs, predictions, covariances, s)
         return HrcMatches(pan_rad, tilt_rad, np.array(ids, dtype=np.int64)[agree], uvs[agree],
                           np.array(views, dtype=int)[agree], np.array(wac_uvs).reshape(-1, 2)[agree], predicted,
                           time.perf_counter() - start, np.array(nccs)[agree], np.array(textures)[agree],
-                          predictions[agree], shift, int(len(uvs) - agree.sum()))
+                          shift, int(len(uvs) - agree.sum()))
+
+    def _prediction_covariances(self, points_cam: np.ndarray, points_hrc: np.ndarray, hrc_R_cam: np.ndarray
+                                ) -> np.ndarray:
+        """(N, 2, 2) HRC px²: how far a correct match may sit from its prediction once the frame's
+        shift is removed. The WAC triangulation's error (points_cam in the left WAC, points_hrc the
+        same points in the HRC) seen from the HRC, plus `agreement_sigma_px` WAC px either way for
+        the feature's and the peak's error."""
+        s, hrc = self.settings, self.rig.hrc
+        cov_cam = triangulation_covariance(points_cam, self.rig.wac, self.rig.baseline_m, s.agreement_sigma_px)
+        x, y, z = points_hrc.T
+        projection = np.zeros((len(points_cam), 2, 3))  # d(u, v) / d(x, y, z) of the pinhole
+        projection[:, 0, 0], projection[:, 0, 2] = hrc.fx / z, -hrc.fx * x / z**2
+        projection[:, 1, 1], projection[:, 1, 2] = hrc.fy / z, -hrc.fy * y / z**2
+        jac = projection @ hrc_R_cam
+        return jac @ cov_cam @ np.transpose(jac, (0, 2, 1)) + (s.agreement_sigma_px * self.scale) ** 2 * np.eye(2)
 
 
 def frame_agreement(found: np.ndarray, predicted: np.ndarray, covariances: np.ndarray,
