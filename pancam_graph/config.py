@@ -12,9 +12,11 @@ from pathlib import Path
 from typing import Annotated, Literal, TypeVar
 
 import tomli_w
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import AfterValidator, BaseModel, Field, ValidationError, create_model, model_validator
 
 from .errors import ConfigError, PancamGraphError
+from .kinds import KINDS
+from .sections import Section
 from .text_files import read_text
 
 
@@ -32,8 +34,7 @@ Degrees = Annotated[float, Field(ge=-90.0, le=90.0)]
 M = TypeVar("M", bound=BaseModel)
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+_Strict = Section
 
 
 class OriginConfig(_Strict):
@@ -164,8 +165,10 @@ DEFAULT_CONFIGURATIONS: dict[str, list[str]] = {
 REAL_IMAGE_ROTATION_FLOOR_DEG_PER_M = 0.03
 
 
-class EstimatorConfig(_Strict):
-    """Every constant of the estimator: what is written with the results is the whole story."""
+class _EstimatorCore(_Strict):
+    """Every constant of the estimator: what is written with the results is the whole story.
+    A measurement kind with its own constants (`Kind.Settings`) adds them as a section named
+    after it, `[estimator.<kind>]` (EstimatorConfig below)."""
 
     vo_min_inliers: int = Field(12, ge=6)
     vo_ransac_px: float = Field(1.5, gt=0.0)
@@ -237,7 +240,7 @@ class EstimatorConfig(_Strict):
         return {"huber": self.huber_k, "cauchy": self.cauchy_k}.get(kernel)
 
     @model_validator(mode="after")
-    def _check_configurations(self) -> EstimatorConfig:
+    def _check_configurations(self) -> _EstimatorCore:
         for name, kinds in self.configurations.items():
             problem = configuration_problem(kinds)
             if problem:
@@ -245,10 +248,18 @@ class EstimatorConfig(_Strict):
         return self
 
 
+def _kind_sections(attribute: str) -> dict:
+    """One field per kind that defines the section model `attribute`, named after the kind."""
+    return {name: (getattr(kind, attribute), getattr(kind, attribute)())
+            for name, kind in KINDS.items() if getattr(kind, attribute) is not None}
+
+
+EstimatorConfig = create_model("EstimatorConfig", __base__=_EstimatorCore, __module__=__name__,
+                               **_kind_sections("Settings"))
+
+
 def configuration_problem(kinds: list[str]) -> str | None:
     """Why a list of kinds is not a configuration, or None."""
-    from .kinds import KINDS  # the registry of kind modules (imported only when validating)
-
     unknown = [k for k in kinds if k not in KINDS]
     if unknown:
         return f"unknown kind {unknown[0]!r} (kinds: {', '.join(KINDS)})"
@@ -311,7 +322,10 @@ class RenderConfig(_Strict):
     panoramas: bool = Field(True, description="render the site panoramas (WAC pairs and HRC frames)")
 
 
-class Scenario(_Strict):
+class _ScenarioCore(_Strict):
+    """A simulated traverse: the path, the world, the sensors and the estimator. A measurement
+    kind with a simulated sensor (`Kind.Sensor`) adds its section, `[<kind>]` (Scenario below)."""
+
     name: str
     description: str = ""
     seed: int = 0
@@ -325,6 +339,9 @@ class Scenario(_Strict):
     dead_reckoning: DeadReckoningConfig = DeadReckoningConfig()
     estimator: EstimatorConfig = EstimatorConfig()
     render: RenderConfig = RenderConfig()
+
+
+Scenario = create_model("Scenario", __base__=_ScenarioCore, __module__=__name__, **_kind_sections("Sensor"))
 
 
 def _describe(err: dict) -> str:

@@ -16,21 +16,11 @@ from .graph import factors
 from .graph.keys import T, X
 from .graph.smoother import Smoother, poses_array
 from .kinds import KINDS, Kind
+from .kinds.base import StepCounts
 from .records import GroundTruth, Stop, Traverse
 
 # (key_a, key_b, a_T_b, covariance) -> factor
 MotionFactor = Callable[[int, int, gtsam.Pose3, np.ndarray], gtsam.NonlinearFactor]
-
-
-@dataclass
-class StepCounts:
-    """What the kinds did at one stop (filled in during the step)."""
-
-    new_landmarks: int = 0
-    rejected_ties: int = 0
-    gps_fixes: int = 0
-    gps_outliers: int = 0
-    gps_mahalanobis2: float | None = None  # the largest of this stop's fixes, after the update
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ travels separately (`GroundTruth`) and is used only for evaluation.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import gtsam
@@ -147,6 +147,8 @@ class Traverse:
     # The navigation stereo pair's left camera in the body frame; None: on the mast at pan 0 and
     # the traverse tilt (PanCam). A body-fixed pair (a car, a rover's navigation cameras) gives it.
     body_T_nav_left: np.ndarray | None = None
+    # Records of the kinds that are not part of every stop (kinds/base.py), by kind name.
+    measurements: dict[str, tuple] = field(default_factory=dict)
 
     def body_T_nav(self) -> gtsam.Pose3:
         """The navigation pair's left camera in the body frame."""

@@ -10,7 +10,7 @@ import numpy as np
 from .config import EstimatorConfig, Scenario
 from .evaluation.consistency import Consistency
 from .evaluation.metrics import TrajectoryMetrics
-from .frontend.motion import Motion
+from .frontend.motion import Motion, VoMotions
 from .localizer import InterpolatedPose, StepResult
 from .records import GpsFix, GroundTruth, Traverse
 
@@ -41,6 +41,19 @@ class SourceInfo:
     reference: str  # what the metrics compare against, in words
     notes: tuple[str, ...] = ()
     options: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SourceData:
+    traverse: Traverse
+    truth: GroundTruth | None
+    estimator: EstimatorConfig
+    seed: int
+    info: SourceInfo
+    scenario: Scenario | None = None  # simulated sources
+    held_out: tuple[GpsFix, ...] = ()  # fixes kept out of every graph, for scoring
+    rejected: tuple[str, ...] = ()  # what the reader left out, with reasons
+    vo_motions: VoMotions | None = None  # estimated already by the source (image folders with sites)
 
 
 @dataclass(frozen=True)

@@ -25,8 +25,7 @@ from ..errors import ResultsError
 
 if TYPE_CHECKING:
     from ..group import RunState
-    from ..results import RunOptions
-    from ..sources.base import SourceData
+    from ..results import RunOptions, SourceData
 
 CHECKPOINT_DIR = "checkpoint"
 INPUTS_FILE = "inputs.pkl"

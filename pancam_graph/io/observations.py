@@ -11,6 +11,8 @@ A folder (documented in docs/observation_format.md):
     truth.kitti     (optional) reference pose of every stop, KITTI layout, for evaluation
     truth_landmarks.csv  track,x_m,y_m,z_m (optional, with truth.kitti) true landmarks (ENU)
     truth.toml      wheel_slip = ... (optional, with truth.kitti) the traverse's true slip
+    <kind>.csv      (optional) the records of a measurement kind with a table of its own
+                    (Kind.columns in pancam_graph/kinds/), e.g. sun_heading.csv
 
 Stops are numbered 0..N-1 and every stop has at least one row in stereo.csv (a stop that saw
 nothing has one row with empty track and pixel fields, so its time is still known); an optional
@@ -21,6 +23,7 @@ written with repr(), so a folder written from a traverse reads back bit for bit.
 from __future__ import annotations
 
 import csv
+import dataclasses
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +36,8 @@ from pydantic import Field
 from ..config import EstimatorConfig, OriginConfig, _Strict, load_toml_model
 from ..errors import InputError
 from ..geodesy import LocalFrame
+from ..kinds import KINDS
+from ..kinds.base import RowError
 from ..records import (
     DeadReckoning,
     GpsFix,
@@ -215,6 +220,10 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
                 for f in panorama_frames])]
     if frames is None:  # an image folder's panoramas are images (panorama_frames.csv)
         tables += [("panorama.csv", PANORAMA_COLUMNS, panorama), ("hrc.csv", HRC_COLUMNS, hrc)]
+    for name, kind in KINDS.items():  # the tables of kinds with records of their own
+        if kind.columns and traverse.measurements.get(name):
+            tables.append((f"{name}.csv", list(kind.columns),
+                           [tuple(r(v) for v in row) for row in kind.to_rows(traverse.measurements[name])]))
     for name, columns, rows in tables:
         if rows:
             _write_csv(folder / name, columns, rows)
@@ -293,12 +302,35 @@ def read_observations(folder: Path) -> ObservationSet:
                         np.array(manifest.gps_lever_arm_m, dtype=float), start, np.array(manifest.start_sigmas),
                         gps_fixes=gps, wheel_slip=SlipPrior(manifest.wheel_slip_mean, manifest.wheel_slip_sigma),
                         body_T_nav_left=body_T_left)
+    measurements = _read_kind_tables(folder, traverse)
+    if measurements:
+        traverse = dataclasses.replace(traverse, measurements=measurements)
     truth = None
     if (folder / "truth.kitti").is_file():
         landmarks = _read_truth_landmarks(folder / "truth_landmarks.csv")
         truth = GroundTruth(_read_truth(folder / "truth.kitti", n), landmarks, _read_truth_slip(folder / "truth.toml"))
     return ObservationSet(traverse, truth, manifest.estimator, manifest.seed, folder, frames, panorama_frames,
                           None if calibration is None or calibration.is_rectified else calibration)
+
+
+def _read_kind_tables(folder: Path, traverse: Traverse) -> dict[str, tuple]:
+    """Each kind's own table, <kind>.csv, where the folder has one (kinds/base.py)."""
+    out = {}
+    for name, kind in KINDS.items():
+        path = folder / f"{name}.csv"
+        if not kind.columns or not path.is_file():
+            continue
+        table = CsvTable(path, list(kind.columns))
+        rows = [(line, tuple(table.number(line, c, v) for c, v in zip(kind.columns, table.values(line, row),
+                                                                        strict=True)))
+                for line, row in table.rows]
+        try:
+            records = kind.from_rows(rows, traverse)
+        except RowError as exc:
+            raise InputError(f"{path}: line {exc.line}: {exc}") from None
+        if records:
+            out[name] = tuple(records)
+    return out
 
 
 def _manifest(path: Path) -> Manifest:

@@ -1,22 +1,29 @@
-"""What a measurement kind is to the localizer: hooks around one stop's iSAM2 update.
+"""What a measurement kind is: everything about one kind of measurement, in one module.
 
 A kind owns its factor builder, its gate, its counters and the metrics it reports. The localizer
 calls, for every stop: `pose_times` (measurements between the previous stop and this one that
 need a pose of their own), `add` (this stop's factors, before the update), `after_update`; and
 `counters` once at the end.
+
+A kind whose measurements are not part of every traverse's stops (a sun sensor, say) also
+declares, all optional:
+- `Settings`: its estimator constants, the section `[estimator.<name>]` of a scenario or an
+  observation folder's manifest;
+- `Sensor`: how a scenario simulates it, the scenario's section `[<name>]`, and `simulate`;
+- `columns`, `to_rows` and `from_rows`: its table `<name>.csv` in an observation folder.
+Its records travel in `Traverse.measurements[name]`.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar
+from dataclasses import dataclass
+from typing import Any, ClassVar, Protocol
 
 import gtsam
+import numpy as np
 
 from ..records import GroundTruth, Stop, Traverse
-
-if TYPE_CHECKING:
-    from ..localizer import Localizer, StepCounts
-
+from ..sections import Section
 
 _REGISTRY: dict[str, type[Kind]] = {}
 
@@ -26,9 +33,40 @@ def registered() -> dict[str, type[Kind]]:
     return dict(sorted(_REGISTRY.items(), key=lambda item: item[1].order))
 
 
+@dataclass
+class StepCounts:
+    """What the kinds did at one stop (filled in during the step)."""
+
+    new_landmarks: int = 0
+    rejected_ties: int = 0
+    gps_fixes: int = 0
+    gps_outliers: int = 0
+    gps_mahalanobis2: float | None = None  # the largest of this stop's fixes, after the update
+
+
+class Host(Protocol):
+    """What a kind sees of the localizer that builds it (localizer.Localizer)."""
+
+    traverse: Traverse
+    estimator: Any  # config.EstimatorConfig, with the kind's own section as `estimator.<name>`
+    smoother: Any  # graph.smoother.Smoother
+    previous_stop: Stop | None
+    bridged_stops: int
+    rng: np.random.Generator
+    odometry_factor: Any
+    vo_factor: Any
+
+    def kind(self, name: str) -> Kind: ...
+
+    def pose_key_at(self, time_s: float) -> int: ...
+
+
 class Kind:
     name: ClassVar[str]
     order: ClassVar[int]  # build and call order: a kind that hooks into another comes after it
+    Settings: ClassVar[type[Section] | None] = None  # [estimator.<name>]
+    Sensor: ClassVar[type[Section] | None] = None  # a scenario's [<name>]: how it is simulated
+    columns: ClassVar[tuple[str, ...]] = ()  # its observation-folder table, <name>.csv
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)
@@ -36,13 +74,34 @@ class Kind:
             raise TypeError(f"two measurement kinds are named {cls.name!r}")
         _REGISTRY[cls.name] = cls
 
-    def __init__(self, localizer: Localizer):
+    def __init__(self, localizer: Host):
         self.loc = localizer
 
     @staticmethod
     def unavailable(traverse: Traverse) -> str | None:
         """Why this traverse cannot feed the kind, or None."""
         return None
+
+    # -- records: simulated, written and read (kinds with Traverse.measurements) ---------------
+
+    @classmethod
+    def simulate(cls, sensor: Section, traverse: Traverse, truth: GroundTruth,
+                 rng: np.random.Generator) -> tuple:
+        """This kind's records of a simulated traverse, drawn from the truth (`Sensor` kinds)."""
+        return ()
+
+    @classmethod
+    def to_rows(cls, records: tuple) -> list[tuple[float, ...]]:
+        """The records as rows of `columns`."""
+        return []
+
+    @classmethod
+    def from_rows(cls, rows: list[tuple[int, tuple[float, ...]]], traverse: Traverse) -> tuple:
+        """Records from (line, numbers in `columns` order) rows; a row that does not fit the
+        traverse raises RowError naming its line."""
+        return ()
+
+    # -- the step ------------------------------------------------------------------------------
 
     def pose_times(self, prev: Stop, stop: Stop) -> list[float]:
         """Times strictly inside the drive from `prev` to `stop` at which this kind needs a pose."""
@@ -64,3 +123,11 @@ class Kind:
     def counters(self) -> dict[str, int | float | list[str]]:
         """What this kind did over the whole traverse, for metrics.json."""
         return {}
+
+
+class RowError(ValueError):
+    """A row of a kind's table that does not fit the traverse (the reader adds file and line)."""
+
+    def __init__(self, line: int, message: str):
+        super().__init__(message)
+        self.line = line

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
+import zlib
+
 import gtsam
 import numpy as np
 
 from ..config import Scenario
 from ..geodesy import LocalFrame
+from ..kinds import KINDS
 from ..records import GroundTruth, PanoramaFrame, SlipPrior, Stop, Traverse
 from ..rig import rig_preset
 from .sensors import LandmarkField, dead_reckoning, gps_fix, observe_hrc, observe_stereo
@@ -101,7 +105,22 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
         gps_fixes=tuple(fixes),
         wheel_slip=SlipPrior(dr_cfg.wheel_slip_mean, dr_cfg.wheel_slip_bias_sigma),
     )
-    return traverse, GroundTruth(world_T_body=poses, landmarks=field.points, wheel_slip=float(traverse_slip))
+    truth = GroundTruth(world_T_body=poses, landmarks=field.points, wheel_slip=float(traverse_slip))
+    return _with_kind_measurements(scenario, traverse, truth, seed), truth
+
+
+def _with_kind_measurements(scenario: Scenario, traverse: Traverse, truth: GroundTruth, seed: int) -> Traverse:
+    """The records of every kind with a simulated sensor (kinds/base.py), each drawn from a random
+    stream of its own, named after the kind: adding a kind changes nothing else."""
+    measurements = {}
+    for name, kind in KINDS.items():
+        sensor = getattr(scenario, name) if kind.Sensor is not None else None
+        if sensor is None or not getattr(sensor, "enabled", True):
+            continue
+        records = kind.simulate(sensor, traverse, truth, np.random.default_rng([seed, zlib.crc32(name.encode())]))
+        if records:
+            measurements[name] = tuple(records)
+    return dataclasses.replace(traverse, measurements=measurements) if measurements else traverse
 
 
 def _fixes_while_driving(scenario: Scenario, path, stops: list[Stop], stop_s: np.ndarray, frame: LocalFrame,

@@ -11,8 +11,8 @@ from pathlib import Path
 
 from ..config import FrontendConfig
 from ..errors import ConfigError
+from ..results import SourceData
 from . import image_folder, kitti_odometry, observations, recorded, scenario
-from .base import SourceData
 
 
 @dataclass(frozen=True)

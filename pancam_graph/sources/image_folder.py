@@ -19,8 +19,7 @@ from ..frontend.motion import VoMotions
 from ..frontend.tracker import CameraMotion, StageTimes, StereoTracker
 from ..io.images import read_gray
 from ..records import Stop, Traverse
-from ..results import SourceInfo
-from .base import SourceData
+from ..results import SourceData, SourceInfo
 from .frames import median_frame_ms, track_frames
 from .site_images import with_site_panoramas
 

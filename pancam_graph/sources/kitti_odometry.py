@@ -15,9 +15,8 @@ from ..errors import InputError
 from ..frontend.tracker import StereoTracker
 from ..geodesy import LocalFrame
 from ..records import GroundTruth, SlipPrior, StereoObservations, Stop, Traverse
-from ..results import SourceInfo
+from ..results import SourceData, SourceInfo
 from ..rig import BODY_T_FORWARD_CAMERA, Rig
-from .base import SourceData
 from .frames import median_frame_ms, track_frames
 
 # Matching and localisation error of the front-end's features (1 sigma).

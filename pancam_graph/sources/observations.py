@@ -5,8 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..io.observations import is_observation_folder, read_observations
-from ..results import SourceInfo
-from .base import SourceData
+from ..results import SourceData, SourceInfo
 
 
 def matches(path: Path) -> bool:

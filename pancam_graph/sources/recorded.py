@@ -17,9 +17,8 @@ from ..evaluation.metrics import fit_yaw
 from ..evaluation.timed import poses_at_times
 from ..geodesy import LocalFrame
 from ..records import DeadReckoning, GpsFix, GroundTruth, OdometryTrack, SlipPrior, StereoObservations, Stop, Traverse
-from ..results import SourceInfo
+from ..results import SourceData, SourceInfo
 from ..rig import rig_preset
-from .base import SourceData
 
 _ALIGN_DISTANCE_M = 15.0  # odometry travelled before the initial heading is taken from GPS
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from ..config import load_scenario, resolve_scenario
 from ..pipeline import simulated
-from .base import SourceData
+from ..results import SourceData
 
 
 def load(name_or_path: str, seed: int | None = None) -> SourceData:
