@@ -1,0 +1,225 @@
+"""Sun-sensor heading: at a site the rover images the sun with a WAC through its solar filter
+and reads its accelerometers. The sun's direction measured in the body frame, against its
+direction in the local ENU frame from an ephemeris, fixes the rover's attitude about every axis
+but the sun line; gravity's direction fixes the tilt. Together they are the absolute attitude,
+heading included: on Mars, where there is no GPS and no usable magnetic field, this is how a
+rover finds its heading (MER's and Curiosity's sun finding). Without the tilt, the graph would
+meet a sighting by tilting the rover as much as by turning it: dead reckoning's tilt is relative,
+and its error grows along the traverse.
+
+The factors are GTSAM's AttitudeFactorPose3 on the site's pose, one for the sun and one for
+gravity: the measured body direction, rotated into the world, against the reference direction
+(2 dof each, an angle per axis). The
+ephemeris is pvlib's solar position (NREL's SPA) on Earth and marstime's Mars24 algorithm on
+Mars. The sun is at infinity, so its direction in the local ENU frame (a Cartesian frame at the
+origin) is the same wherever the rover is: it is computed at the origin.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass
+from typing import Literal
+
+import gtsam
+import numpy as np
+from pydantic import Field, model_validator
+
+from .. import chi2
+from ..geodesy import LocalFrame
+from ..graph.keys import X
+from ..records import GroundTruth, Stop, Traverse
+from ..sections import Section
+from .base import Kind, RowError, StepCounts
+
+Planet = Literal["earth", "mars"]
+
+
+class SunHeadingSettings(Section):
+    """[estimator.sun_heading]: what the estimator assumes of the sun sightings."""
+
+    planet: Planet = Field("earth", description="whose ephemeris gives the sun's direction")
+    sigma_deg: float = Field(0.3, gt=0.0, le=30.0, description="1-sigma error of the measured sun direction, "
+                             "per axis: the sun's centroid on the WAC (0.04 deg pixels) and, larger, the mast's "
+                             "pan and tilt knowledge")
+    tilt_sigma_deg: float = Field(0.1, gt=0.0, le=30.0, description="1-sigma error of the gravity direction "
+                                  "from the accelerometers, per axis")
+    gate_probability: float = Field(0.999, gt=0.5, lt=1.0, description="chi-square (2 dof) level above which "
+                                    "a sighting is flagged after its update")
+
+
+class SunSensor(Section):
+    """A scenario's [sun_heading]: how the sun sightings are simulated."""
+
+    enabled: bool = True
+    planet: Planet = "earth"
+    start_utc: dt.datetime | None = Field(None, description="the traverse's time 0; default (Earth): 09:00 local "
+                                       "mean solar time at the origin on `date`")
+    date: dt.date = dt.date(2026, 6, 21)
+    sigma_deg: float = Field(0.3, ge=0.0, le=30.0, description="1-sigma error of a sighting, per axis")
+    tilt_sigma_deg: float = Field(0.1, ge=0.0, le=30.0, description="1-sigma error of the accelerometers' "
+                                  "gravity direction, per axis")
+    min_elevation_deg: float = Field(10.0, ge=-5.0, le=89.0, description="no sighting with the sun lower "
+                                     "(horizon, mast and refraction)")
+
+    @model_validator(mode="after")
+    def _check(self) -> SunSensor:
+        if self.planet == "mars" and self.start_utc is None:
+            raise ValueError("planet 'mars' needs start_utc (local solar time on Mars is not derived here)")
+        return self
+
+
+@dataclass(frozen=True)
+class SunSighting:
+    """The sun's direction and the up direction (against gravity) in the body frame, measured at a
+    stop at a UTC time (seconds since 1970)."""
+
+    stop: int
+    utc_s: float
+    sun_body: np.ndarray  # (3,) unit vector
+    up_body: np.ndarray  # (3,) unit vector
+
+
+def sun_directions_enu(planet: Planet, frame: LocalFrame, utc_s: np.ndarray) -> np.ndarray:
+    """(N, 3) unit vectors towards the sun in the local ENU frame at `frame`'s origin."""
+    utc_s = np.asarray(utc_s, dtype=float)
+    lat, lon = np.deg2rad(frame.lat0_deg), np.deg2rad(frame.lon0_deg)
+    if planet == "earth":
+        # pvlib (and pandas under it) only when a traverse has sightings: every process imports kinds
+        import pandas as pd
+        from pvlib.solarposition import get_solarposition
+
+        times = pd.to_datetime(utc_s, unit="s", utc=True)
+        sun = get_solarposition(times, frame.lat0_deg, frame.lon0_deg, altitude=frame.h0_m)
+        elevation = np.deg2rad(sun["apparent_elevation"].to_numpy())
+        azimuth = np.deg2rad(sun["azimuth"].to_numpy())  # clockwise from north
+        return np.column_stack([np.cos(elevation) * np.sin(azimuth), np.cos(elevation) * np.cos(azimuth),
+                                np.sin(elevation)])
+    import marstime
+
+    j2000 = marstime.j2000_offset_tt(marstime.julian_tt(2440587.5 + utc_s / 86400.0))
+    declination = np.deg2rad(marstime.solar_declination(marstime.Mars_Ls(j2000)))
+    subsolar_east = -np.deg2rad(marstime.subsolar_longitude(j2000))  # Mars24 gives it west-positive
+    sun_fixed = np.column_stack([np.cos(declination) * np.cos(subsolar_east),
+                                 np.cos(declination) * np.sin(subsolar_east), np.sin(declination)])
+    fixed_to_enu = np.array([[-np.sin(lon), np.cos(lon), 0.0],
+                             [-np.sin(lat) * np.cos(lon), -np.sin(lat) * np.sin(lon), np.cos(lat)],
+                             [np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)]])
+    return sun_fixed @ fixed_to_enu.T
+
+
+def start_utc_s(sensor: SunSensor, frame: LocalFrame) -> float:
+    """The traverse's time 0 as UTC seconds since 1970."""
+    if sensor.start_utc is not None:
+        start = sensor.start_utc if sensor.start_utc.tzinfo else sensor.start_utc.replace(tzinfo=dt.UTC)
+    else:  # 09:00 local mean solar time: UTC + longitude / 15 h
+        start = (dt.datetime(sensor.date.year, sensor.date.month, sensor.date.day, 9, tzinfo=dt.UTC)
+                 - dt.timedelta(hours=frame.lon0_deg / 15.0))
+    return start.timestamp()
+
+
+def _perturbed(direction: np.ndarray, sigma_rad: float, rng: np.random.Generator) -> np.ndarray:
+    """A unit vector off `direction` by sigma_rad (1 sigma) along each of two perpendicular axes."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(direction[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    a = np.cross(direction, helper)
+    a /= np.linalg.norm(a)
+    b = np.cross(direction, a)
+    out = direction + sigma_rad * (rng.normal() * a + rng.normal() * b)
+    return out / np.linalg.norm(out)
+
+
+def _unit(line: int, name: str, xyz) -> np.ndarray:
+    """A direction as written (Unit3 normalizes it; renormalizing here would change the last bits)."""
+    norm = float(np.linalg.norm(xyz))
+    if not 0.99 < norm < 1.01:
+        raise RowError(line, f"{name}_x, {name}_y, {name}_z must be a unit vector, got length {norm:.3g}")
+    return np.asarray(xyz, dtype=float)
+
+
+class SunHeading(Kind):
+    name = "sun_heading"
+    order = 7
+    Settings = SunHeadingSettings
+    Sensor = SunSensor
+    columns = ("stop", "utc_s", "sun_x", "sun_y", "sun_z", "up_x", "up_y", "up_z")
+
+    @staticmethod
+    def unavailable(traverse: Traverse) -> str | None:
+        return None if traverse.measurements.get("sun_heading") else "the traverse has no sun sightings"
+
+    # -- records -------------------------------------------------------------------------------
+
+    @classmethod
+    def simulate(cls, sensor: SunSensor, traverse: Traverse, truth: GroundTruth,
+                 rng: np.random.Generator) -> tuple[SunSighting, ...]:
+        """A sighting at every site with the sun high enough, from the true attitude."""
+        sites = [s for s in traverse.stops if s.is_site]
+        if not sites:
+            return ()
+        utc = start_utc_s(sensor, traverse.origin) + np.array([s.time_s for s in sites])
+        directions = sun_directions_enu(sensor.planet, traverse.origin, utc)
+        low = np.sin(np.deg2rad(sensor.min_elevation_deg))
+        out = []
+        for stop, t, n in zip(sites, utc, directions, strict=True):
+            if n[2] < low:
+                continue
+            body_R_world = truth.world_T_body[stop.index][:3, :3].T
+            sun = _perturbed(body_R_world @ n, np.deg2rad(sensor.sigma_deg), rng)
+            up = _perturbed(body_R_world[:, 2], np.deg2rad(sensor.tilt_sigma_deg), rng)
+            out.append(SunSighting(stop.index, float(t), sun, up))
+        return tuple(out)
+
+    @classmethod
+    def to_rows(cls, records: tuple[SunSighting, ...]) -> list[tuple[float, ...]]:
+        return [(s.stop, s.utc_s, *s.sun_body, *s.up_body) for s in records]
+
+    @classmethod
+    def from_rows(cls, rows, traverse: Traverse) -> tuple[SunSighting, ...]:
+        out = []
+        for line, (stop, utc_s, *numbers) in rows:
+            if stop != int(stop) or not 0 <= stop < len(traverse.stops):
+                raise RowError(line, f"stop {stop:g} is not one of the traverse's stops 0..{len(traverse.stops) - 1}")
+            sun, up = _unit(line, "sun", numbers[:3]), _unit(line, "up", numbers[3:])
+            out.append(SunSighting(int(stop), utc_s, sun, up))
+        return tuple(out)
+
+    # -- the step ------------------------------------------------------------------------------
+
+    def __init__(self, localizer):
+        super().__init__(localizer)
+        settings: SunHeadingSettings = localizer.estimator.sun_heading
+        sightings = localizer.traverse.measurements.get(self.name, ())
+        references = sun_directions_enu(settings.planet, localizer.traverse.origin, [s.utc_s for s in sightings])
+        self._at_stop = {s.stop: (s, n) for s, n in zip(sightings, references, strict=True)}
+        self.sigma_rad = np.deg2rad(settings.sigma_deg)
+        self.gate = chi2.quantile(settings.gate_probability, 2)
+        self._sun_model = gtsam.noiseModel.Isotropic.Sigma(2, self.sigma_rad)
+        self._tilt_model = gtsam.noiseModel.Isotropic.Sigma(2, np.deg2rad(settings.tilt_sigma_deg))
+        self.used = 0
+        self.flagged: list[int] = []
+        self.largest_mahalanobis2 = 0.0
+
+    def add(self, stop: Stop, counts: StepCounts) -> None:
+        if stop.index in self._at_stop:
+            sighting, reference = self._at_stop[stop.index]
+            key = X(stop.index)
+            self.loc.smoother.add(gtsam.AttitudeFactorPose3(key, gtsam.Unit3(reference), self._sun_model,
+                                                            gtsam.Unit3(sighting.sun_body)))
+            self.loc.smoother.add(gtsam.AttitudeFactorPose3(key, gtsam.Unit3(np.array([0.0, 0.0, 1.0])),
+                                                            self._tilt_model, gtsam.Unit3(sighting.up_body)))
+            self.used += 1
+
+    def after_update(self, stop: Stop, counts: StepCounts) -> None:
+        if stop.index not in self._at_stop:
+            return
+        sighting, reference = self._at_stop[stop.index]
+        seen = self.loc.smoother.pose(X(stop.index)).rotation().matrix() @ sighting.sun_body
+        angle = np.arctan2(np.linalg.norm(np.cross(seen, reference)), seen @ reference)
+        d2 = float((angle / self.sigma_rad) ** 2)
+        self.largest_mahalanobis2 = max(self.largest_mahalanobis2, d2)
+        if d2 > self.gate:
+            self.flagged.append(stop.index)
+
+    def counters(self) -> dict:
+        return {"sun_sightings_used": self.used, "sun_sightings_flagged": len(self.flagged),
+                "sun_largest_mahalanobis2": self.largest_mahalanobis2}
