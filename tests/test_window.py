@@ -180,7 +180,9 @@ def test_a_site_that_leaves_the_window_at_the_next_site_is_not_searched_for_ties
 def _chain(factorization: str, n: int = 200) -> Smoother:
     """A drive of n 1 m steps with micrometre step noise and nothing absolute but the start:
     its uncertainty grows ~1e10 times the step's, past what Cholesky's Hessian can hold."""
-    smoother = Smoother(RelinearizeThresholds(0.02, 0.1, 0.05), factorization=factorization)
+    smoother = Smoother(RelinearizeThresholds(0.02, 0.1, 0.05), relinearize_skip=1, window_m=np.inf,
+                        wildfire_threshold=0.001,
+                        factorization=factorization)
     noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-7] * 3 + [1e-6] * 3))
     smoother.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)))
     smoother.insert(X(0), gtsam.Pose3())

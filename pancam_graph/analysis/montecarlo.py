@@ -6,6 +6,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from ..config import EstimatorConfig
 from ..errors import EvaluationError
 from ..frontend.stereo_vo import StereoVO
 from ..records import StereoObservations
@@ -30,7 +31,9 @@ def vo_monte_carlo(rig: Rig, a: Assumptions, stops: int, trials: int, seed: int 
     if fov_deg is None:
         fov_deg = float(np.rad2deg(2 * np.arctan(rig.wac.width / 2 / rig.wac.fx)))
     body_T_left = rig.body_T_left(0.0, 0.0)
-    vo = StereoVO(rig, body_T_left, a.sigma_px, max_step_m=10 * a.vo_step_m)
+    # the closed form's grid has no range cut-off of its own, and every point is an inlier
+    vo = StereoVO.configured(rig, body_T_left, a.sigma_px, EstimatorConfig(
+        vo_max_step_m=10 * a.vo_step_m, vo_pnp_iterations=200, vo_max_range_m=1e9))
     calibration = rig.stereo_calibration()
     grid = fov_grid(fov_deg, a.vo_max_range_m, a.vo_feature_spacing_m, a.vo_min_range_m)
     ahead = grid - np.array([0.0, a.vo_step_m])

@@ -15,14 +15,15 @@ import cv2
 import gtsam
 import numpy as np
 
+from .. import chi2
 from ..config import EstimatorConfig
 from ..graph import noise
 from ..graph.keys import L, X
 from ..records import StereoObservations, Traverse
 from ..rig import Rig, triangulate_rectified, triangulation_covariance
 
-_CHI2_6DOF_99 = 16.812  # a point's two stereo residuals (2 x 3 px components): outlier gate
-_CHI2_3DOF_999 = 16.266  # a point's two triangulations (3-D difference): re-admission gate
+_CHI2_6DOF_99 = chi2.quantile(0.99, 6)  # a point's two stereo residuals (2 x 3 px components): outlier gate
+_CHI2_3DOF_999 = chi2.quantile(0.999, 3)  # a point's two triangulations (3-D difference): re-admission gate
 
 
 @dataclass(frozen=True)
@@ -38,10 +39,10 @@ class VoResult:
 
 
 class StereoVO:
-    def __init__(self, rig: Rig, body_T_left: gtsam.Pose3, pixel_sigma: float, min_inliers: int = 12,
-                 ransac_px: float = 1.5, max_step_m: float = 5.0, pnp_iterations: int = 200,
-                 pnp_confidence: float = 0.999, max_range_m: float = np.inf, translation_floor: float = 0.0,
-                 rotation_floor_rad_per_m: float = 0.0):
+    def __init__(self, rig: Rig, body_T_left: gtsam.Pose3, pixel_sigma: float, *, min_inliers: int,
+                 ransac_px: float, max_step_m: float, pnp_iterations: int, pnp_confidence: float,
+                 max_range_m: float, translation_floor: float, rotation_floor_rad_per_m: float):
+        """Every setting is the estimator configuration's (`configured`): written once, there."""
         self.rig = rig
         self.body_T_left = body_T_left
         self.left_T_body = body_T_left.inverse()

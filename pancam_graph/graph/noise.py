@@ -11,14 +11,16 @@ _KERNELS = {
     "huber": gtsam.noiseModel.mEstimator.Huber.Create,
     "cauchy": gtsam.noiseModel.mEstimator.Cauchy.Create,
 }
-_DEFAULT_K = {"huber": 1.345, "cauchy": 1.0}  # Huber: 95 % efficiency on Gaussian noise
 
 
-def robust(kind: str, base: gtsam.noiseModel.Base, k: float | None = None) -> gtsam.noiseModel.Base:
-    """Wrap `base` in an M-estimator ('huber', 'cauchy') with threshold `k` sigmas, or return it ('none')."""
+def robust(kind: str, base: gtsam.noiseModel.Base, k: float | None) -> gtsam.noiseModel.Base:
+    """Wrap `base` in an M-estimator ('huber', 'cauchy') with threshold `k` sigmas (the estimator's
+    huber_k or cauchy_k), or return it ('none')."""
     if kind == "none":
         return base
-    return gtsam.noiseModel.Robust.Create(_KERNELS[kind](_DEFAULT_K[kind] if k is None else k), base)
+    if k is None:
+        raise GraphError(f"a {kind} kernel needs its threshold k")
+    return gtsam.noiseModel.Robust.Create(_KERNELS[kind](k), base)
 
 
 def stereo_pixels(sigma_px: float) -> gtsam.noiseModel.Base:

@@ -64,8 +64,9 @@ class Smoother:
     iSAM2.
     """
 
-    def __init__(self, relinearize: RelinearizeThresholds, relinearize_skip: int = 1, window_m: float = np.inf,
-                 wildfire_threshold: float = 0.001, factorization: str = "QR", partial_check: bool = False):
+    def __init__(self, relinearize: RelinearizeThresholds, relinearize_skip: int, window_m: float,
+                 wildfire_threshold: float, factorization: str = "QR", partial_check: bool = False):
+        """The settings are the estimator configuration's (`configured`): written once, there."""
         self.relinearize = relinearize
         self.partial_check = partial_check
         self.factorization = factorization
