@@ -151,7 +151,7 @@ class DeadReckoningConfig(_Strict):
 DEFAULT_CONFIGURATIONS: dict[str, list[str]] = {
     "dead_reckoning": ["dead_reckoning", "wheel_slip"],  # the baseline VO is meant to beat
     # Without wheel_slip: with GPS the slip becomes observable and every step relinearizes every
-    # slip factor (Python CustomFactors): 67 s instead of 1.7 s on the 989-fix Husky bag.
+    # slip factor, a Python CustomFactor (docs/performance.md).
     "dead_reckoning_gps": ["dead_reckoning", "gps"],
     "vo": ["vo"],
     "vo_sites": ["vo", "sites"],
@@ -220,8 +220,8 @@ class _EstimatorCore(_Strict):
     relinearize_skip: Literal["auto"] | Annotated[int, Field(ge=1)] = Field(
         "auto", description="iSAM2 checks the thresholds at every this many updates. auto is 10 (GTSAM's default) "
         "with the partial check for configurations with GPS: a fix moves old poses and landmarks just past the "
-        "thresholds, and relinearizing one re-eliminates everything from it up to the newest (full's p99 per km "
-        "of long_traverse: 34-38 ms with either alone, 11-21 ms with both, the same ATE); 1 for the others")
+        "thresholds, and relinearizing one re-eliminates everything from it up to the newest (docs/performance.md); "
+        "1 for the others")
     factorization: Literal["auto", "qr", "cholesky"] = Field(
         "auto", description="iSAM2's: auto is Cholesky for configurations with GPS (a third faster; GPS bounds the "
         "uncertainty) and QR for the others (Cholesky fails on long VO chains); a Cholesky that fails goes on as QR")

@@ -38,11 +38,6 @@ class Camera:
     p1: float = 0.0
     p2: float = 0.0
 
-    @property
-    def ifov_rad(self) -> float:
-        """Angular resolution at the image centre (radians per pixel)."""
-        return 1.0 / self.fx
-
     def matrix(self) -> np.ndarray:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 

@@ -26,8 +26,8 @@ def test_exomars_preset_matches_design_table():
     rig = rig_preset("exomars")
     assert rig.wac.fx == pytest.approx(1724.1, abs=0.1)  # 580 urad/px
     assert rig.hrc.fx == pytest.approx(12195.1, abs=0.1)  # 82 urad/px
-    assert np.degrees(rig.wac.width * rig.wac.ifov_rad) == pytest.approx(34.0, abs=0.1)
-    assert np.degrees(rig.hrc.width * rig.hrc.ifov_rad) == pytest.approx(4.81, abs=0.01)
+    assert np.degrees(rig.wac.width / rig.wac.fx) == pytest.approx(34.0, abs=0.1)
+    assert np.degrees(rig.hrc.width / rig.hrc.fx) == pytest.approx(4.81, abs=0.01)
     left = rig.body_T_left(0, 0).translation()
     right = left + np.array([0.0, -rig.baseline_m, 0.0])
     hrc = rig.body_T_hrc(0, 0).translation()

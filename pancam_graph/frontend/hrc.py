@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from .. import chi2
 from ..rig import Rig, triangulation_covariance
 from .panorama import PanoramaView, Region, SitePanorama
 from .ties import peak_offset
@@ -35,10 +36,8 @@ from .ties import peak_offset
 
 @dataclass(frozen=True)
 class HrcSettings:
-    # WAC pixels either side of the feature in the correlated patch: 21 x 21 px at NCC 0.80 with
-    # the frame's check below gave 96.5 / 95.7 % within one WAC pixel on the seed-0 / seed-1
-    # denver_trail renders; 15 x 15 px at NCC 0.88 without it 95.6 / 94.5 % and four / eight
-    # textured frames with fewer than 30 correct against none / three (docs/frontend.md)
+    # WAC pixels either side of the feature in the correlated patch (21 x 21 px at NCC 0.80 with
+    # the frame's check below: the comparison is in docs/frontend.md)
     patch_px: int = 10
     search_px: int = 4  # WAC pixels either side of the prediction searched (mast errors of 0.1 deg: 3 px)
     min_ncc: float = 0.80
@@ -47,7 +46,7 @@ class HrcSettings:
     # WAC). A match whose offset from the frame's median shift is beyond the 99 % ellipse of
     # that range error and `agreement_sigma_px` (WAC px) is dropped (docs/frontend.md).
     agreement_sigma_px: float = 0.5  # WAC px: the feature's and the peak's error, and the stereo disparity's
-    agreement_chi2: float = 9.21  # 99 % for 2 dof
+    agreement_chi2: float = chi2.quantile(0.99, 2)
     min_frame_matches: int = 5  # fewer matches than this: no shift to check them by, none kept
     min_texture_dn: float = 3.0  # the WAC patch's standard deviation: below it, no position to find
     min_range_m: float = 2.0

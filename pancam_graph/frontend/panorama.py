@@ -45,10 +45,6 @@ class PanoramaView:
         o = self.observations.uvv
         return triangulate_rectified(o[:, 0], o[:, 1], o[:, 2], camera, baseline_m)
 
-    def points_body(self, camera: Camera, baseline_m: float) -> np.ndarray:
-        p = self.points_camera(camera, baseline_m)
-        return p @ self.body_T_camera[:3, :3].T + self.body_T_camera[:3, 3]
-
 
 @dataclass
 class SitePanorama:
@@ -59,9 +55,6 @@ class SitePanorama:
     views: list[PanoramaView]
     links: int = 0  # features found again in a neighbouring frame (pan/tilt-aided)
     seconds: float = 0.0
-
-    def track_count(self) -> int:
-        return len({int(t) for v in self.views for t in v.observations.track_ids})
 
 
 class PanoramaMatcher:

@@ -50,15 +50,13 @@ class Smoother:
     (metres) is ~1e6 times the per-step one (millimetres), and forming the Hessian squares
     that ratio past double precision. QR never forms the Hessian. GPS bounds the uncertainty,
     and there Cholesky is a third faster on the waves of relinearization a fix sets off
-    (`full` on 2.3 km of long_traverse: 7.6 -> 5.1 s of updates, the same estimate to 1e-10 m):
-    configurations with GPS use it, and a smoother whose Cholesky fails goes on with QR
-    (iSAM2 rebuilt by replaying its updates, as from a checkpoint).
+    (docs/performance.md): configurations with GPS use it, and a smoother whose Cholesky fails
+    goes on with QR (iSAM2 rebuilt by replaying its updates, as from a checkpoint).
 
     The window: GTSAM 4.3's iSAM2 walks its whole Bayes tree on every update (it counts the
-    tree's non-zeros), so an update costs in proportion to everything solved so far (a
-    dead-reckoning update: 0.7 ms in the first km of long_traverse, 16 ms in the eleventh).
-    A variable is marginalized once the rover has driven `window_m` metres past the stop
-    where it entered (GTSAM's IncrementalFixedLagSmoother): its estimate is frozen as it
+    tree's non-zeros), so an update costs in proportion to everything solved so far. A
+    variable is marginalized once the rover has driven `window_m` metres past the stop where
+    it entered (GTSAM's IncrementalFixedLagSmoother): its estimate is frozen as it
     stands then, and the information it carried stays as a linear factor on its neighbours.
     On a traverse shorter than the window nothing is marginalized and the smoother is plain
     iSAM2.
@@ -174,8 +172,7 @@ class Smoother:
     def _stamp(self) -> float:
         """The clock in steps of a quarter of the window: variables leave in batches, one step's
         worth at a time. A marginalizing update costs more than an ordinary one, and more the
-        larger the window (GTSAM orders every variable of the window anew for it): 2-3 ms a
-        stop at 600 m if every update marginalized, against 0.4 ms for plain iSAM2."""
+        larger the window (GTSAM orders every variable of the window anew for it)."""
         if not np.isfinite(self.window_m):
             return self.clock_m
         step = self.window_m / WINDOW_STEPS
@@ -332,7 +329,7 @@ class Smoother:
         variable that left it has the marginal it had as it left, the others the window's at the
         end. That is the bound for the estimate this smoother gives (frozen as it left, which
         what came after never reached), and it holds a window of the traverse in memory, not
-        all of it (the whole graph of long_traverse's vo_sites: 340 MB).
+        all of it.
 
         The updates are replayed one window step at a time: variables leave by steps, so each
         step's first update is where they do."""

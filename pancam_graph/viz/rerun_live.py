@@ -53,8 +53,8 @@ class RerunRecorder:
     Reading a configuration's whole estimate back from iSAM2 costs about a millisecond, so
     every configuration's trajectory (and landmarks) is re-read every `refresh_every` stops
     and at every site; in between only the primary configuration (the richest: it also drives
-    the rover and camera) appends its newest pose and ellipsoid. That keeps `--rerun save`
-    within 30 % of the run time (`pancam-graph bench --rerun`).
+    the rover and camera) appends its newest pose and ellipsoid (`pancam-graph bench --rerun`
+    measures what recording costs).
     """
 
     def __init__(self, rec: rr.RecordingStream, refresh_every: int = CHECKPOINT_EVERY_STOPS):
