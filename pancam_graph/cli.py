@@ -1,53 +1,85 @@
-"""Command line: the only place that parses arguments, prints and chooses exit codes."""
+"""Command line: parses arguments into library calls (api.py, bench.py), prints what they return
+and chooses exit codes. The one place that catches the package's errors is `_Commands.invoke`."""
 
 from __future__ import annotations
 
-import dataclasses
+import contextvars
 import json
 import os
-import resource
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable
 from contextlib import contextmanager
-from datetime import datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING, Any
 
 import typer
 from rich.console import Console
 from rich.markup import escape
-from rich.progress import (
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    TextColumn,
-    TimeElapsedColumn,
-    TimeRemainingColumn,
-)
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 from rich.text import Text
+from typer.core import TyperGroup
 
-from .errors import ConfigError, FolderInUse, FrameError, InputError, PancamGraphError, ResultsError, ViewerUnavailable
-from .processes import cores
+from .errors import ConfigError, FolderInUse, InputError, PancamGraphError
 
 if TYPE_CHECKING:  # the heavy imports wait until a command needs them: --help stays fast
+    from .api import RunOutcome
     from .frontend.calibrate import StereoFit
-    from .group import RunState
-    from .results import RunOptions, RunResult
-    from .sources import SourceData
     from .stereo_pair import StereoCalibration
+    from .viz.rerun_sink import RerunTarget
+
+console = Console(stderr=True)
+EXIT_USAGE = 2  # bad input: a file, a folder, an option
+EXIT_FAILURE = 1  # the work itself failed
+EXIT_INTERRUPTED = 130  # Ctrl-C (128 + SIGINT)
+_USAGE_ERRORS = (ConfigError, InputError, FolderInUse)
+_interrupt_reported = False  # a command said what Ctrl-C left behind: main() adds nothing
+# True while a command reads what the user gave it: whatever fails there is bad input (exit 2).
+_reading_input: contextvars.ContextVar[bool] = contextvars.ContextVar("reading_input", default=False)
+
+
+@contextmanager
+def _input():
+    """The user's input is read in here: an error that escapes is theirs to fix (exit 2). On an
+    error the flag stays set for `_Commands.invoke`, which resets it for the next command."""
+    token = _reading_input.set(True)
+    yield
+    _reading_input.reset(token)
+
+
+def _error(text: str) -> None:
+    console.print(Text("error: ", style="bold red") + Text(text), soft_wrap=True)
+
+
+class _Commands(TyperGroup):
+    """Every command runs through `invoke`: the package's typed errors become one line and an
+    exit code, here and nowhere else."""
+
+    def invoke(self, ctx):
+        from .api import RunInterrupted
+
+        _reading_input.set(False)
+        try:
+            return super().invoke(ctx)
+        except RunInterrupted as exc:
+            global _interrupt_reported
+            console.print(Text("interrupted: ", style="bold red") + Text(str(exc)), soft_wrap=True)
+            _interrupt_reported = True
+            raise typer.Exit(EXIT_INTERRUPTED) from None
+        except PancamGraphError as exc:
+            _error(str(exc))
+            bad_input = _reading_input.get() or isinstance(exc, _USAGE_ERRORS)
+            raise typer.Exit(EXIT_USAGE if bad_input else EXIT_FAILURE) from None
+
 
 # rich_markup_mode=None: usage errors as click's plain "Error: ..." line, not a box; user text
 # (file names with [brackets]) is never parsed as markup.
-app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None, pretty_exceptions_enable=False,
-                  help="Rover localization over long traverses with a GTSAM factor graph.")
-console = Console(stderr=True)
-EXIT_USAGE = 2  # bad input: a file, a folder, an option
-EXIT_FAILURE = 1  # the run itself failed
-EXIT_INTERRUPTED = 130  # Ctrl-C (128 + SIGINT)
-_USAGE_ERRORS = (ConfigError, InputError, FolderInUse)
+app = typer.Typer(cls=_Commands, add_completion=False, no_args_is_help=True, rich_markup_mode=None,
+                  pretty_exceptions_enable=False, help="Rover localization over long traverses with a GTSAM factor "
+                  "graph.")
 
 
 def _version(value: bool) -> None:
@@ -64,29 +96,7 @@ def _main(version: bool = typer.Option(False, "--version", callback=_version, is
     """Rover localization over long traverses with a GTSAM factor graph."""
 
 
-def _start_process_server(options) -> None:
-    """Worker processes come from a server that imports the package once: start it now, so it
-    imports while the source loads (processes.py)."""
-    if options.processes > 1:
-        from .processes import start_process_server
-
-        start_process_server()
-
-
-def _fail(exc: PancamGraphError, bad_input: bool = False) -> typer.Exit:
-    """Print the error (as plain text: user text may contain [brackets]) and choose the exit code."""
-    console.print(Text("error: ", style="bold red") + Text(str(exc)), soft_wrap=True)
-    return typer.Exit(EXIT_USAGE if bad_input or isinstance(exc, _USAGE_ERRORS) else EXIT_FAILURE)
-
-
-def _load(scenario: str):
-    from .config import load_scenario, resolve_scenario
-
-    return load_scenario(resolve_scenario(scenario))
-
-
-ProgressCallback = Callable[[str, int, int], None]
-
+# -- progress and Ctrl-C --------------------------------------------------------------------
 
 def _progress_bar(quiet: bool = False) -> Progress:
     """Every long step's bar: what, how far, time so far and the time left."""
@@ -94,7 +104,7 @@ def _progress_bar(quiet: bool = False) -> Progress:
                     TextColumn("eta"), TimeRemainingColumn(), console=console, transient=True, disable=quiet)
 
 
-def _with_progress(name: str, quiet: bool, work: Callable[[ProgressCallback], RunResult]) -> RunResult:
+def _with_progress(name: str, quiet: bool, work: Callable[[Callable[[str, int, int], None]], Any]) -> Any:
     """Run `work(progress)` under a progress bar labelled `name`; Ctrl-C stops it at its next
     report."""
     with _progress_bar(quiet) as bar, _ctrl_c_at_reports() as check:
@@ -102,7 +112,7 @@ def _with_progress(name: str, quiet: bool, work: Callable[[ProgressCallback], Ru
 
         def report(stage: str, done: int, total: int) -> None:
             check()
-            bar.update(task, description=f"{escape(name)}: {stage}", completed=done, total=total)
+            bar.update(task, description=f"{escape(name)}: {escape(stage)}", completed=done, total=total)
 
         return work(report)
 
@@ -133,15 +143,25 @@ def _ctrl_c_at_reports():
         signal.signal(signal.SIGINT, previous)
 
 
+# -- parsing ----------------------------------------------------------------------------------
+
+def _load(scenario: str):
+    from .config import load_scenario, resolve_scenario
+
+    return load_scenario(resolve_scenario(scenario))
+
+
 def _rerun_help(default_file: str) -> str:
     return (f"rerun viewer: 'spawn', 'save' ({default_file} in the results folder), 'save:FILE.rrd', "
             "'serve' (gRPC + web viewer), 'connect:URL' (a running viewer, e.g. rerun+http://host:9876/proxy)")
 
 
-def _rerun_target(text: str, memory_limit: str):
-    """Parse --rerun; bad values are usage errors. `save` alone leaves the path to the caller."""
+def _rerun_target(text: str | None, memory_limit: str) -> RerunTarget | None:
+    """Parse --rerun; bad values are usage errors. `save` alone leaves the path to the library."""
     from .viz.rerun_sink import RerunTarget
 
+    if text is None:
+        return None
     mode, _, arg = text.partition(":")
     if mode == "spawn" and not arg:
         if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
@@ -171,17 +191,44 @@ def _serve_until_interrupted(url: str | None) -> None:
         pass
 
 
-def _summary_table(result: RunResult) -> Table:
+def _parse_configs(text: str | None) -> tuple[str, ...] | None:
+    if text is None:
+        return None
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    if not names:
+        raise ConfigError("--configs: give one or more configuration names or kinds joined by '+', "
+                          "separated by commas (e.g. vo,vo+gps)")
+    return names
+
+
+def _topics(text: str | None) -> tuple[str, str] | None:
+    if text is None:
+        return None
+    topics = [t.strip() for t in text.split(",") if t.strip()]
+    if len(topics) != 2:
+        raise ConfigError(f"--stereo-topics {text!r}: expected LEFT,RIGHT (two image topics)")
+    return topics[0], topics[1]
+
+
+def _detector(text: str | None) -> str | None:
+    if text is not None and text not in ("gftt", "orb", "sift"):
+        raise ConfigError(f"--detector {text!r}: expected gftt, orb or sift")
+    return text
+
+
+# -- run --------------------------------------------------------------------------------------
+
+def _summary_table(outcome: RunOutcome) -> Table:
     """One row per configuration; narrow enough for an 80-column terminal."""
     from rich import box
 
+    result = outcome.result
     held = any(c.holdout is not None for c in result.configurations.values())
     table = Table(title=f"{escape(result.name)} (seed {result.seed}, {len(result.traverse.stops)} stops)",
                   box=box.SIMPLE_HEAD, padding=(0, 1), caption="m: metres against the reference; GPS m: average "
-                  "error against the fixes in the graph; held m: RMS 2-D to the held-out fixes")
+                  "error against the fixes in the graph" + ("; held m: RMS 2-D to the held-out fixes" if held else ""))
     table.add_column("config", justify="left", no_wrap=True)
-    columns = ["avg m", "clos. %", "ATE m", "length", "bridged", "GPS m"] + (["held m"] if held else [])
-    for col in columns:
+    for col in ["avg m", "clos. %", "ATE m", "length", "bridged", "GPS m"] + (["held m"] if held else []):
         table.add_column(col, justify="right")
     for name, c in result.configurations.items():
         m, vs = c.metrics, c.metrics_vs_gps
@@ -194,14 +241,24 @@ def _summary_table(result: RunResult) -> Table:
     return table
 
 
-def _parse_configs(text: str | None) -> tuple[str, ...] | None:
-    if text is None:
-        return None
-    names = tuple(n.strip() for n in text.split(",") if n.strip())
-    if not names:
-        raise ConfigError("--configs: give one or more configuration names or kinds joined by '+', "
-                          "separated by commas (e.g. vo,vo+gps)")
-    return names
+def _print_outcome(outcome: RunOutcome) -> None:
+    for warning in outcome.warnings:
+        console.print(Text("warning: ", style="bold yellow") + Text(warning))
+    Console(width=80).print(_summary_table(outcome))
+    sys.stdout.flush()
+    for name, reason in outcome.result.skipped.items():
+        console.print(Text(f"not run: {name} ({reason})", style="dim"))
+    saved = (f" ({outcome.checkpoints} checkpoints saved in {outcome.checkpoint_s:.1f} s)"
+             if outcome.checkpoints else "")
+    console.print(f"wall {outcome.result.wall_s:.1f} s{saved}; results in {outcome.folder} "
+                  f"(report: {outcome.report})")
+    recording = outcome.recording
+    if recording is not None and recording.target.mode == "save":
+        shown = recording.target.path
+        console.print(f"rerun recording: {shown} (open with `rerun {shown}` or `pancam-graph view "
+                      f"{outcome.folder}`)")
+    if recording is not None and recording.target.mode == "serve":
+        _serve_until_interrupted(recording.served_url)
 
 
 @app.command("run")
@@ -251,192 +308,55 @@ def run_command(
     GeoJSON, KML), plots and report.md into the results folder; a failed run leaves
     <out>.partial with what was done, which `--resume` continues.
     """
-    from .pipeline import select_configurations
-    from .results import RunOptions
+    from . import api
+    from .processes import cores, start_process_server
     from .sources import SourceOptions
 
+    processes = 1 if one_process else None
     if resume is not None:
         given = {"SOURCE": source, "--out": out, "--seed": seed, "--configs": configs, "--batch": batch or None,
                  "--gps-topic": gps_topic, "--odom-topic": odom_topic, "--holdout-every": holdout_every,
                  "--geoid-height": geoid_height, "--detector": detector, "--stereo-topics": stereo_topics,
                  "--skip-bad-frames": skip_bad_frames or None}
-        try:
+        with _input():
             clash = [name for name, value in given.items() if value is not None]
             if clash:
                 raise ConfigError(f"--resume goes on with the run's own source and options; drop {', '.join(clash)}")
-            target = _rerun_target(rerun, viewer_memory) if rerun is not None else None
-            partial, out = _partial_and_out(resume)
-            from .io.checkpoint import read_checkpoint
-
-            inputs, states = read_checkpoint(partial)
-        except PancamGraphError as exc:
-            raise _fail(exc, bad_input=True) from None
-        n = len(inputs.data.traverse.stops)
-        where = (f"at stop {states[0].next_stop}" if len(states) == 1 else "with its groups of configurations at "
-                 + ", ".join(f"stop {s.next_stop} ({', '.join(s.localizers)})" for s in states))
-        console.print(f"resuming {inputs.data.traverse.name} {where} of {n} (from {partial})")
-        options = dataclasses.replace(inputs.options, processes=1 if one_process else inputs.options.processes)
-        _start_process_server(options)
-        _run_source(inputs.data, options, out, target, quiet, checkpoint_every, not no_plots, resume=states)
+            target = _rerun_target(rerun, viewer_memory)
+            point = api.resume_point(resume)
+        n = len(point.data.traverse.stops)
+        where = (f"at stop {point.states[0].next_stop}" if len(point.states) == 1 else "with its groups of "
+                 "configurations at " + ", ".join(f"stop {s.next_stop} ({', '.join(s.localizers)})"
+                                                  for s in point.states))
+        console.print(f"resuming {point.data.traverse.name} {where} of {n} (from {point.partial})")
+        _print_outcome(_with_progress(point.data.traverse.name, quiet, lambda report: api.resume(
+            point, processes=processes, rerun=target, checkpoint_every_s=checkpoint_every, figures=not no_plots,
+            progress=report)))
         return
     source = source or "denver_trail"
-    try:
-        options = RunOptions(seed=seed, configs=_parse_configs(configs), batch=batch,
-                             processes=1 if one_process else cores())
-        _start_process_server(options)
-        target = _rerun_target(rerun, viewer_memory) if rerun is not None else None
-        _check_out(out)
-        data = _open_with_progress(source, SourceOptions(seed, gps_topic, odom_topic, holdout_every, geoid_height,
-                                                         _detector(detector), skip_bad_frames or None,
-                                                         _topics(stereo_topics)), quiet)
-        select_configurations(data.estimator, data.traverse, options.configs)  # before anything is written
-    except FrameError as exc:
-        raise _keep_frontend_work(exc, out) from None
-    except PancamGraphError as exc:
-        raise _fail(exc, bad_input=True) from None
+    if processes is None and cores() > 1:
+        start_process_server()  # it imports the package while the source loads
+    with _input():
+        target = _rerun_target(rerun, viewer_memory)
+        options = SourceOptions(seed, gps_topic, odom_topic, holdout_every, geoid_height, _detector(detector),
+                                skip_bad_frames or None, _topics(stereo_topics))
+        names = _parse_configs(configs)
+        api.check_out(out)
+        data = _with_progress(Path(source).name or source, quiet,
+                              lambda report: api.open_data(source, options, out, report))
+        from .pipeline import select_configurations
+
+        select_configurations(data.estimator, data.traverse, names)  # before anything is written
     for reason in data.rejected[:10]:
         console.print(Text("fix left out: ", style="yellow") + Text(reason))
     if len(data.rejected) > 10:
         console.print(Text(f"... {len(data.rejected) - 10} more fixes left out", style="yellow"))
-    _run_source(data, options, out, target, quiet, checkpoint_every, not no_plots)
+    _print_outcome(_with_progress(data.traverse.name, quiet, lambda report: api.run(
+        source, out=out, seed=seed, configs=names, batch=batch, processes=processes, rerun=target,
+        checkpoint_every_s=checkpoint_every, figures=not no_plots, progress=report, opened=data)))
 
 
-def _partial_and_out(resume: Path) -> tuple[Path, Path]:
-    """(the killed run's staging folder, the results folder it was to become) from --resume,
-    which may name either."""
-    resume = Path(resume)
-    if resume.name.endswith(".partial"):
-        return resume, resume.with_name(resume.name.removesuffix(".partial"))
-    partial = resume.with_name(resume.name + ".partial")
-    if partial.is_dir():
-        return partial, resume
-    raise ConfigError(f"--resume {resume}: expected a killed run's <out>.partial folder")
-
-
-def _topics(text: str | None) -> tuple[str, str] | None:
-    if text is None:
-        return None
-    topics = [t.strip() for t in text.split(",") if t.strip()]
-    if len(topics) != 2:
-        raise ConfigError(f"--stereo-topics {text!r}: expected LEFT,RIGHT (two image topics)")
-    return topics[0], topics[1]
-
-
-def _detector(text: str | None) -> str | None:
-    if text is not None and text not in ("gftt", "orb", "sift"):
-        raise ConfigError(f"--detector {text!r}: expected gftt, orb or sift")
-    return text
-
-
-def _open_with_progress(source: str, options, quiet: bool) -> SourceData:
-    """Read a source; an image source runs the front-end over every frame under a progress bar."""
-    from .sources import open_source
-
-    name = Path(source).name or source
-    return _with_progress(name, quiet, lambda report: open_source(source, options, report))
-
-
-def _keep_frontend_work(exc: FrameError, out: Path | None) -> typer.Exit:
-    """A bad frame stopped the front-end: what it tracked before is written as an observation
-    folder (in <out>.partial, like any failed run's work) so it is not lost."""
-    from .io.observations import write_observations
-    from .io.results import results_folder
-
-    data = exc.partial
-    if data is None:
-        return _fail(exc, bad_input=True)
-    out = out or Path("results") / f"{data.traverse.name}-{datetime.now():%Y%m%d-%H%M%S}"
-    kept = out.with_name(out.name + ".partial") / "observations"
-    try:
-        with results_folder(out) as folder:
-            write_observations(folder / "observations", data.traverse, data.estimator, data.seed, data.truth)
-            raise exc  # leaving as a failed run keeps the folder as <out>.partial
-    except FrameError:
-        pass
-    except PancamGraphError as write_error:
-        console.print(Text("error: ", style="bold red") + Text(f"cannot keep the front-end's work: {write_error}"))
-        return _fail(exc, bad_input=True)
-    n = len(data.traverse.stops)
-    console.print(Text("error: ", style="bold red") + Text(
-        f"{exc}\nthe front-end's observations of stops 0-{n - 1} are kept in {kept} (`pancam-graph run {kept}` "
-        "runs the back-end on them); --skip-bad-frames leaves a bad stop to the VO bridge instead"), soft_wrap=True)
-    return typer.Exit(EXIT_USAGE)
-
-
-def _check_out(out: Path | None) -> None:
-    """Results are never written over: --out must be new or an empty folder."""
-    if out is None or not out.exists():
-        return
-    if not out.is_dir():
-        raise ConfigError(f"--out {out}: is a file, not a folder")
-    if any(out.iterdir()):
-        raise ConfigError(f"--out {out}: folder exists and is not empty; choose another --out")
-
-
-def _run_source(data: SourceData, options: RunOptions, out: Path | None, target, quiet: bool,
-                checkpoint_every: float, figures: bool = True, resume: list[RunState] | None = None) -> None:
-    """Run the back-end into a results folder; with `resume`, go on from that saved state in the
-    killed run's own staging folder."""
-    from .io.checkpoint import CheckpointWriter, RunInputs, remove_checkpoint
-    from .io.results import results_folder, write_run
-    from .pipeline import run_traverse
-    from .viz.report import write_report
-
-    label = f"seed{data.seed}-" if data.scenario is not None else ""
-    out = out or Path("results") / f"{data.traverse.name}-{label}{datetime.now():%Y%m%d-%H%M%S}"
-    recording = folder = checkpoints = None
-    try:
-        with results_folder(out, resume=resume is not None) as folder:
-            checkpoints = CheckpointWriter(folder, RunInputs(data, options), checkpoint_every,
-                                           resumed=bool(resume))
-            listener = None
-            if target is not None:
-                from dataclasses import replace
-
-                from .viz.rerun_live import RerunRecorder
-                from .viz.rerun_sink import open_recording
-
-                if target.mode == "save" and target.path is None:
-                    target = replace(target, path=folder / "recording.rrd")
-                try:
-                    recording = open_recording(target, f"{data.traverse.name} seed {data.seed}")
-                    listener = RerunRecorder(recording.stream)
-                except ViewerUnavailable as exc:  # the results are the product, the viewer is not
-                    console.print(Text("warning: ", style="bold yellow") + Text(f"{exc}; running without it"))
-            try:
-                result = _with_progress(data.traverse.name, quiet, lambda report: run_traverse(
-                    data.traverse, data.truth, data.estimator, data.seed, options, report, listener,
-                    source=data.info, scenario=data.scenario, held_out=data.held_out, save=checkpoints,
-                    resume=resume, vo_motions=data.vo_motions))
-                write_run(result, folder)
-                report = write_report(result, folder, figures)
-                remove_checkpoint(folder)
-            finally:
-                if recording is not None:  # also on failure: keep what was recorded
-                    recording.close()
-    except PancamGraphError as exc:
-        raise _fail(exc) from None
-    except KeyboardInterrupt:
-        partial = out.with_name(out.name + ".partial")
-        saved = checkpoints.saved_stops if checkpoints is not None else []
-        goes_on = (f"`pancam-graph run --resume {partial}` goes on from stop {min(saved)}" if saved
-                   else "no checkpoint was saved yet")
-        _interrupted(f"what was done is in {partial}; {goes_on}")
-    import sys
-
-    Console(width=80).print(_summary_table(result))
-    sys.stdout.flush()
-    for name, reason in result.skipped.items():
-        console.print(Text(f"not run: {name} ({reason})", style="dim"))
-    saved = f" ({checkpoints.saves} checkpoints saved in {checkpoints.save_s:.1f} s)" if checkpoints.saves else ""
-    console.print(f"wall {result.wall_s:.1f} s{saved}; results in {out} (report: {out / report.name})")
-    if recording is not None and recording.target.mode == "save":
-        path = recording.target.path
-        shown = out / path.name if path.parent == folder else path
-        console.print(f"rerun recording: {shown} (open with `rerun {shown}` or `pancam-graph view {out}`)")
-    if recording is not None and recording.target.mode == "serve":
-        _serve_until_interrupted(recording.served_url)
-
+# -- the other commands -----------------------------------------------------------------------
 
 @app.command("track")
 def track_command(
@@ -450,22 +370,12 @@ def track_command(
 ) -> None:
     """Run the image front-end and write what it found as an observation folder, so the back-end
     can be run again (`pancam-graph run OUT`) without the images."""
-    from .io.observations import write_observations
-    from .sources import SourceOptions, source_kind
+    from . import api
 
-    try:
-        _check_out(out)
-        if source_kind(source) not in ("kitti_odometry", "image_folder"):
-            raise ConfigError(f"{source}: track needs stereo images (an image folder or a KITTI odometry "
-                              "sequence folder)")
-        data = _open_with_progress(source, SourceOptions(detector=_detector(detector),
-                                                         skip_bad_frames=skip_bad_frames or None), quiet)
-        write_observations(out, data.traverse, data.estimator, data.seed, data.truth)
-    except FrameError as exc:
-        raise _keep_frontend_work(exc, out) from None
-    except PancamGraphError as exc:
-        raise _fail(exc, bad_input=True) from None
-    frames = [len(s.stereo) for s in data.traverse.stops]
+    with _input():
+        traverse = _with_progress(Path(source).name, quiet, lambda report: api.track(
+            source, out, detector=_detector(detector), skip_bad_frames=skip_bad_frames, progress=report))
+    frames = [len(s.stereo) for s in traverse.stops]
     console.print(f"{len(frames)} frames, median {sorted(frames)[len(frames) // 2]} features per frame; "
                   f"observations in {out}")
 
@@ -488,8 +398,10 @@ def render_command(
     With --control-field: the same pair photographs a 3-D control field of 176 coded targets
     from several views (views/NN_left.png, NN_right.png, control_field.csv, and the pair's true
     calibration in truth_calibration.yaml)."""
-    try:
-        _check_out(out)
+    from .api import check_out
+
+    with _input():
+        check_out(out)
         sc = _load(scenario)
         start = time.perf_counter()
         if control_field:
@@ -500,8 +412,6 @@ def render_command(
             from .render.images import render_scenario
 
             n = _with_progress(sc.name, quiet, lambda report: render_scenario(sc, out, seed, report))
-    except PancamGraphError as exc:
-        raise _fail(exc, bad_input=True) from None
     console.print(f"{n} images rendered into {out} in {time.perf_counter() - start:.0f} s")
 
 
@@ -522,7 +432,7 @@ def calibrate_command(
     from .io.calibration import read_opencv_yaml, write_opencv_yaml
     from .io.calibration_images import TRUTH_FILE, calibrate_folder
 
-    try:
+    with _input():
         if out.exists() and out.is_dir():
             raise ConfigError(f"--out {out}: is a folder; give the YAML file to write")
         truth = truth or (folder / TRUTH_FILE if (folder / TRUTH_FILE).is_file() else None)
@@ -530,8 +440,6 @@ def calibrate_command(
         fit = _with_progress(folder.name, quiet, lambda report: calibrate_folder(folder, field, report))
         out.parent.mkdir(parents=True, exist_ok=True)
         write_opencv_yaml(out, fit.calibration, rectification=True)
-    except PancamGraphError as exc:
-        raise _fail(exc, bad_input=True) from None
     _print_calibration(fit, reference, truth)
     console.print(f"calibration written to {out}")
 
@@ -583,10 +491,8 @@ def show_config_command(
     """Print a scenario's resolved configuration (every default filled in) as TOML."""
     from .config import dump_scenario
 
-    try:
+    with _input():
         print(dump_scenario(_load(scenario)), end="")
-    except PancamGraphError as exc:
-        raise _fail(exc, bad_input=True) from None
 
 
 @app.command("view")
@@ -596,28 +502,16 @@ def view_command(
     viewer_memory: str = typer.Option("25%", "--viewer-memory", help="memory limit of a spawned or served viewer"),
 ) -> None:
     """Replay a finished results folder into rerun with the live run's layout."""
-    from dataclasses import replace
-
+    from .api import view
     from .io.results import read_run
-    from .viz.rerun_replay import replay
-    from .viz.rerun_sink import open_recording
 
-    try:
+    with _input():
         target = _rerun_target(rerun, viewer_memory)
-        if target.mode == "save" and target.path is None:
-            target = replace(target, path=results / "replay.rrd")
-        try:
-            saved = read_run(results)
-        except PancamGraphError as exc:  # the folder given is the input: a usage error
-            raise _fail(exc, bad_input=True) from None
-        recording = open_recording(target, f"{saved.name} (replay of {results.name})")
-        replay(saved, recording.stream)
-        recording.close()
-    except PancamGraphError as exc:
-        raise _fail(exc) from None
-    if target.mode == "save":
-        console.print(f"rerun recording: {target.path}")
-    elif target.mode == "serve":
+        saved = read_run(results)
+    recording = view(results, target, saved)
+    if recording.target.mode == "save":
+        console.print(f"rerun recording: {recording.target.path}")
+    elif recording.target.mode == "serve":
         _serve_until_interrupted(recording.served_url)
 
 
@@ -637,31 +531,20 @@ def eval_command(
     out: Path | None = typer.Option(None, "--out", help="write metrics.json (and a plot) into this folder"),
 ) -> None:
     """Compare two trajectories, or a trajectory with a GPS log, with the run's metrics."""
-    from .evaluation.evaluate import evaluate_trajectories
-    from .geodesy import LocalFrame
-    from .io.results import read_local_frame, write_json
-    from .io.trajectories import read_trajectory
+    from .api import evaluate
 
-    try:
-        if align not in ("none", "se3", "yaw"):
-            raise ConfigError(f"--align {align!r}: expected none, se3 or yaw")
+    with _input():
         frame = None
         if origin is not None:
             try:
-                frame = LocalFrame(*(float(v) for v in origin.split(",")))
-            except (TypeError, ValueError):
-                raise ConfigError(f"--origin {origin!r}: expected LAT,LON,H in degrees and metres") from None
-        frame = frame or read_local_frame(estimate.parent)
-        est = read_trajectory(estimate, frame, gps_sigma)
-        ref = read_trajectory(reference, frame, gps_sigma)
-        if (est.geodetic is None) != (ref.geodetic is None) and frame is None:
-            raise ConfigError(f"{reference if ref.geodetic is not None else estimate}: a GPS log needs the ENU "
-                              "origin of the other trajectory: give --origin LAT,LON,H")
-        result = evaluate_trajectories(est, ref, align, max_dt, rpe_delta)
-    except PancamGraphError as exc:
-        raise _fail(exc, bad_input=True) from None
+                frame = tuple(float(v) for v in origin.split(","))
+            except ValueError:
+                frame = ()
+            if len(frame) != 3:
+                raise ConfigError(f"--origin {origin!r}: expected LAT,LON,H in degrees and metres")
+        result = evaluate(estimate, reference, align=align, max_dt_s=max_dt, rpe_delta_m=rpe_delta, origin=frame,
+                          gps_sigma_m=gps_sigma, out=out)
     m = result.metrics
-    document = {**result.as_dict(), "configs": {estimate.stem: m.as_dict()}}
     table = Table(title=escape(f"{estimate.name} vs {reference.name} ({len(result.reference)} matched, "
                                f"{result.association}, alignment {result.alignment})"))
     cells = {
@@ -676,14 +559,7 @@ def eval_command(
         table.add_row(name, "-" if value is None else f"{value:.4f}")
     Console(width=80).print(table)
     if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        write_json(out / "metrics.json", document)
-        from .viz.plots import evaluation_plot
-
-        evaluation_plot(result, out / "eval.png")
         console.print(f"metrics in {out / 'metrics.json'}, plot {out / 'eval.png'}")
-    else:
-        print(json.dumps(document, indent=2))
 
 
 @app.command("sweep")
@@ -705,12 +581,10 @@ def sweep_command(
     from .sweep.spec import load_spec, plan
     from .sweep.table import run_rows, summarize, write_tables
 
-    try:
+    with _input():
         sweep = load_spec(spec)
         runs = plan(sweep, out, spec.parent)
         (out / "sweep.toml").write_text(spec.read_text(encoding="utf-8"), encoding="utf-8")
-    except PancamGraphError as exc:
-        raise _fail(exc, bad_input=True) from None
     start = time.perf_counter()
     with _progress_bar(quiet) as bar:
         task = bar.add_task(f"{escape(spec.stem)}: runs", total=len(runs))
@@ -720,16 +594,10 @@ def sweep_command(
             if record.status in ("failed", "timeout"):
                 bar.console.print(Text(f"{record.run.name}: {record.status}: {record.message}", style="yellow"))
 
-        try:
-            records = run_sweep(runs, sweep.timeout_s, workers, scheduler, report)
-        except PancamGraphError as exc:
-            raise _fail(exc) from None
-    try:
-        rows = run_rows(records)
-        summary = summarize(rows)
-        write_tables(out, records, rows, summary)
-    except PancamGraphError as exc:
-        raise _fail(exc) from None
+        records = run_sweep(runs, sweep.timeout_s, workers, scheduler, report)
+    rows = run_rows(records)
+    summary = summarize(rows)
+    write_tables(out, records, rows, summary)
     table = Table(title=f"{escape(spec.stem)}: {len(runs)} runs", box=None, padding=(0, 1))
     for column in ("scenario", "rig", "variant", "config", "runs", "closure %", "ATE m", "efficiency", "ANEES"):
         table.add_column(column)
@@ -767,384 +635,27 @@ def bench_command(
 ) -> None:
     """Time full runs (all configurations) and print one JSON object; `bench frontend SOURCE`
     times the image front-end per stage."""
-    import numpy as np
+    from . import bench
 
-    from .pipeline import run
-    from .results import RunOptions, cost_along, memory_along, percentiles
+    def report(stage: str, done: int, total: int) -> None:
+        if stage.startswith("seed "):  # a finished seed of several: one line each
+            console.print(stage)
 
-    if scenario == "frontend":
-        _bench_frontend(source, detector)
-        return
-    if scenario == "sites":
-        _bench_sites(source)
-        return
-    if source is not None or detector is not None:
-        raise _fail(ConfigError("SOURCE and --detector go with 'bench frontend' only"), bad_input=True)
-    if monte_carlo:
-        seeds = max(seeds, monte_carlo)
-        if workers:
-            _bench_monte_carlo_sweep(scenario, seed, seeds, workers)
-            return
-    load_before = os.getloadavg()
-    try:
-        sc = _load(scenario)
-        first = sc.seed if seed is None else seed
-        results, walls, recorded_walls = [], [], []
-        options = RunOptions(processes=cores())
-        _start_process_server(options)
-        for s in range(first, first + seeds):
-            start = time.perf_counter()
-            results.append(run(sc, dataclasses.replace(options, seed=s)))
-            walls.append(time.perf_counter() - start)
-            if rerun:
-                recorded_walls.append(_time_recorded_run(sc, s))
-            if seeds > 1 or rerun:
-                extra = f", with --rerun save {recorded_walls[-1]:.1f} s" if rerun else ""
-                console.print(f"seed {s}: {walls[-1]:.1f} s{extra}")
-    except PancamGraphError as exc:
-        raise _fail(exc) from None
-    ms = np.concatenate([r.update_ms for r in results])
-    report = {
-        "scenario": sc.name,
-        "seeds": [r.seed for r in results],
-        "stops": [len(r.traverse.stops) for r in results],
-        "isam2_update_ms": {**percentiles(ms), "count": int(len(ms))},
-        "isam2_update_ms_per_config": {
-            n: percentiles(np.concatenate([r.configurations[n].update_ms for r in results]))
-            for n in results[0].configurations
-        },
-        "vo_s": float(np.mean([r.vo_s for r in results])),
-        "wall_s": float(np.mean(walls)),
-        "peak_memory_mb": _peak_memory(results[0]),
-        # the first seed's groups of configurations and how long each took in its process
-        "groups": [{"label": p.label, "configurations": list(p.configurations), "seconds": round(p.seconds, 2),
-                    "cpu_seconds": round(p.cpu_seconds, 2)} for p in results[0].processes],
-        "load_average_1min": {"before": load_before[0], "after": os.getloadavg()[0]},
-    }
-    # the first seed's cost along the path: flat, or growing with the traverse?
-    report["isam2_update_ms_per_km"] = cost_along(results[0], 1000.0)
-    distance = results[0].reference_distance()
-    report["peak_rss_mb_along_path"] = [{"at_m": round(float(distance[k]), 1), "peak_rss_mb": round(mb, 1)}
-                                        for k, mb in memory_along(results[0])]
-    if plot is not None:
-        from .viz.plots import plot_cost_along
-
-        try:
-            plot_cost_along(report["isam2_update_ms_per_km"], report["peak_rss_mb_along_path"],
-                            f"{sc.name} seed {first}", plot)
-        except OSError as exc:
-            raise _fail(ResultsError(f"--plot {plot}: cannot write it: {exc.strerror}")) from None
-        report["plot"] = str(plot)
-    if rerun:
-        ratios = np.array(recorded_walls) / np.array(walls)
-        report["rerun_save"] = {
-            "wall_s": float(np.mean(recorded_walls)),
-            "overhead_pct": 100.0 * (float(np.sum(recorded_walls)) / float(np.sum(walls)) - 1.0),
-            "overhead_pct_median_pair": 100.0 * (float(np.median(ratios)) - 1.0),
-            "note": "total wall with a RerunRecorder saving to a temporary .rrd vs without; each seed run "
-                    "both ways back to back",
-        }
-    if seeds > 1:
-        report["over_seeds"] = {
-            n: {
-                stat: {"mean": float(np.mean(v)), "std": float(np.std(v)), "max": float(np.max(v))}
-                for stat, v in (
-                    ("relative_closure_pct", [r.configurations[n].metrics.relative_closure_pct for r in results]),
-                    ("ate_rmse_m", [r.configurations[n].metrics.ate_rmse_m for r in results]),
-                    ("bridged_stops", [r.configurations[n].bridged_stops for r in results]),
-                )
-            }
-            for n in results[0].configurations
-        }
-    if monte_carlo:
-        from .evaluation.consistency import monte_carlo_summary
-
-        report["monte_carlo"] = {n: monte_carlo_summary([r.configurations[n].consistency for r in results])
-                                 for n in results[0].configurations
-                                 if all(r.configurations[n].consistency is not None for r in results)}
-    print(json.dumps(report, indent=2))
-
-
-def _peak_memory(result) -> dict[str, dict[str, float]]:
-    """Peak memory (MB): the most the run's processes held at once (sampled), and each
-    process's own peak and their sum: this one, and those that ran groups of configurations
-    side by side. Resident set size counts the pages the workers share (the fork server's
-    imports) in each; the proportional set size (sampled at checkpoints) counts each its share."""
-    from .group import pss_mb
-
-    rss = {"this process": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
-    pss = {"this process": pss_mb() or 0.0}
-    for process in result.processes:
-        if process.memory_mb and process.pid != os.getpid():
-            label = f"process {process.pid}"
-            rss[label] = max(rss.get(label, 0.0), max(mb for _, mb in process.memory_mb))
-            pss[label] = max(pss.get(label, 0.0), process.peak_pss_mb or 0.0)
-    return {"at_once": round(result.peak_memory_mb, 1) if result.peak_memory_mb is not None else None,
-            "rss": {**{k: round(v, 1) for k, v in rss.items()}, "sum": round(sum(rss.values()), 1)},
-            "pss": {**{k: round(v, 1) for k, v in pss.items()}, "sum": round(sum(pss.values()), 1)}}
-
-
-def _bench_monte_carlo_sweep(scenario: str, seed: int | None, seeds: int, workers: int) -> None:
-    """bench --monte-carlo as a sweep: the same summary, the runs on a local Dask cluster."""
-    import tempfile
-
-    import numpy as np
-
-    from .config import resolve_scenario
-    from .sweep.runner import run_sweep
-    from .sweep.spec import SweepSpec, plan
-    from .sweep.table import monte_carlo, run_rows
-
-    try:
-        sc = _load(scenario)
-        first = sc.seed if seed is None else seed
-        spec = SweepSpec(scenarios=[str(resolve_scenario(scenario).resolve())], seeds=seeds, first_seed=first)
-        start = time.perf_counter()
-        with tempfile.TemporaryDirectory(prefix="pancam-graph-bench-") as folder:
-            records = run_sweep(plan(spec, Path(folder)), spec.timeout_s, workers)
-            failed = [r for r in records if r.status != "done"]
-            if failed:
-                raise ResultsError(f"{len(failed)} of {len(records)} runs failed; first: {failed[0].run.name}: "
-                                   f"{failed[0].message}")
-            rows = run_rows(records)
-    except PancamGraphError as exc:
-        raise _fail(exc) from None
-    configs = dict.fromkeys(row["config"] for row in rows)
-    report = {"scenario": sc.name, "seeds": list(range(first, first + seeds)), "workers": workers,
-              "wall_s": time.perf_counter() - start,
-              "monte_carlo": {c: mc for c in configs if (mc := monte_carlo([r for r in rows if r["config"] == c]))}}
-    report["over_seeds"] = {
-        c: {stat: {"mean": float(np.mean(v)), "max": float(np.max(v))}
-            for stat in ("relative_closure_pct", "ate_rmse_m")
-            if (v := [r[stat] for r in rows if r["config"] == c and r.get(stat) is not None])}
-        for c in configs}
-    print(json.dumps(report, indent=2))
-
-
-def _bench_sites(source: str | None, compared_sites: int = 3) -> None:
-    """The site panoramas of an image folder: pan/tilt-aided against unaided (SIFT) matching of
-    overlapping frames on the first `compared_sites` sites (SIFT takes about 25 s a site), and
-    the tie points between every pair of sites; each checked against the renderer's truth when
-    the folder names a bundled scenario."""
-    import os
-
-    import numpy as np
-
-    from .config import FrontendConfig, bundled_scenarios
-    from .frontend.motion import VoMotions
-    from .frontend.panorama import PanoramaMatcher, PanoramaView, unaided_matches
-    from .io.observations import is_image_folder, read_observations
-    from .render.truth import RenderedTruth
-    from .sources import image_folder
-    from .sources.site_images import images_by_stop, with_site_panoramas
-
-    if source is None or not is_image_folder(Path(source)):
-        raise _fail(ConfigError(f"bench sites {source or ''}: give an image folder with site panoramas "
-                                "(pancam-graph render SCENARIO --out FOLDER writes one)"), bad_input=True)
-    load_before = os.getloadavg()
-    try:
-        obs = read_observations(Path(source))
-        scenario = bundled_scenarios().get(obs.traverse.name)
-        truth = None if scenario is None or obs.truth is None else RenderedTruth(
-            _load(str(scenario)), obs.seed, obs.truth.world_T_body, obs.traverse.rig.wac)
-        pairs = image_folder.FramePairs(obs)
-        with _progress_bar() as bar:
-            task = bar.add_task("front-end", total=len(obs.traverse.stops))
-            tracked = image_folder.load(Path(source), FrontendConfig(), sites=False,
-                                        progress=lambda _, done, total: bar.update(task, completed=done, total=total))
-        vo = VoMotions.estimate(tracked.traverse, tracked.estimator)
-        with _progress_bar() as bar:
-            task = bar.add_task("site panoramas", total=None)
-            _, report = with_site_panoramas(obs, list(tracked.traverse.stops), pairs.read_view, vo, FrontendConfig(),
-                                            progress=lambda _, done, total: bar.update(task, completed=done,
-                                                                                       total=total),
-                                            read_hrc=pairs.read_hrc if obs.traverse.rig.hrc is not None else None)
-        # aided against unaided matching of overlapping frames, on the first sites
-        rig = obs.traverse.rig
-        matcher = PanoramaMatcher(rig.wac, rig.baseline_m)
-        aided = {"frame_pairs": 0, "links": 0, "seconds": 0.0, "errors": []}
-        unaided = {"frame_pairs": 0, "matches": 0, "seconds": 0.0, "errors": []}
-        by_stop = images_by_stop(obs)
-        for stop in list(by_stop)[:compared_sites]:
-            views = [PanoramaView(im.pan_rad, im.tilt_rad, rig.body_T_left(im.pan_rad, im.tilt_rad).matrix(),
-                                  *pairs.read_view(im)) for im in by_stop[stop]]
-            matcher(stop, 0, views)
-            for i, a in enumerate(views):
-                for b in views[i + 1:]:
-                    start = time.perf_counter()
-                    links = matcher.overlap_matches(a, b)
-                    aided["seconds"] += time.perf_counter() - start
-                    if not links:
-                        continue
-                    aided["frame_pairs"] += 1
-                    aided["links"] += len(links)
-                    start = time.perf_counter()
-                    ua, ub = unaided_matches(a, b)
-                    unaided["seconds"] += time.perf_counter() - start
-                    unaided["frame_pairs"] += 1
-                    unaided["matches"] += len(ua)
-                    if truth is None:
-                        continue
-                    uv_a = dict(zip(a.observations.track_ids.tolist(), a.observations.uvv[:, [0, 2]], strict=True))
-                    uv_b = dict(zip(b.observations.track_ids.tolist(), b.observations.uvv[:, [0, 2]], strict=True))
-                    aided["errors"] += [truth.transfer_error((stop, a.body_T_camera, uv_a[ta]),
-                                                             (stop, b.body_T_camera, uv_b[tb])) for ta, tb in links]
-                    unaided["errors"] += [truth.transfer_error((stop, a.body_T_camera, pa), (stop, b.body_T_camera, pb))
-                                          for pa, pb in zip(ua, ub, strict=True)]
-    except PancamGraphError as exc:
-        raise _fail(exc, bad_input=True) from None
-
-    def scored(errors: list[float], within_px: float) -> dict:
-        e = np.asarray(errors)
-        if not len(e):
-            return {}
-        return {f"correct_within_{within_px:g}px_pct": round(100.0 * float(np.mean(e < within_px)), 2),
-                "median_error_px": round(float(np.median(e)), 3)}
-
-    site = {s.stop: s for s in report.sites}
-    pair_rows, tie_errors = [], []
-    for pair in report.pairs:
-        errors = [] if truth is None else [truth.transfer_error(
-            (pair.a_stop, site[pair.a_stop].views[t.a_view].body_T_camera, t.a_uvv[[0, 2]]),
-            (pair.b_stop, site[pair.b_stop].views[t.b_view].body_T_camera, t.b_uvv[[0, 2]]))
-            for t in pair.result.ties]
-        tie_errors += errors
-        pair_rows.append({"a_stop": pair.a_stop, "b_stop": pair.b_stop, "distance_m": round(pair.distance_m, 1),
-                          "adjacent": pair.b_stop == report.next_site(pair.a_stop),
-                          "candidates": pair.result.candidates, "matched": len(pair.result.matches),
-                          "verified": len(pair.result.ties), "seconds": round(pair.result.seconds, 2),
-                          "note": pair.result.note, **scored(errors, 3.0)})
-    adjacent = [r["verified"] for r in pair_rows if r["adjacent"]]
-    hrc_rows, hrc_errors = [], []
-    for stop, frames in report.hrc.items():
-        for m in frames:
-            body_T_hrc = rig.body_T_hrc(m.pan_rad, m.tilt_rad).matrix()
-            errors = [] if truth is None else [
-                truth.transfer_error((stop, site[stop].views[v].body_T_camera, wac_uv), (stop, body_T_hrc, uv), rig.hrc)
-                for v, wac_uv, uv in zip(m.wac_view, m.wac_uv, m.uv, strict=True)]
-            hrc_errors += errors
-            hrc_rows.append({"stop": stop, "pan_deg": round(float(np.rad2deg(m.pan_rad)), 1),
-                             "predicted": m.predicted, "matched": len(m.track_ids),
-                             "dropped_for_shift": m.disagreeing,
-                             "shift_hrc_px": [round(float(x), 1) for x in m.shift_px],
-                             "correct_within_7px": int(np.sum(np.array(errors) < 7.0)) if truth is not None else None,
-                             "seconds": round(m.seconds, 3)})
-    print(json.dumps({
-        "source": source, "sites": len(report.sites), "summary": report.summary(),
-        "truth": "renderer depth at the true poses" if truth is not None else None,
-        "ties": {"total": sum(len(p.result.ties) for p in report.pairs),
-                 "adjacent_pairs_fewest": min(adjacent) if adjacent else 0,
-                 "adjacent_pairs_median": float(np.median(adjacent)) if adjacent else 0.0,
-                 **scored(tie_errors, 3.0), **scored(tie_errors, 2.0), "pairs": pair_rows},
-        "hrc": {
-            "frames": len(hrc_rows),
-            "matched_median": float(np.median([r["matched"] for r in hrc_rows])) if hrc_rows else 0.0,
-            "matched_fewest": min((r["matched"] for r in hrc_rows), default=0),
-            "correct_fewest": min((r["correct_within_7px"] or 0 for r in hrc_rows), default=0),
-            **scored(hrc_errors, 7.0), **scored(hrc_errors, 3.0),
-            "note": "HRC pixels against where the WAC feature's terrain point is in the HRC image; 7 HRC px is "
-                    "one WAC pixel",
-            "frames_detail": hrc_rows,
-        },
-        "overlapping_frames": {
-            "sites": min(compared_sites, len(by_stop)),
-            "pan_tilt_aided": {k: v for k, v in aided.items() if k != "errors"} | scored(aided["errors"], 2.0),
-            "unaided_sift": {k: v for k, v in unaided.items() if k != "errors"} | scored(unaided["errors"], 2.0),
-            "note": "aided: seconds of back-projection, warping and optical flow over every frame pair (the "
-                    "stereo features are the site's own); unaided: SIFT detection and matching of the left "
-                    "images and a RANSAC fundamental matrix, on the frame pairs the aided matching found "
-                    "overlapping",
-        },
-        "load_average_1min": {"before": load_before[0], "after": os.getloadavg()[0]},
-    }, indent=2))
-
-
-def _bench_frontend(source: str | None, detector: str | None) -> None:
-    import os
-
-    import numpy as np
-
-    from .config import FrontendConfig
-    from .frontend.tracker import StereoTracker
-    from .sources import source_kind
-    from .sources.frames import frame_ms, track_frames
-
-    try:
-        kind = source_kind(source) if source is not None else None
-        if kind not in ("kitti_odometry", "image_folder"):
-            raise ConfigError(f"bench frontend {source or ''}: give stereo images (an image folder or a KITTI "
-                              "odometry sequence folder, e.g. ../shared/data/real/kitti_odometry_51)")
-        config = FrontendConfig(detector=_detector(detector) or "gftt")
-        stops, read_raw, size, rectify, camera_motion = _stereo_frames(Path(source), kind)
-        tracker = StereoTracker(config)
-        read_ms: list[float] = []
-
-        def read_pair(k: int):
-            start = time.perf_counter()
-            pair = read_raw(k)
-            read_ms.append((time.perf_counter() - start) * 1e3)
-            return pair if rectify is None else rectify(pair, tracker.times)
-
-        load_before = os.getloadavg()
-        with _progress_bar() as bar:
-            task = bar.add_task("front-end", total=len(stops))
-            # the run's own loop over the frames, so the bench times what `run` does
-            tracked = track_frames(stops, read_pair, tracker, lambda tracked, notes: tracked,
-                                   progress=lambda _, done, total: bar.update(task, completed=done),
-                                   camera_motion=camera_motion if config.odometry_aided else None)
-    except PancamGraphError as exc:
-        raise _fail(exc, bad_input=True) from None
-    frame = frame_ms(tracker)
-    features = [len(s.stereo) for s in tracked]
-    stages = tracker.times.summary()
-    stages.pop("frame")
-    print(json.dumps({
-        "source": source, "detector": config.detector, "frames": len(tracked), "image_size": [size[1], size[0]],
-        "frame_ms": {"median": float(np.median(frame)), "p95": float(np.percentile(frame, 95)),
-                     "mean": float(frame.mean())},
-        "stages_ms": stages, "image_read_ms_median": float(np.median(read_ms)),
-        "features_per_frame_median": float(np.median(features)),
-        "load_average_1min": {"before": load_before[0], "after": os.getloadavg()[0]},
-        "note": "frame_ms: images in memory -> rectified (raw images) -> observations (reading the images "
-                "not included); gftt: corner detection runs beside temporal tracking, whose time includes "
-                "the overlap, and detect is what is left of it",
-    }, indent=2))
-
-
-def _stereo_frames(folder: Path, kind: str):
-    """(the stops, a reader of stop k's raw pair, (height, width), the rectification or None,
-    the camera's motion from dead reckoning or None) of an image source."""
-    if kind == "kitti_odometry":
-        from .io.kitti import read_kitti_odometry
-        from .records import StereoObservations, Stop
-
-        sequence = read_kitti_odometry(folder)
-        cam = sequence.stereo.camera
-        stops = [Stop(k, float(sequence.times_s[k]), StereoObservations.empty()) for k in range(len(sequence))]
-        return stops, sequence.stereo_pair, (cam.height, cam.width), None, None
-    from .io.observations import read_observations
-    from .sources.image_folder import FramePairs, odometry_camera_motion
-
-    obs = read_observations(folder)
-    pairs = FramePairs(obs)
-    rectify = None if pairs.rectify is None else pairs.rectified
-    return obs.traverse.stops, pairs.read, pairs.size, rectify, odometry_camera_motion(obs.traverse)
-
-
-def _time_recorded_run(scenario, seed: int) -> float:
-    import tempfile
-
-    from .pipeline import run
-    from .results import RunOptions
-    from .viz.rerun_live import RerunRecorder
-    from .viz.rerun_sink import RerunTarget, open_recording
-
-    with tempfile.TemporaryDirectory() as tmp:
-        start = time.perf_counter()
-        recording = open_recording(RerunTarget("save", path=Path(tmp) / "bench.rrd"), "bench")
-        run(scenario, RunOptions(seed=seed), listener=RerunRecorder(recording.stream))
-        recording.close()
-        return time.perf_counter() - start
+    if scenario in ("frontend", "sites"):
+        with _input():
+            if scenario == "sites":
+                document = _with_progress("sites", False, lambda p: bench.bench_sites(source, progress=p))
+            else:
+                document = _with_progress("front-end", False, lambda p: bench.bench_frontend(
+                    source, _detector(detector), progress=p))
+    elif source is not None or detector is not None:
+        raise ConfigError("SOURCE and --detector go with 'bench frontend' only")
+    elif monte_carlo and workers:
+        document = bench.bench_monte_carlo_sweep(scenario, seed, max(seeds, monte_carlo), workers)
+    else:
+        document = bench.bench_runs(scenario, seed, seeds, rerun, monte_carlo, plot,
+                                    report if seeds > 1 or rerun or monte_carlo else None)
+    print(json.dumps(document, indent=2))
 
 
 @app.command("analyze")
@@ -1162,28 +673,25 @@ def analyze_command(
     and analysis.json; every assumption is written with them."""
     from .analysis.design import AnalysisRig, Assumptions
     from .analysis.report import SEED_TABLE_3_2, analyze
+    from .api import check_out
     from .rig import RIG_PRESETS
     from .viz.analysis_plots import write_analysis
 
-    try:
-        _check_out(out)
-    except ConfigError as exc:
-        raise _fail(exc) from None
+    check_out(out)
     custom = [baseline, focal_px, fov_deg]
     if any(v is not None for v in custom) and not all(v is not None for v in custom):
-        raise _fail(ConfigError("a custom rig needs --baseline, --focal-px and --fov together"))
+        raise ConfigError("a custom rig needs --baseline, --focal-px and --fov together")
     try:
         if all(v is not None for v in custom):
             rigs = [AnalysisRig("custom", baseline, focal_px, fov_deg)]
         else:
             rigs = [AnalysisRig.preset(name) for name in (rig or list(RIG_PRESETS))]
     except ValueError as exc:
-        raise _fail(ConfigError(f"--rig: {exc}")) from None
+        raise ConfigError(f"--rig: {exc}") from None
     assumptions = Assumptions(sigma_px=sigma_px)
     start = time.perf_counter()
-    with _progress_bar() as bar:
-        task = bar.add_task("analysing rigs", total=len(rigs))
-        rows = analyze(rigs, assumptions, progress=lambda done, total: bar.update(task, completed=done))
+    rows = _with_progress("analysing rigs", False, lambda report: analyze(
+        rigs, assumptions, progress=lambda done, total: report("rigs", done, total)))
     written = write_analysis(rows, assumptions, out)
     table = Table(title=f"two-site BA, {assumptions.tie_points} tie points, sigma {sigma_px} px")
     for column in ("rig", "optimal FOV deg", "FOV, 16 tie points", "max spacing for 1 % (m)", "seed (m)"):
@@ -1206,18 +714,10 @@ def simulate_command(
 ) -> None:
     """Write a scenario's simulated observations as an observation folder (docs/observation_format.md),
     the input an external front-end would give `pancam-graph run`."""
-    from .io.observations import write_observations
-    from .sim import simulate
+    from .api import simulate
 
-    try:
-        sc = _load(scenario)
-        _check_out(out)
-        seed_used = sc.seed if seed is None else seed
-        with console.status(f"simulating {escape(sc.name)} (seed {seed_used})"):
-            traverse, truth = simulate(sc, seed_used)
-            write_observations(out, traverse, sc.estimator, seed_used, None if no_truth else truth, sc.rig)
-    except PancamGraphError as exc:
-        raise _fail(exc) from None
+    with console.status(f"simulating {escape(scenario)}"):
+        traverse = simulate(scenario, out, seed=seed, truth=not no_truth)
     console.print(f"{len(traverse.stops)} stops written to {out}")
 
 
@@ -1229,24 +729,14 @@ def scenarios_command() -> None:
     for name, path in sorted(bundled_scenarios().items()):
         try:
             description = load_scenario(path).description
-        except ConfigError as exc:
+        except ConfigError as exc:  # listed anyway, with its problem
             description = f"(invalid: {exc})"
         print(f"{name:16s} {description}")
 
 
-_interrupt_reported = False
-
-
-def _interrupted(what: str) -> NoReturn:
-    """Ctrl-C in a command that has something to say about it (exit 130)."""
-    global _interrupt_reported
-    console.print(Text("interrupted: ", style="bold red") + Text(what), soft_wrap=True)
-    _interrupt_reported = True
-    raise SystemExit(EXIT_INTERRUPTED)
-
-
 def main() -> None:
-    """The console script: the one place that turns what escapes a command into an exit code."""
+    """The console script: Ctrl-C and the operating system's errors as one line and an exit code
+    (the package's own errors are `_Commands.invoke`'s)."""
     try:
         app()
     except KeyboardInterrupt:
@@ -1256,11 +746,8 @@ def main() -> None:
         if exc.code == EXIT_INTERRUPTED and not _interrupt_reported:
             console.print(Text("interrupted", style="bold red"))
         raise
-    except PancamGraphError as exc:  # a command that forgot to catch its own
-        console.print(Text("error: ", style="bold red") + Text(str(exc)))
-        raise SystemExit(EXIT_USAGE if isinstance(exc, _USAGE_ERRORS) else EXIT_FAILURE) from None
     except OSError as exc:  # a full disk, a permission: one line, not a traceback
-        console.print(Text("error: ", style="bold red") + Text(f"{exc.filename or ''}: {exc.strerror or exc}"))
+        _error(f"{exc.filename or ''}: {exc.strerror or exc}")
         raise SystemExit(EXIT_FAILURE) from None
 
 

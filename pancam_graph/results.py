@@ -215,6 +215,20 @@ def memory_along(result: RunResult) -> list[tuple[int, float]]:
     return out
 
 
+# metrics.json's layout: every command that writes one (run, eval) writes this version; a reader
+# (sweep tables, view) takes the versions it knows. 2: `schema` and `source.kind` in every file.
+METRICS_SCHEMA = 2
+
+
+def evaluation_document(evaluation, name: str) -> dict:
+    """metrics.json of a trajectory compared with a reference (`eval`): the run's layout, one
+    configuration named after the estimate."""
+    return {"schema": METRICS_SCHEMA, "scenario": name,
+            "source": {"kind": "trajectory", "path": evaluation.estimate.source, "notes": [], "options": {}},
+            "reference": evaluation.reference.source, "evaluation": evaluation.as_dict(),
+            "configs": {name: evaluation.metrics.as_dict()}}
+
+
 def metrics_document(result: RunResult) -> dict:
     """The content of metrics.json."""
     vo_motions = [m for m in result.motions[1:] if m is not None]
@@ -243,6 +257,7 @@ def metrics_document(result: RunResult) -> dict:
             entry.setdefault(key, value)
         configs[name] = entry
     return {
+        "schema": METRICS_SCHEMA,
         "scenario": result.name,
         "source": {"kind": result.source.kind, "path": result.source.path, "notes": list(result.source.notes),
                    "options": result.source.options},

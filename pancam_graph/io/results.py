@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import FolderInUse, InputError, ResultsError
 from ..geodesy import LocalFrame
-from ..results import metrics_document, reproduce_command, run_configuration
+from ..results import evaluation_document, metrics_document, reproduce_command, run_configuration
 from ..rig import Camera, Rig
 from .export import write_trajectory_exports
 from .tables import write_csv, write_json
@@ -159,6 +159,11 @@ GPS_COLUMNS = ["time_s", "lat_deg", "lon_deg", "h_m", "sigma_h_m", "sigma_v_m", 
 RUN_FILE = "run.toml"  # the complete resolved configuration of the run
 COVARIANCE_COLUMNS = ["stop", "cxx", "cxy", "cxz", "cyy", "cyz", "czz"]
 _UPPER = ([0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2])
+
+
+def write_evaluation(evaluation, name: str, folder: Path) -> None:
+    """`eval`'s metrics.json, in the run's layout."""
+    write_json(folder / "metrics.json", evaluation_document(evaluation, name))
 
 
 def write_run(result: RunResult, folder: Path) -> None:

@@ -1,0 +1,305 @@
+"""The library: what each command does, as calls that return typed results and never print.
+
+    import pancam_graph
+    outcome = pancam_graph.run("short_trail", seed=0, out="results/short")
+    outcome.result.configurations["vo_sites"].metrics.ate_rmse_m
+
+The command line (cli.py) parses arguments into these calls and prints what they return.
+Errors are raised as the package's typed errors (errors.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from .errors import ConfigError, FrameError, PancamGraphError, ViewerUnavailable
+from .evaluation.evaluate import Evaluation
+from .group import ProgressCallback, RunState
+from .processes import cores, start_process_server
+from .records import Traverse
+from .results import RunOptions, RunResult, SourceData
+from .sources import SourceOptions, open_source, source_kind
+from .viz.rerun_sink import OpenRecording as Recording
+from .viz.rerun_sink import RerunTarget
+
+if TYPE_CHECKING:
+    from .io.results import SavedRun
+
+
+class RunInterrupted(PancamGraphError):
+    """Ctrl-C stopped a run; what was done is in `partial`, and a resume goes on from
+    `resume_stop` (None: no checkpoint was saved yet)."""
+
+    def __init__(self, partial: Path, resume_stop: int | None):
+        goes_on = (f"`pancam-graph run --resume {partial}` goes on from stop {resume_stop}" if resume_stop is not None
+                   else "no checkpoint was saved yet")
+        super().__init__(f"what was done is in {partial}; {goes_on}")
+        self.partial = partial
+        self.resume_stop = resume_stop
+
+
+@dataclass(frozen=True)
+class RunOutcome:
+    """A finished run: its result, where it was written, and what else happened on the way."""
+
+    result: RunResult
+    folder: Path  # the results folder (metrics.json, steps.csv, trajectories, report.md)
+    report: Path
+    rejected: tuple[str, ...] = ()  # what the source's reader left out, with reasons
+    warnings: tuple[str, ...] = ()  # e.g. a viewer that did not answer (the run went on without it)
+    checkpoints: int = 0  # saved for --resume
+    checkpoint_s: float = 0.0
+    recording: Recording | None = None  # closed; `served_url` of a served one
+
+    @property
+    def metrics_path(self) -> Path:
+        return self.folder / "metrics.json"
+
+
+@dataclass(frozen=True)
+class ResumePoint:
+    """A killed run's staging folder and what it had reached."""
+
+    partial: Path
+    out: Path
+    data: SourceData
+    options: RunOptions
+    states: list[RunState] = field(default_factory=list)
+
+
+def default_out(data: SourceData) -> Path:
+    label = f"seed{data.seed}-" if data.scenario is not None else ""
+    return Path("results") / f"{data.traverse.name}-{label}{datetime.now():%Y%m%d-%H%M%S}"
+
+
+def check_out(out: Path | None, option: str = "--out") -> None:
+    """Results are never written over: `out` must be new or an empty folder."""
+    if out is None or not out.exists():
+        return
+    if not out.is_dir():
+        raise ConfigError(f"{option} {out}: is a file, not a folder")
+    if any(out.iterdir()):
+        raise ConfigError(f"{option} {out}: folder exists and is not empty; choose another {option}")
+
+
+def open_data(source: str | Path, options: SourceOptions = SourceOptions(), out: Path | None = None,
+              progress: ProgressCallback | None = None) -> SourceData:
+    """Read a source (an image source runs the front-end over every frame). A bad frame that
+    stops the front-end leaves what it tracked before as an observation folder in
+    <out>.partial/observations, and the FrameError says so."""
+    try:
+        return open_source(str(source), options, progress)
+    except FrameError as exc:
+        raise _kept_frontend_work(exc, out) from None
+
+
+def _kept_frontend_work(exc: FrameError, out: Path | None) -> FrameError:
+    from .io.observations import write_observations
+    from .io.results import results_folder
+
+    data = exc.partial
+    if data is None:
+        return exc
+    out = out or Path("results") / f"{data.traverse.name}-{datetime.now():%Y%m%d-%H%M%S}"
+    kept = out.with_name(out.name + ".partial") / "observations"
+    try:
+        with results_folder(out) as folder:
+            write_observations(folder / "observations", data.traverse, data.estimator, data.seed, data.truth)
+            raise exc  # leaving as a failed run keeps the folder as <out>.partial
+    except FrameError:
+        pass
+    n = len(data.traverse.stops)
+    return FrameError(f"{exc}\nthe front-end's observations of stops 0-{n - 1} are kept in {kept} (`pancam-graph "
+                      f"run {kept}` runs the back-end on them); --skip-bad-frames leaves a bad stop to the VO bridge "
+                      "instead", exc.stop)
+
+
+def run(source: str | Path = "denver_trail", *, out: Path | str | None = None, seed: int | None = None,
+        configs: tuple[str, ...] | None = None, batch: bool = False, processes: int | None = None,
+        source_options: SourceOptions | None = None, rerun: RerunTarget | None = None,
+        checkpoint_every_s: float = 30.0, figures: bool = True, progress: ProgressCallback | None = None,
+        opened: SourceData | None = None) -> RunOutcome:
+    """Run a source (a bundled scenario name, a scenario TOML, an observation or image folder, a
+    ROS bag, a KITTI raw drive or odometry sequence) through every configuration it can feed (or
+    `configs`), and write the results folder `out` (default results/<name>-<time>): the one
+    metrics.json schema, steps.csv, trajectories, plots (`figures`) and report.md. `processes`:
+    default every core. `opened`: the source already read (open_data)."""
+    from .pipeline import select_configurations
+
+    out = Path(out) if out is not None else None
+    options = RunOptions(seed=seed, configs=configs, batch=batch, processes=processes or cores())
+    if options.processes > 1:
+        start_process_server()  # it imports while the source loads
+    check_out(out)
+    source_options = source_options or SourceOptions(seed=seed)
+    data = opened or open_data(source, source_options, out, progress)
+    select_configurations(data.estimator, data.traverse, options.configs)  # before anything is written
+    return _run_into_folder(data, options, out, rerun, checkpoint_every_s, figures, progress)
+
+
+def resume_point(resume: Path | str) -> ResumePoint:
+    """A killed run's staging folder (its <out>.partial, or the <out> it was to become) and its
+    last checkpoint."""
+    from .io.checkpoint import read_checkpoint
+
+    resume = Path(resume)
+    if resume.name.endswith(".partial"):
+        partial, out = resume, resume.with_name(resume.name.removesuffix(".partial"))
+    elif resume.with_name(resume.name + ".partial").is_dir():
+        partial, out = resume.with_name(resume.name + ".partial"), resume
+    else:
+        raise ConfigError(f"--resume {resume}: expected a killed run's <out>.partial folder")
+    inputs, states = read_checkpoint(partial)
+    return ResumePoint(partial, out, inputs.data, inputs.options, states)
+
+
+def resume(point: ResumePoint | Path | str, *, processes: int | None = None, rerun: RerunTarget | None = None,
+           checkpoint_every_s: float = 30.0, figures: bool = True,
+           progress: ProgressCallback | None = None) -> RunOutcome:
+    """Go on with a killed run from its last checkpoint, with its own source and options, in its
+    own staging folder."""
+    if not isinstance(point, ResumePoint):
+        point = resume_point(point)
+    options = point.options if processes is None else dataclasses.replace(point.options, processes=processes)
+    if options.processes > 1:
+        start_process_server()
+    return _run_into_folder(point.data, options, point.out, rerun, checkpoint_every_s, figures, progress,
+                            point.states)
+
+
+def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, target: RerunTarget | None,
+                     checkpoint_every_s: float, figures: bool, progress: ProgressCallback | None,
+                     states: list[RunState] | None = None) -> RunOutcome:
+    from .io.checkpoint import CheckpointWriter, RunInputs, remove_checkpoint
+    from .io.results import results_folder, write_run
+    from .pipeline import run_traverse
+    from .viz.report import write_report
+
+    out = out or default_out(data)
+    recording = checkpoints = None
+    warnings = []
+    try:
+        with results_folder(out, resume=states is not None) as folder:
+            checkpoints = CheckpointWriter(folder, RunInputs(data, options), checkpoint_every_s,
+                                           resumed=bool(states))
+            listener = None
+            if target is not None:
+                from .viz.rerun_live import RerunRecorder
+                from .viz.rerun_sink import open_recording
+
+                if target.mode == "save" and target.path is None:
+                    target = dataclasses.replace(target, path=folder / "recording.rrd")
+                try:
+                    recording = open_recording(target, f"{data.traverse.name} seed {data.seed}")
+                    listener = RerunRecorder(recording.stream)
+                except ViewerUnavailable as exc:  # the results are the product, the viewer is not
+                    warnings.append(f"{exc}; running without it")
+            try:
+                result = run_traverse(data.traverse, data.truth, data.estimator, data.seed, options, progress,
+                                      listener, source=data.info, scenario=data.scenario, held_out=data.held_out,
+                                      save=checkpoints, resume=states, vo_motions=data.vo_motions)
+                write_run(result, folder)
+                report = write_report(result, folder, figures)
+                remove_checkpoint(folder)
+            finally:
+                if recording is not None:  # also on failure: keep what was recorded
+                    recording.close()
+    except KeyboardInterrupt:
+        saved = checkpoints.saved_stops if checkpoints is not None else []
+        raise RunInterrupted(out.with_name(out.name + ".partial"), min(saved) if saved else None) from None
+    if recording is not None and recording.target.mode == "save" and recording.target.path.parent == folder:
+        recording = dataclasses.replace(recording, target=dataclasses.replace(recording.target,
+                                                                              path=out / recording.target.path.name))
+    return RunOutcome(result, out, out / report.name, data.rejected, tuple(warnings), checkpoints.saves,
+                      checkpoints.save_s, recording)
+
+
+def track(source: str | Path, out: Path | str, *, detector: str | None = None, skip_bad_frames: bool = False,
+          progress: ProgressCallback | None = None) -> Traverse:
+    """Run the image front-end over stereo images and write what it found as an observation
+    folder `out`, so the back-end can run again without the images."""
+    from .io.observations import write_observations
+
+    out = Path(out)
+    check_out(out)
+    if source_kind(str(source)) not in ("kitti_odometry", "image_folder"):
+        raise ConfigError(f"{source}: track needs stereo images (an image folder or a KITTI odometry "
+                          "sequence folder)")
+    data = open_data(source, SourceOptions(detector=detector, skip_bad_frames=skip_bad_frames or None), out,
+                     progress)
+    write_observations(out, data.traverse, data.estimator, data.seed, data.truth)
+    return data.traverse
+
+
+def simulate(scenario: str | Path, out: Path | str, *, seed: int | None = None, truth: bool = True) -> Traverse:
+    """Write a scenario's simulated observations as an observation folder."""
+    from .config import load_scenario, resolve_scenario
+    from .io.observations import write_observations
+    from .sim import simulate as simulate_scenario
+
+    sc = load_scenario(resolve_scenario(str(scenario)))
+    out = Path(out)
+    check_out(out)
+    seed = sc.seed if seed is None else seed
+    traverse, true = simulate_scenario(sc, seed)
+    write_observations(out, traverse, sc.estimator, seed, true if truth else None, sc.rig)
+    return traverse
+
+
+def evaluate(estimate: Path | str, reference: Path | str, *, align: str = "none", max_dt_s: float = 0.01,
+             rpe_delta_m: float = 10.0, origin: tuple[float, float, float] | None = None, gps_sigma_m: float = 1.0,
+             out: Path | str | None = None) -> Evaluation:
+    """Compare a trajectory with a reference (or a GPS log) with the run's metrics; with `out`,
+    write metrics.json in the run's schema (one configuration, named after the estimate) and a
+    plot."""
+    from .evaluation.evaluate import evaluate_trajectories
+    from .geodesy import LocalFrame
+    from .io.results import read_local_frame
+    from .io.trajectories import read_trajectory
+
+    estimate, reference = Path(estimate), Path(reference)
+    if align not in ("none", "se3", "yaw"):
+        raise ConfigError(f"--align {align!r}: expected none, se3 or yaw")
+    frame = LocalFrame(*origin) if origin is not None else read_local_frame(estimate.parent)
+    est = read_trajectory(estimate, frame, gps_sigma_m)
+    ref = read_trajectory(reference, frame, gps_sigma_m)
+    if (est.geodetic is None) != (ref.geodetic is None) and frame is None:
+        raise ConfigError(f"{reference if ref.geodetic is not None else estimate}: a GPS log needs the ENU "
+                          "origin of the other trajectory: give --origin LAT,LON,H")
+    result = evaluate_trajectories(est, ref, align, max_dt_s, rpe_delta_m)
+    if out is not None:
+        from .io.results import write_evaluation
+        from .viz.plots import evaluation_plot
+
+        out = Path(out)
+        if out.exists() and not out.is_dir():
+            raise ConfigError(f"--out {out}: is a file, not a folder")
+        out.mkdir(parents=True, exist_ok=True)
+        write_evaluation(result, estimate.stem, out)
+        evaluation_plot(result, out / "eval.png")
+    return result
+
+
+def view(results: Path | str, target: RerunTarget, saved: SavedRun | None = None) -> Recording:
+    """Replay a finished results folder (`saved`: read already) into rerun with the live run's
+    layout; returns the closed recording (`served_url` for a served one)."""
+    from .io.results import read_run
+    from .viz.rerun_replay import replay
+    from .viz.rerun_sink import open_recording
+
+    results = Path(results)
+    if target.mode == "save" and target.path is None:
+        target = dataclasses.replace(target, path=results / "replay.rrd")
+    saved = saved or read_run(results)
+    recording = open_recording(target, f"{saved.name} (replay of {results.name})")
+    replay(saved, recording.stream)
+    recording.close()
+    return recording
+
+
+__all__ = ["ProgressCallback", "ResumePoint", "RunInterrupted", "RunOutcome", "RunOptions", "SourceOptions",
+           "check_out", "evaluate", "open_data", "resume", "resume_point", "run", "simulate", "track", "view"]
