@@ -18,16 +18,17 @@ from typing import TYPE_CHECKING
 
 from .errors import ConfigError, FrameError, PancamGraphError, ViewerUnavailable
 from .evaluation.evaluate import Evaluation
-from .group import ProgressCallback, RunState
 from .processes import cores, start_process_server
 from .records import Traverse
-from .results import RunOptions, RunResult, SourceData
+from .solve.group import ProgressCallback
+from .solve.results import RunOptions, RunResult, SourceData
+from .solve.state import RunState
 from .sources import SourceOptions, open_source, source_kind
 from .viz.rerun_sink import OpenRecording as Recording
 from .viz.rerun_sink import RerunTarget
 
 if TYPE_CHECKING:
-    from .io.results import SavedRun
+    from .store.results_folder import SavedRun
 
 
 class RunInterrupted(PancamGraphError):
@@ -98,8 +99,8 @@ def open_data(source: str | Path, options: SourceOptions = SourceOptions(), out:
 
 
 def _kept_frontend_work(exc: FrameError, out: Path | None) -> FrameError:
-    from .io.observations import write_observations
-    from .io.results import results_folder
+    from .store.observation_folder import write_observations
+    from .store.results_folder import results_folder
 
     data = exc.partial
     if data is None:
@@ -128,7 +129,7 @@ def run(source: str | Path = "denver_trail", *, out: Path | str | None = None, s
     `configs`), and write the results folder `out` (default results/<name>-<time>): the one
     metrics.json schema, steps.csv, trajectories, plots (`figures`) and report.md. `processes`:
     default every core. `opened`: the source already read (open_data)."""
-    from .pipeline import select_configurations
+    from .solve.pipeline import select_configurations
 
     out = Path(out) if out is not None else None
     options = RunOptions(seed=seed, configs=configs, batch=batch, processes=processes or cores())
@@ -144,7 +145,7 @@ def run(source: str | Path = "denver_trail", *, out: Path | str | None = None, s
 def resume_point(resume: Path | str) -> ResumePoint:
     """A killed run's staging folder (its <out>.partial, or the <out> it was to become) and its
     last checkpoint."""
-    from .io.checkpoint import read_checkpoint
+    from .store.checkpoint import read_checkpoint
 
     resume = Path(resume)
     if resume.name.endswith(".partial"):
@@ -174,9 +175,9 @@ def resume(point: ResumePoint | Path | str, *, processes: int | None = None, rer
 def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, target: RerunTarget | None,
                      checkpoint_every_s: float, figures: bool, progress: ProgressCallback | None,
                      states: list[RunState] | None = None) -> RunOutcome:
-    from .io.checkpoint import CheckpointWriter, RunInputs, remove_checkpoint
-    from .io.results import results_folder, write_run
-    from .pipeline import run_traverse
+    from .solve.pipeline import run_traverse
+    from .store.checkpoint import CheckpointWriter, RunInputs, remove_checkpoint
+    from .store.results_folder import results_folder, write_run
     from .viz.report import write_report
 
     out = out or default_out(data)
@@ -222,7 +223,7 @@ def track(source: str | Path, out: Path | str, *, detector: str | None = None, s
           progress: ProgressCallback | None = None) -> Traverse:
     """Run the image front-end over stereo images and write what it found as an observation
     folder `out`, so the back-end can run again without the images."""
-    from .io.observations import write_observations
+    from .store.observation_folder import write_observations
 
     out = Path(out)
     check_out(out)
@@ -238,8 +239,8 @@ def track(source: str | Path, out: Path | str, *, detector: str | None = None, s
 def simulate(scenario: str | Path, out: Path | str, *, seed: int | None = None, truth: bool = True) -> Traverse:
     """Write a scenario's simulated observations as an observation folder."""
     from .config import load_scenario, resolve_scenario
-    from .io.observations import write_observations
     from .sim import simulate as simulate_scenario
+    from .store.observation_folder import write_observations
 
     sc = load_scenario(resolve_scenario(str(scenario)))
     out = Path(out)
@@ -257,9 +258,9 @@ def evaluate(estimate: Path | str, reference: Path | str, *, align: str = "none"
     write metrics.json in the run's schema (one configuration, named after the estimate) and a
     plot."""
     from .evaluation.evaluate import evaluate_trajectories
+    from .formats.trajectories import read_trajectory
     from .geodesy import LocalFrame
-    from .io.results import read_local_frame
-    from .io.trajectories import read_trajectory
+    from .store.results_folder import read_local_frame
 
     estimate, reference = Path(estimate), Path(reference)
     if align not in ("none", "se3", "yaw"):
@@ -272,7 +273,7 @@ def evaluate(estimate: Path | str, reference: Path | str, *, align: str = "none"
                           "origin of the other trajectory: give --origin LAT,LON,H")
     result = evaluate_trajectories(est, ref, align, max_dt_s, rpe_delta_m)
     if out is not None:
-        from .io.results import write_evaluation
+        from .store.results_folder import write_evaluation
         from .viz.plots import evaluation_plot
 
         out = Path(out)
@@ -287,7 +288,7 @@ def evaluate(estimate: Path | str, reference: Path | str, *, align: str = "none"
 def view(results: Path | str, target: RerunTarget, saved: SavedRun | None = None) -> Recording:
     """Replay a finished results folder (`saved`: read already) into rerun with the live run's
     layout; returns the closed recording (`served_url` for a served one)."""
-    from .io.results import read_run
+    from .store.results_folder import read_run
     from .viz.rerun_replay import replay
     from .viz.rerun_sink import open_recording
 

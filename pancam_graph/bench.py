@@ -12,8 +12,8 @@ from pathlib import Path
 
 from .config import load_scenario, resolve_scenario
 from .errors import ConfigError, ResultsError
-from .group import ProgressCallback
 from .processes import cores, start_process_server
+from .solve.group import ProgressCallback
 
 
 def _load(scenario: str):
@@ -33,8 +33,8 @@ def bench_runs(scenario: str, seed: int | None = None, seeds: int = 1, rerun: bo
     seeds. The load average before and after goes with the figures."""
     import numpy as np
 
-    from .pipeline import run
-    from .results import RunOptions, cost_along, memory_along, percentiles
+    from .solve.pipeline import run
+    from .solve.results import RunOptions, cost_along, memory_along, percentiles
 
     seeds = max(seeds, monte_carlo)
     load_before = os.getloadavg()
@@ -120,7 +120,7 @@ def _peak_memory(result) -> dict[str, dict[str, float]]:
     process's own peak and their sum: this one, and those that ran groups of configurations
     side by side. Resident set size counts the pages the workers share (the fork server's
     imports) in each; the proportional set size (sampled at checkpoints) counts each its share."""
-    from .group import pss_mb
+    from .solve.memory import pss_mb
 
     rss = {"this process": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
     pss = {"this process": pss_mb() or 0.0}
@@ -178,10 +178,10 @@ def bench_sites(source: str | None, compared_sites: int = 3, progress: ProgressC
     from .config import FrontendConfig, bundled_scenarios
     from .frontend.motion import VoMotions
     from .frontend.panorama import PanoramaMatcher, PanoramaView, unaided_matches
-    from .io.observations import is_image_folder, read_observations
     from .render.truth import RenderedTruth
     from .sources import image_folder
     from .sources.site_images import images_by_stop, with_site_panoramas
+    from .store.observation_folder import is_image_folder, read_observations
 
     if source is None or not is_image_folder(Path(source)):
         raise ConfigError(f"bench sites {source or ''}: give an image folder with site panoramas "
@@ -346,15 +346,15 @@ def _stereo_frames(folder: Path, kind: str):
     """(the stops, a reader of stop k's raw pair, (height, width), the rectification or None,
     the camera's motion from dead reckoning or None) of an image source."""
     if kind == "kitti_odometry":
-        from .io.kitti import read_kitti_odometry
+        from .formats.kitti import read_kitti_odometry
         from .records import StereoObservations, Stop
 
         sequence = read_kitti_odometry(folder)
         cam = sequence.stereo.camera
         stops = [Stop(k, float(sequence.times_s[k]), StereoObservations.empty()) for k in range(len(sequence))]
         return stops, sequence.stereo_pair, (cam.height, cam.width), None, None
-    from .io.observations import read_observations
     from .sources.image_folder import FramePairs, odometry_camera_motion
+    from .store.observation_folder import read_observations
 
     obs = read_observations(folder)
     pairs = FramePairs(obs)
@@ -365,8 +365,8 @@ def _stereo_frames(folder: Path, kind: str):
 def _time_recorded_run(scenario, seed: int) -> float:
     import tempfile
 
-    from .pipeline import run
-    from .results import RunOptions
+    from .solve.pipeline import run
+    from .solve.results import RunOptions
     from .viz.rerun_live import RerunRecorder
     from .viz.rerun_sink import RerunTarget, open_recording
 

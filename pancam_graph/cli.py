@@ -344,7 +344,7 @@ def run_command(
         api.check_out(out)
         data = _with_progress(Path(source).name or source, quiet,
                               lambda report: api.open_data(source, options, out, report))
-        from .pipeline import select_configurations
+        from .solve.pipeline import select_configurations
 
         select_configurations(data.estimator, data.traverse, names)  # before anything is written
     for reason in data.rejected[:10]:
@@ -429,8 +429,8 @@ def calibrate_command(
     """Calibrate a stereo pair from images of a 3-D control field (the seed's section 4.2): each
     camera's focal lengths, principal point and k1, k2, p1, p2, then the pair's boresight, and
     the rectification; prints the fit, its uncertainty and, given a truth, the errors."""
-    from .io.calibration import read_opencv_yaml, write_opencv_yaml
-    from .io.calibration_images import TRUTH_FILE, calibrate_folder
+    from .formats.calibration import read_opencv_yaml, write_opencv_yaml
+    from .formats.calibration_images import TRUTH_FILE, calibrate_folder
 
     with _input():
         if out.exists() and out.is_dir():
@@ -503,7 +503,7 @@ def view_command(
 ) -> None:
     """Replay a finished results folder into rerun with the live run's layout."""
     from .api import view
-    from .io.results import read_run
+    from .store.results_folder import read_run
 
     with _input():
         target = _rerun_target(rerun, viewer_memory)
@@ -672,7 +672,7 @@ def analyze_command(
     gain and the two-site BA (optimal FOV, longest site spacing for 1 %), as figures, a Table 3.2
     and analysis.json; every assumption is written with them."""
     from .analysis.design import AnalysisRig, Assumptions
-    from .analysis.report import SEED_TABLE_3_2, analyze
+    from .analysis.trades import SEED_TABLE_3_2, analyze
     from .api import check_out
     from .rig import RIG_PRESETS
     from .viz.analysis_plots import write_analysis

@@ -10,7 +10,7 @@ import multiprocessing.context
 import os
 from multiprocessing import forkserver
 
-PRELOAD = ["pancam_graph.side_by_side"]  # imports everything a worker runs
+PRELOAD = ["pancam_graph.solve.side_by_side"]  # imports everything a worker runs
 
 
 def cores() -> int:

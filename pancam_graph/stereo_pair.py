@@ -1,6 +1,6 @@
 """A calibrated stereo pair as OpenCV models it (intrinsics, distortion, R and T), and the
 rectified pair the back-end works in (OpenCV's stereoRectify when the pair is not rectified).
-The files these come from are read in io/calibration.py."""
+The files these come from are read in formats/calibration.py."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 import pytest
 
 from pancam_graph.config import load_scenario, resolve_scenario
-from pancam_graph.pipeline import RunOptions, run
+from pancam_graph.solve.pipeline import RunOptions, run
 
 
 @pytest.fixture(scope="session")

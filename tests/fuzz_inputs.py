@@ -97,12 +97,12 @@ def targets(work: Path) -> list[Target]:
     from scipy.spatial.transform import Rotation
 
     from pancam_graph.config import RenderConfig, bundled_scenarios, load_scenario
-    from pancam_graph.io.calibration import read_stereo_calibration, write_opencv_yaml
-    from pancam_graph.io.gps import read_gps_file, read_gpx, read_kfgins
-    from pancam_graph.io.observations import read_observations, write_observations
-    from pancam_graph.io.trajectories import read_trajectory
+    from pancam_graph.formats.calibration import read_stereo_calibration, write_opencv_yaml
+    from pancam_graph.formats.gps_logs import read_gps_file, read_gpx, read_kfgins
+    from pancam_graph.formats.trajectories import read_trajectory
     from pancam_graph.render.images import raw_stereo_pair
     from pancam_graph.sim import simulate
+    from pancam_graph.store.observation_folder import read_observations, write_observations
 
     scenario_dir = work / "scenario"
     scenario_dir.mkdir()

@@ -10,7 +10,7 @@ from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
 from pancam_graph.errors import InputError
-from pancam_graph.io.rosbag import read_images, read_imu, read_odometry, read_stereo_camera_info
+from pancam_graph.formats.rosbag import read_images, read_imu, read_odometry, read_stereo_camera_info
 
 REAL = Path(__file__).parent / "data" / "real"
 BAG = REAL / "robot_localization" / "test1.bag"

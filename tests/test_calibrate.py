@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from pancam_graph.errors import InputError
+from pancam_graph.formats.calibration import read_control_field, read_opencv_yaml, read_stereo_calibration
+from pancam_graph.formats.calibration_images import stereo_pairs
 from pancam_graph.frontend.calibrate import _centre
-from pancam_graph.io.calibration import read_control_field, read_opencv_yaml, read_stereo_calibration
-from pancam_graph.io.calibration_images import stereo_pairs
 
 EXE = Path(sys.executable).parent / "pancam-graph"
 

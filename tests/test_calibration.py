@@ -9,13 +9,13 @@ import pytest
 import yaml
 
 from pancam_graph.errors import InputError
-from pancam_graph.io.calibration import (
+from pancam_graph.formats.calibration import (
     read_camera_info_pair,
     read_kalibr_camchain,
     read_opencv_yaml,
     read_stereo_calibration,
 )
-from pancam_graph.io.kitti import read_cam_to_cam
+from pancam_graph.formats.kitti import read_cam_to_cam
 
 CALIB = Path(__file__).parent / "data" / "real" / "kitti_raw" / "2011_09_26" / "calib_cam_to_cam.txt"
 
@@ -166,9 +166,9 @@ def test_a_preset_rig_with_a_calibrated_pair_reads_back_unchanged(short_scenario
     from dataclasses import replace
 
     from pancam_graph.config import EstimatorConfig
-    from pancam_graph.io.observations import read_observations, write_observations
     from pancam_graph.rig import rig_preset
     from pancam_graph.sim import simulate
+    from pancam_graph.store.observation_folder import read_observations, write_observations
 
     traverse, _ = simulate(short_scenario, 0)
     rotation = cv2.Rodrigues(np.array([0.01, -0.002, 0.003]))[0]
@@ -188,7 +188,7 @@ KATWIJK = Path(__file__).parent / "data" / "real" / "katwijk_pancam_calib"
 def test_katwijk_pancam_matlab_calibration_reads_with_its_published_baseline_and_focal_length():
     import scipy.io
 
-    from pancam_graph.io.calibration import read_matlab_stereo_parameters
+    from pancam_graph.formats.calibration import read_matlab_stereo_parameters
 
     path = KATWIJK / "PanCam_calibstruct.mat"
     c = read_matlab_stereo_parameters(path, image_size=(1280, 960))
@@ -212,7 +212,7 @@ def test_katwijk_pancam_matlab_calibration_reads_with_its_published_baseline_and
 
 
 def test_the_katwijk_pancam_rig_preset_is_the_calibration_file():
-    from pancam_graph.io.calibration import read_raw_calibration
+    from pancam_graph.formats.calibration import read_raw_calibration
     from pancam_graph.rig import rig_preset
 
     read = read_raw_calibration(KATWIJK / "PanCam_calibstruct.mat", image_size=(1280, 960))
@@ -226,7 +226,7 @@ def test_the_katwijk_pancam_rig_preset_is_the_calibration_file():
 
 
 def test_a_matlab_calibration_without_image_size_or_of_the_wrong_kind_is_named(tmp_path):
-    from pancam_graph.io.calibration import read_raw_calibration
+    from pancam_graph.formats.calibration import read_raw_calibration
 
     path = KATWIJK / "PanCam_calibstruct.mat"
     with pytest.raises(InputError, match=r"PanCam_calibstruct.mat: CameraParameters1.ImageSize is empty.*"

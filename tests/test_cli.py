@@ -8,7 +8,7 @@ from rrd import Recording, array
 from typer.testing import CliRunner
 
 from pancam_graph.cli import app
-from pancam_graph.io.results import read_tum
+from pancam_graph.store.results_folder import read_tum
 
 runner = CliRunner()
 

@@ -8,7 +8,7 @@ import pytest
 from pancam_graph.evaluation.consistency import anees_band, consistency, crlb_position_covariances, monte_carlo_summary
 from pancam_graph.graph.keys import X
 from pancam_graph.graph.smoother import RelinearizeThresholds, Smoother
-from pancam_graph.results import metrics_document
+from pancam_graph.solve.results import metrics_document
 
 
 def test_crlb_of_a_chain_is_the_sum_of_its_step_variances():

@@ -5,7 +5,7 @@ import pytest
 
 from pancam_graph.config import load_scenario, resolve_scenario
 from pancam_graph.evaluation.consistency import monte_carlo_summary
-from pancam_graph.pipeline import RunOptions, run
+from pancam_graph.solve.pipeline import RunOptions, run
 
 
 def test_short_scenario_meets_thresholds(short_run):

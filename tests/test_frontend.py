@@ -14,9 +14,9 @@ from pancam_graph.config import FrontendConfig
 from pancam_graph.errors import InputError
 from pancam_graph.evaluation.consistency import nees
 from pancam_graph.frontend.tracker import StereoTracker
-from pancam_graph.pipeline import run_traverse
-from pancam_graph.results import RunOptions
 from pancam_graph.rig import BODY_T_FORWARD_CAMERA
+from pancam_graph.solve.pipeline import run_traverse
+from pancam_graph.solve.results import RunOptions
 from pancam_graph.sources import kitti_odometry
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
@@ -185,7 +185,7 @@ def test_stereo_images_from_a_ros_bag_run_the_same_front_end_and_vo(tmp_path):
     vo = result.configurations["vo"]
     assert vo.bridged_stops == 0
     # the KITTI truth of those frames (camera poses -> body poses)
-    from pancam_graph.io.kitti import read_kitti_odometry
+    from pancam_graph.formats.kitti import read_kitti_odometry
 
     poses = read_kitti_odometry(SEQUENCE).world_T_camera
     true_end = (BODY_T_FORWARD_CAMERA @ poses[11] @ np.linalg.inv(BODY_T_FORWARD_CAMERA))[:3, 3]
@@ -255,7 +255,7 @@ def test_the_ground_homography_maps_ground_points_and_leaves_out_rocks():
 
 
 def test_an_hrc_frames_footprint_in_a_wac_view_holds_the_ground_it_sees():
-    from pancam_graph.frontend.hrc import hrc_footprints
+    from pancam_graph.frontend.hrc_matching import hrc_footprints
     from pancam_graph.frontend.panorama import PanoramaView
     from pancam_graph.rig import rig_preset
 
@@ -287,7 +287,7 @@ def test_an_hrc_frames_footprint_in_a_wac_view_holds_the_ground_it_sees():
 
 
 def test_an_hrc_frames_matches_share_one_pointing_error_and_the_odd_ones_are_dropped():
-    from pancam_graph.frontend.hrc import HrcSettings, frame_agreement
+    from pancam_graph.frontend.hrc_matching import HrcSettings, frame_agreement
 
     rng = np.random.default_rng(3)
     settings = HrcSettings()

@@ -11,7 +11,7 @@ import pynmea2
 import pytest
 
 from pancam_graph.errors import InputError
-from pancam_graph.io.gps import read_gps_file, read_gpx, read_kfgins, read_nmea
+from pancam_graph.formats.gps_logs import read_gps_file, read_gpx, read_kfgins, read_nmea
 
 KFGINS = Path(__file__).parent / "data" / "real" / "kfgins" / "GNSS-RTK.txt"
 GPS_EPOCH = dt.datetime(1980, 1, 6, tzinfo=dt.UTC)

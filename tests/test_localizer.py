@@ -4,8 +4,8 @@ import numpy as np
 from pancam_graph.frontend.motion import motion_between
 from pancam_graph.frontend.stereo_vo import StereoVO
 from pancam_graph.graph.keys import L, X
-from pancam_graph.localizer import Localizer
 from pancam_graph.sim import simulate
+from pancam_graph.solve.localizer import Localizer
 
 
 def _solve(scenario, options, seed=4):

@@ -10,7 +10,7 @@ import yaml
 from typer.testing import CliRunner
 
 from pancam_graph.cli import app
-from pancam_graph.io.observations import read_observations
+from pancam_graph.store.observation_folder import read_observations
 
 runner = CliRunner()
 SEED = "3"

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from pancam_graph.errors import InputError
-from pancam_graph.group import gps_enu
-from pancam_graph.io.rosbag import read_navsatfix, read_odometry
-from pancam_graph.pipeline import run_traverse
-from pancam_graph.results import RunOptions
+from pancam_graph.evaluation.gps_check import gps_enu
+from pancam_graph.formats.rosbag import read_navsatfix, read_odometry
+from pancam_graph.solve.pipeline import run_traverse
+from pancam_graph.solve.results import RunOptions
 from pancam_graph.sources import SourceOptions, open_source
 
 BAG = Path(__file__).parent / "data" / "real" / "robot_localization" / "test1.bag"

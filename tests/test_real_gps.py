@@ -7,15 +7,15 @@ import numpy as np
 import pytest
 
 from pancam_graph.errors import InputError
-from pancam_graph.geodesy import LocalFrame
-from pancam_graph.io.export import (
+from pancam_graph.formats.export import (
     read_geojson_line,
     write_geojson,
     write_kitti,
     write_kml,
     write_trajectory_exports,
 )
-from pancam_graph.io.gps import read_gps_csv, read_kfgins
+from pancam_graph.formats.gps_logs import read_gps_csv, read_kfgins
+from pancam_graph.geodesy import LocalFrame
 
 REAL = Path(__file__).parent / "data" / "real"
 KFGINS = REAL / "kfgins" / "GNSS-RTK.txt"

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from pancam_graph.errors import InputError
+from pancam_graph.formats.kitti import read_kitti_raw
 from pancam_graph.geodesy import LocalFrame
-from pancam_graph.io.kitti import read_kitti_raw
 
 DATE = Path(__file__).parent / "data" / "real" / "kitti_raw" / "2011_09_26"
 DRIVE = DATE / "2011_09_26_drive_0001_sync"
@@ -105,7 +105,7 @@ def _odometry_layout(root: Path, frames: int = 2, calib: dict | None = None) -> 
 
 
 def test_kitti_odometry_reader_and_the_real_pair_it_loads(tmp_path):
-    from pancam_graph.io.kitti import read_kitti_odometry
+    from pancam_graph.formats.kitti import read_kitti_odometry
 
     sequence = read_kitti_odometry(_odometry_layout(tmp_path))
     assert len(sequence) == 2 and sequence.times_s[1] == pytest.approx(0.1036)
@@ -147,7 +147,7 @@ def _ransac_plane(points: np.ndarray, tolerance_m: float) -> tuple[np.ndarray, f
 
 
 def test_kitti_odometry_bad_inputs_are_named(tmp_path):
-    from pancam_graph.io.kitti import read_kitti_odometry
+    from pancam_graph.formats.kitti import read_kitti_odometry
 
     calib = dict(CALIB_00)
     del calib["P1"]

@@ -8,15 +8,15 @@ import pytest
 
 from pancam_graph.config import Scenario
 from pancam_graph.errors import FrameError, InputError
-from pancam_graph.io.observations import read_observations
-from pancam_graph.pipeline import run_traverse
 from pancam_graph.render.images import raw_stereo_pair, render_scenario
 from pancam_graph.render.renderer import TerrainRenderer
 from pancam_graph.render.terrain import terrain_tiles
-from pancam_graph.results import RunOptions
 from pancam_graph.sim import simulate
 from pancam_graph.sim.world import dense_path
+from pancam_graph.solve.pipeline import run_traverse
+from pancam_graph.solve.results import RunOptions
 from pancam_graph.sources import image_folder
+from pancam_graph.store.observation_folder import read_observations
 
 SCENARIO = Scenario.model_validate({
     "name": "render_strip", "description": "40 m for the renderer tests",

@@ -13,8 +13,8 @@ from rrd import Recording, array
 from scipy.stats import chi2
 
 from pancam_graph.geodesy import LocalFrame
-from pancam_graph.group import CHECKPOINT_EVERY_STOPS
-from pancam_graph.pipeline import RunOptions, run
+from pancam_graph.solve.pipeline import RunOptions, run
+from pancam_graph.solve.state import CHECKPOINT_EVERY_STOPS
 from pancam_graph.viz.rerun_live import RerunRecorder
 from pancam_graph.viz.rerun_sink import RerunTarget, open_recording
 
@@ -112,7 +112,7 @@ def test_series_hold_one_value_per_stop(recorded):
 KILLED_RUN = textwrap.dedent("""
     import os, signal, sys
     from pancam_graph.config import load_scenario, resolve_scenario
-    from pancam_graph.pipeline import RunOptions, run
+    from pancam_graph.solve.pipeline import RunOptions, run
     from pancam_graph.viz.rerun_live import RerunRecorder
     from pancam_graph.viz.rerun_sink import RerunTarget, open_recording
 
@@ -154,7 +154,8 @@ def test_killed_run_leaves_a_recording_readable_up_to_the_last_checkpoint(tmp_pa
 
 
 def test_core_never_imports_rerun():
-    code = ("import sys; import pancam_graph.pipeline, pancam_graph.localizer, pancam_graph.io.results; "
+    code = ("import sys; import pancam_graph.solve.pipeline, pancam_graph.solve.localizer, "
+            "pancam_graph.store.results_folder; "
             "sys.exit(1 if any(m == 'rerun' or m.startswith('rerun.') for m in sys.modules) else 0)")
     env = {**os.environ, "PYTHONPATH": str(TESTS.parent)}
     assert subprocess.run([sys.executable, "-c", code], env=env).returncode == 0

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from pancam_graph.errors import ResultsError
-from pancam_graph.io.results import read_tum, results_folder, write_tum
+from pancam_graph.store.results_folder import read_tum, results_folder, write_tum
 
 
 def test_tum_round_trip(tmp_path):

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pancam_graph.io.checkpoint import read_checkpoint, saved_stop
-from pancam_graph.io.trajectories import read_tum
+from pancam_graph.formats.trajectories import read_tum
+from pancam_graph.store.checkpoint import read_checkpoint, saved_stop
 
 EXE = Path(sys.executable).parent / "pancam-graph"
 CONFIGS = ("dead_reckoning", "vo", "vo_sites_hrc", "full")  # wheel slip, VO, site landmarks and HRC, GPS

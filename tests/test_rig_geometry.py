@@ -4,10 +4,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from pancam_graph.io.observations import read_observations, write_observations
-from pancam_graph.pipeline import run_traverse
-from pancam_graph.results import RunOptions
 from pancam_graph.sim import simulate
+from pancam_graph.solve.pipeline import run_traverse
+from pancam_graph.solve.results import RunOptions
+from pancam_graph.store.observation_folder import read_observations, write_observations
 
 
 def test_a_body_fixed_pair_is_where_its_transform_puts_it(short_scenario, tmp_path):

@@ -5,10 +5,10 @@ same estimate."""
 import numpy as np
 import pytest
 
-from pancam_graph.io.checkpoint import CheckpointWriter, RunInputs, read_checkpoint
-from pancam_graph.pipeline import configuration_groups, run_traverse
-from pancam_graph.results import RunOptions
+from pancam_graph.solve.pipeline import configuration_groups, run_traverse
+from pancam_graph.solve.results import RunOptions
 from pancam_graph.sources import open_source
+from pancam_graph.store.checkpoint import CheckpointWriter, RunInputs, read_checkpoint
 
 SIDE_BY_SIDE = RunOptions(processes=2, side_by_side_min_stops=0)
 

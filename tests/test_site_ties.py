@@ -12,14 +12,14 @@ from pancam_graph.config import FrontendConfig, Scenario
 from pancam_graph.frontend.motion import VoMotions
 from pancam_graph.frontend.panorama import PanoramaMatcher, PanoramaView
 from pancam_graph.frontend.ties import TieMatcher, TieSettings
-from pancam_graph.io.observations import read_observations
-from pancam_graph.pipeline import run_traverse
 from pancam_graph.render.images import render_scenario
 from pancam_graph.render.truth import RenderedTruth
-from pancam_graph.results import RunOptions
+from pancam_graph.solve.pipeline import run_traverse
+from pancam_graph.solve.results import RunOptions
 from pancam_graph.sources import image_folder
 from pancam_graph.sources.image_folder import FramePairs
 from pancam_graph.sources.site_images import images_by_stop, with_site_panoramas
+from pancam_graph.store.observation_folder import read_observations
 
 SCENARIO = Scenario.model_validate({
     "name": "site_strip", "description": "three sites 30-40 m apart with full panoramas",

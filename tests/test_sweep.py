@@ -13,7 +13,7 @@ import pytest
 from pancam_graph.config import resolve_scenario
 from pancam_graph.errors import ConfigError
 from pancam_graph.evaluation.consistency import monte_carlo_summary
-from pancam_graph.pipeline import RunOptions, run
+from pancam_graph.solve.pipeline import RunOptions, run
 from pancam_graph.sweep.spec import SweepSpec, plan
 
 EXE = Path(sys.executable).parent / "pancam-graph"

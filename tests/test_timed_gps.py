@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from pancam_graph.config import load_scenario, resolve_scenario
-from pancam_graph.localizer import Localizer
-from pancam_graph.pipeline import run
 from pancam_graph.records import GpsFix
-from pancam_graph.results import RunOptions
 from pancam_graph.sim import simulate
+from pancam_graph.solve.localizer import Localizer
+from pancam_graph.solve.pipeline import run
+from pancam_graph.solve.results import RunOptions
 
 
 def _with(scenario, **estimator):

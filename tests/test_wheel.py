@@ -22,7 +22,7 @@ def test_wheel_in_a_fresh_venv_runs_analyze_and_a_scenario(tmp_path):
          REPO, cwd=tmp_path)
     wheel = next((tmp_path / "dist").glob("pancam_graph-*.whl"))
     names = zipfile.ZipFile(wheel).namelist()
-    for package in ("analysis", "kinds", "sources", "io", "viz", "scenarios"):
+    for package in ("analysis", "kinds", "sources", "solve", "store", "formats", "viz", "scenarios"):
         assert f"pancam_graph/{package}/__init__.py" in names, package
     assert "pancam_graph/scenarios/straight_500m.toml" in names
 

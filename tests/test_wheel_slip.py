@@ -7,8 +7,8 @@ import pytest
 from pancam_graph.evaluation.consistency import monte_carlo_summary
 from pancam_graph.graph.keys import S, X
 from pancam_graph.kinds.wheel_slip import slip_odometry_error, slip_odometry_factor
-from pancam_graph.pipeline import run
-from pancam_graph.results import RunOptions
+from pancam_graph.solve.pipeline import run
+from pancam_graph.solve.results import RunOptions
 
 POSE_A = gtsam.Pose3(gtsam.Rot3.Ypr(0.4, -0.05, 0.02), np.array([3.0, -2.0, 0.3]))
 POSE_B = gtsam.Pose3(gtsam.Rot3.Ypr(0.45, -0.03, 0.01), np.array([4.4, -1.5, 0.35]))

@@ -16,8 +16,8 @@ from pancam_graph.frontend.vo_ahead import VoAhead
 from pancam_graph.graph import update_log
 from pancam_graph.graph.keys import L, X
 from pancam_graph.graph.smoother import RelinearizeThresholds, Smoother
-from pancam_graph.localizer import Localizer
 from pancam_graph.sim import simulate
+from pancam_graph.solve.localizer import Localizer, smoother_for
 
 WINDOW_M = 60.0  # short_trail is 214 m, with sites about every 40 m
 
@@ -130,7 +130,7 @@ def test_a_spilled_update_log_reads_back_every_update_in_order(short_scenario, t
 
 def test_the_bayes_tree_stops_growing():
     """A 3 km chain of 1 m steps with a 100 m window: the tree holds about the window."""
-    smoother = Smoother.configured(EstimatorConfig(window_m=100.0))
+    smoother = smoother_for(EstimatorConfig(window_m=100.0))
     smoother.insert(X(0), gtsam.Pose3())
     smoother.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 0.01)))
     smoother.update()
@@ -202,9 +202,9 @@ def test_a_failing_cholesky_goes_on_as_qr_to_qr_s_estimate():
     assert cholesky.factorization == "QR"  # it failed and fell back
     for k in (1, 100, 199):
         np.testing.assert_array_equal(cholesky.pose(X(k)).matrix(), qr.pose(X(k)).matrix())
-    assert Smoother.configured(EstimatorConfig(), with_gps=True).factorization == "CHOLESKY"
-    assert Smoother.configured(EstimatorConfig(), with_gps=False).factorization == "QR"
-    assert Smoother.configured(EstimatorConfig(factorization="qr"), with_gps=True).factorization == "QR"
+    assert smoother_for(EstimatorConfig(), with_gps=True).factorization == "CHOLESKY"
+    assert smoother_for(EstimatorConfig(), with_gps=False).factorization == "QR"
+    assert smoother_for(EstimatorConfig(factorization="qr"), with_gps=True).factorization == "QR"
 
 
 def test_the_bound_through_the_window_is_each_stops_information_as_it_left(short_scenario, trail, monkeypatch):

@@ -11,13 +11,11 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from ..config import EstimatorConfig
 from ..errors import GraphError
 from .keys import L, S, T, X, subset
 from .update_log import Rebuild, UpdateLog, picklable, with_scalars
 
 WINDOW_STEPS = 4  # the window moves in steps of a quarter of its length
-GPS_RELINEARIZE_SKIP = 10  # GTSAM's default; see EstimatorConfig.relinearize_skip
 _POSE_CHR = gtsam.Symbol(X(0)).chr()
 
 
@@ -88,20 +86,6 @@ class Smoother:
         self._new_rebuild: dict[int, Rebuild] = {}
         self.update_ms: list[float] = []  # wall time of each update
         self.relinearized: list[int] = []  # variables relinearized by each update
-
-    @classmethod
-    def configured(cls, estimator: EstimatorConfig, with_gps: bool = False) -> Smoother:
-        """The smoother an estimator configuration asks for (`with_gps`: for a configuration with GPS)."""
-        thresholds = RelinearizeThresholds(estimator.relinearize_rotation_rad, estimator.relinearize_translation_m,
-                                           estimator.relinearize_scalar)
-        factorization = estimator.factorization.upper()
-        if factorization == "AUTO":
-            factorization = "CHOLESKY" if with_gps else "QR"
-        check, skip = estimator.relinearize_check, estimator.relinearize_skip
-        partial = check == "partial" or (check == "auto" and with_gps)
-        if skip == "auto":
-            skip = GPS_RELINEARIZE_SKIP if with_gps else 1
-        return cls(thresholds, skip, estimator.window_m, estimator.wildfire_threshold, factorization, partial)
 
     def _new_isam(self) -> gtsam.IncrementalFixedLagSmoother:
         params = gtsam.ISAM2Params()

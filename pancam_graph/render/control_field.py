@@ -16,9 +16,9 @@ import numpy as np
 
 from ..config import Scenario
 from ..errors import ResultsError
+from ..formats.calibration import write_control_field, write_opencv_yaml
+from ..formats.calibration_images import FIELD_FILE, TRUTH_FILE
 from ..frontend.calibrate import ARUCO_DICTIONARY, ControlField
-from ..io.calibration import write_control_field, write_opencv_yaml
-from ..io.calibration_images import FIELD_FILE, TRUTH_FILE
 from ..rig import Camera, rig_preset
 from .images import raw_stereo_pair
 

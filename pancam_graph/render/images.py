@@ -14,12 +14,12 @@ import numpy as np
 
 from ..config import REAL_IMAGE_ROTATION_FLOOR_DEG_PER_M, RenderConfig, Scenario
 from ..errors import ResultsError
-from ..io.observations import PanoramaImage, write_observations
 from ..records import Traverse
 from ..rig import Camera
 from ..sim import simulate
 from ..sim.world import dense_path
 from ..stereo_pair import StereoCalibration
+from ..store.observation_folder import PanoramaImage, write_observations
 from .renderer import TerrainRenderer, sensor_image
 from .terrain import terrain_tiles
 

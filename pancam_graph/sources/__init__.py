@@ -11,7 +11,7 @@ from pathlib import Path
 
 from ..config import FrontendConfig
 from ..errors import ConfigError
-from ..results import SourceData
+from ..solve.results import SourceData
 from . import image_folder, kitti_odometry, observations, recorded, scenario
 
 

@@ -15,11 +15,11 @@ import numpy as np
 
 from ..config import FrontendConfig
 from ..errors import FrameError, InputError
+from ..formats.images import read_gray
 from ..frontend.motion import VoMotions
 from ..frontend.tracker import CameraMotion, StageTimes, StereoTracker
-from ..io.images import read_gray
 from ..records import Stop, Traverse
-from ..results import SourceData, SourceInfo
+from ..solve.results import SourceData, SourceInfo
 from .frames import median_frame_ms, track_frames
 from .site_images import with_site_panoramas
 
@@ -33,11 +33,11 @@ TIE_SIGMA_PX = 1.0
 HRC_SIGMA_PX = 7.0
 
 if TYPE_CHECKING:
-    from ..io.observations import ObservationSet
+    from ..store.observation_folder import ObservationSet
 
 
 def matches(path: Path) -> bool:
-    from ..io.observations import is_image_folder
+    from ..store.observation_folder import is_image_folder
 
     return is_image_folder(path)
 
@@ -61,12 +61,12 @@ class FramePairs:
         return read_gray(left, self.size), read_gray(right, self.size)
 
     def read_view(self, image) -> tuple[np.ndarray, np.ndarray]:
-        """A panorama frame's WAC pair (io.observations.PanoramaImage), rectified."""
+        """A panorama frame's WAC pair (store.observation_folder.PanoramaImage), rectified."""
         pair = (read_gray(image.left, self.size), read_gray(image.right, self.size))
         return pair if self.rectify is None else self.rectify(*pair)
 
     def read_hrc(self, image) -> np.ndarray:
-        """An HRC frame (io.observations.PanoramaImage of camera "hrc"), as taken: the rig's HRC
+        """An HRC frame (store.observation_folder.PanoramaImage of camera "hrc"), as taken: the rig's HRC
         is a pinhole camera."""
         return read_gray(image.left, self.hrc_size)
 
@@ -84,7 +84,7 @@ def load(folder: Path, frontend: FrontendConfig | None = None,
     """`skip_bad_frames`: a missing, truncated or wrong-sized image leaves its stop without
     observations (the VO bridges it) instead of stopping with the message naming the file.
     `sites`: match the site panoramas into tie points (when the folder has them)."""
-    from ..io.observations import read_observations
+    from ..store.observation_folder import read_observations
 
     obs = read_observations(folder)
     frontend = frontend or FrontendConfig()

@@ -15,8 +15,8 @@ from ..errors import InputError
 from ..frontend.tracker import StereoTracker
 from ..geodesy import LocalFrame
 from ..records import GroundTruth, SlipPrior, StereoObservations, Stop, Traverse
-from ..results import SourceData, SourceInfo
 from ..rig import BODY_T_FORWARD_CAMERA, Rig
+from ..solve.results import SourceData, SourceInfo
 from .frames import median_frame_ms, track_frames
 
 # Matching and localisation error of the front-end's features (1 sigma).
@@ -38,14 +38,14 @@ REAL_IMAGE_ESTIMATOR = EstimatorConfig(
 
 
 def matches(path: Path) -> bool:
-    from ..io.kitti import is_kitti_odometry
+    from ..formats.kitti import is_kitti_odometry
 
     return is_kitti_odometry(path)
 
 
 def load(folder: Path, frontend: FrontendConfig | None = None,
          progress: Callable[[str, int, int], None] | None = None, skip_bad_frames: bool = False) -> SourceData:
-    from ..io.kitti import read_kitti_odometry
+    from ..formats.kitti import read_kitti_odometry
 
     sequence = read_kitti_odometry(folder)
     frontend = frontend or FrontendConfig()

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..io.observations import is_observation_folder, read_observations
-from ..results import SourceData, SourceInfo
+from ..solve.results import SourceData, SourceInfo
+from ..store.observation_folder import is_observation_folder, read_observations
 
 
 def matches(path: Path) -> bool:

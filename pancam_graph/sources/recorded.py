@@ -17,8 +17,8 @@ from ..evaluation.metrics import fit_yaw
 from ..evaluation.timed import poses_at_times
 from ..geodesy import LocalFrame
 from ..records import DeadReckoning, GpsFix, GroundTruth, OdometryTrack, SlipPrior, StereoObservations, Stop, Traverse
-from ..results import SourceData, SourceInfo
 from ..rig import rig_preset
+from ..solve.results import SourceData, SourceInfo
 
 _ALIGN_DISTANCE_M = 15.0  # odometry travelled before the initial heading is taken from GPS
 
@@ -125,7 +125,7 @@ def is_kitti_drive(path: Path) -> bool:
 def load_bag(path: Path, gps_topic: str | None = None, odom_topic: str | None = None,
              holdout_every: int = 5) -> SourceData:
     """Topics left as None are the bag's only NavSatFix / Odometry topic."""
-    from ..io.rosbag import read_navsatfix, read_odometry
+    from ..formats.rosbag import read_navsatfix, read_odometry
 
     fixes, rejected = read_navsatfix(path, gps_topic)
     if not fixes:
@@ -142,7 +142,7 @@ def load_bag(path: Path, gps_topic: str | None = None, odom_topic: str | None = 
 
 
 def load_kitti_raw(folder: Path, geoid_height_m: float = 0.0, holdout_every: int = 5) -> SourceData:
-    from ..io.kitti import read_kitti_raw
+    from ..formats.kitti import read_kitti_raw
 
     drive = read_kitti_raw(folder)
     odometry = drive.velocity_odometry()
@@ -168,8 +168,8 @@ def load_stereo_bag(path: Path, left_topic: str, right_topic: str, left_info: st
     topics: one stop per stereo pair, the image front-end over every pair, a body-fixed camera
     (left camera at the body origin looking forward). GPS fixes and wheel odometry, when the
     bag has them, come along: fixes at their own times, odometry interpolated to the pairs."""
+    from ..formats.rosbag import read_images, read_navsatfix, read_odometry, read_stereo_camera_info
     from ..frontend.tracker import StereoTracker
-    from ..io.rosbag import read_images, read_navsatfix, read_odometry, read_stereo_camera_info
     from ..rig import BODY_T_FORWARD_CAMERA, Rig
     from .frames import track_frames
 

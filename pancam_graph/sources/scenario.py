@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from ..config import load_scenario, resolve_scenario
-from ..pipeline import simulated
-from ..results import SourceData
+from ..solve.pipeline import simulated
+from ..solve.results import SourceData
 
 
 def load(name_or_path: str, seed: int | None = None) -> SourceData:

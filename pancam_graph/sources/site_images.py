@@ -13,7 +13,7 @@ import numpy as np
 
 from ..config import FrontendConfig
 from ..errors import InputError
-from ..frontend.hrc import HrcMatcher, HrcMatches, hrc_footprints
+from ..frontend.hrc_matching import HrcMatcher, HrcMatches, hrc_footprints
 from ..frontend.motion import VoMotions
 from ..frontend.panorama import PanoramaMatcher, PanoramaView, SitePanorama
 from ..frontend.ties import TieMatcher, TieResult
@@ -21,7 +21,7 @@ from ..graph.tie_gate import RelativePose
 from ..records import HrcFrame, PanoramaFrame, StereoObservations, Stop
 
 if TYPE_CHECKING:
-    from ..io.observations import ObservationSet
+    from ..store.observation_folder import ObservationSet
 
 MAX_TIE_DISTANCE_M = 80.0  # sites further apart see no common ground at a usable range
 TRACK_OFFSET = 1_000_000_000  # site track ids start here, apart from the navigation tracks'

@@ -9,7 +9,7 @@ import numpy as np
 from matplotlib.patches import Ellipse as EllipsePatch
 
 from ..analysis.design import Assumptions
-from ..analysis.report import SEED_TABLE_3_2, RigAnalysis, analysis_document
+from ..analysis.trades import SEED_TABLE_3_2, RigAnalysis, analysis_document
 from .plots import _label, _save, plt
 
 

@@ -13,8 +13,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ..evaluation.evaluate import Evaluation  # noqa: E402
-from ..group import antenna_at_times, gps_enu  # noqa: E402
-from ..results import RunResult, travelled  # noqa: E402
+from ..evaluation.gps_check import antenna_at_times, gps_enu  # noqa: E402
+from ..solve.results import RunResult, travelled  # noqa: E402
 
 _COLOURS = {"dead_reckoning": "tab:purple", "dead_reckoning_gps": "tab:brown", "vo": "tab:red",
             "vo_sites": "tab:orange", "vo_sites_hrc": "tab:green", "full": "tab:blue"}

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..results import RunResult, reproduce_command
+from ..solve.results import RunResult, reproduce_command
 from . import plots
 
 FIGURES = (

@@ -7,9 +7,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import rerun as rr
 
-from ..group import CHECKPOINT_EVERY_STOPS, gps_enu
-from ..localizer import Localizer, StepResult
+from ..evaluation.gps_check import gps_enu
 from ..records import GroundTruth, Stop, Traverse
+from ..solve.localizer import Localizer, StepResult
+from ..solve.state import CHECKPOINT_EVERY_STOPS
 from . import rerun_scene as scene
 
 FEATURES = rr.AnnotationContext([(0, "new", (200, 200, 200)), (1, "tracked from the last stop", (60, 220, 60))])

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
-from ..io.results import SavedRun
+from ..store.results_folder import SavedRun
 from . import rerun_scene as scene
 
 

@@ -8,15 +8,18 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 
-from .config import EstimatorConfig, Scenario, configuration_problem
-from .errors import ConfigError
-from .frontend.motion import VoMotions
-from .group import Checkpoints, GroupJob, ProgressCallback, RunListener, RunState, peak_rss_mb, run_group
-from .kinds import unavailable
-from .records import GpsFix, GroundTruth, Traverse
+from ..config import EstimatorConfig, Scenario, configuration_problem
+from ..errors import ConfigError
+from ..frontend.motion import VoMotions
+from ..kinds import unavailable
+from ..records import GpsFix, GroundTruth, Traverse
+from ..sim import simulate
+from .group import GroupJob, ProgressCallback, run_group
+from .listener import RunListener
+from .memory import peak_rss_mb
 from .results import ConfigurationResult, RunOptions, RunResult, SourceInfo
 from .side_by_side import MemoryWatch, run_side_by_side
-from .sim import simulate
+from .state import Checkpoints, RunState
 
 
 def select_configurations(estimator: EstimatorConfig, traverse: Traverse, requested: tuple[str, ...] | None

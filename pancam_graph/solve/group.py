@@ -4,125 +4,29 @@ the held-out fixes. A run in one process is one group; side by side, each proces
 
 from __future__ import annotations
 
-import ctypes
 import gc
 import os
-import resource
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Protocol
+from dataclasses import dataclass
 
 import numpy as np
 
-from .config import EstimatorConfig
-from .evaluation.consistency import consistency, crlb_position_covariances
-from .evaluation.metrics import GPS_REFERENCE_STEP_M, TrajectoryMetrics, compare, decimated_length
-from .evaluation.timed import poses_at_times
-from .frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_between, motion_from
-from .frontend.stereo_vo import StereoVO
-from .frontend.vo_ahead import VoAhead
+from ..config import EstimatorConfig
+from ..evaluation.consistency import consistency, crlb_position_covariances
+from ..evaluation.gps_check import evaluate_against_gps, holdout_score
+from ..evaluation.metrics import compare
+from ..frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_between, motion_from
+from ..frontend.stereo_vo import StereoVO
+from ..frontend.vo_ahead import VoAhead
+from ..records import GpsFix, GroundTruth, Traverse
+from .listener import NullListener, RunListener
 from .localizer import Localizer, StepResult
-from .records import GpsFix, GroundTruth, Stop, Traverse
-from .results import ConfigurationResult, HoldoutScore, ProcessUse, RunOptions, RunResult
-
-CHECKPOINT_EVERY_STOPS = 25  # listeners checkpoint at every site and at least this often
+from .memory import peak_rss_mb, pss_mb, release_memory, settle_garbage_collector
+from .results import ConfigurationResult, ProcessUse, RunOptions
+from .state import CHECKPOINT_EVERY_STOPS, Checkpoints, RunState
 
 ProgressCallback = Callable[[str, int, int], None]
-
-
-class RunListener(Protocol):
-    """Watches a run stop by stop (the rerun recorder is one). Core code knows only this."""
-
-    def start(self, traverse: Traverse, truth: GroundTruth | None, localizers: dict[str, Localizer]) -> None: ...
-
-    def step(self, stop: Stop, motion: Motion | None, steps: dict[str, StepResult]) -> None: ...
-
-    def checkpoint(self, stop: Stop) -> None:
-        """Everything up to `stop` must now survive a crash."""
-
-    def finish(self, result: RunResult) -> None: ...
-
-
-@dataclass
-class RunState:
-    """All a group of configurations has done before stop `next_stop` (a run in one process:
-    every configuration): their graphs and bookkeeping, the motions and the per-stop results.
-    Saved at checkpoints; a run given its groups' states goes on from them and ends with the
-    same estimate as one that was never stopped."""
-
-    next_stop: int
-    localizers: dict[str, Localizer]
-    motions: list[Motion | None]
-    dr_motions: list[Motion | None]
-    steps: dict[str, list[StepResult]]
-    vo_s: float = 0.0
-    elapsed_s: float = 0.0  # wall time spent on the run before this state
-    memory_mb: list[tuple[int, float]] = field(default_factory=list)  # (stop, peak RSS of the process) at checkpoints
-    peak_pss_mb: float = 0.0  # the process's largest proportional set size seen at checkpoints
-
-
-class NullListener:
-    def start(self, traverse, truth, localizers) -> None:
-        pass
-
-    def step(self, stop, motion, steps) -> None:
-        pass
-
-    def checkpoint(self, stop) -> None:
-        pass
-
-    def finish(self, result) -> None:
-        pass
-
-
-def gps_enu(traverse: Traverse, fixes: tuple[GpsFix, ...] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Fix times and the fixes converted to ENU (N, 3) with pyproj (default: the traverse's)."""
-    fixes = traverse.gps_fixes if fixes is None else fixes
-    if not fixes:
-        return np.zeros(0), np.zeros((0, 3))
-    enu = traverse.origin.to_enu([f.lat_deg for f in fixes], [f.lon_deg for f in fixes], [f.h_m for f in fixes])
-    return np.array([f.time_s for f in fixes]), enu
-
-
-def antenna_at_times(traverse: Traverse, world_T_body: np.ndarray, times_s: np.ndarray) -> np.ndarray:
-    stops = traverse.stops
-    poses = poses_at_times(np.array([s.time_s for s in stops]), np.array([s.departure_s for s in stops]),
-                           world_T_body, times_s)
-    return np.einsum("nij,j->ni", poses[:, :3, :3], traverse.gps_lever_arm_m) + poses[:, :3, 3]
-
-
-def evaluate_against_gps(traverse: Traverse, world_T_body: np.ndarray,
-                         fixes: tuple[GpsFix, ...] | None = None) -> TrajectoryMetrics | None:
-    """The antenna, interpolated to each fix's time, against the fixes (unaligned)."""
-    times, enu = gps_enu(traverse, fixes)
-    if len(times) < 2:
-        return None
-    return compare(antenna_at_times(traverse, world_T_body, times), enu, "none",
-                   reference_length_m=decimated_length(enu, GPS_REFERENCE_STEP_M))
-
-
-def holdout_score(traverse: Traverse, world_T_body: np.ndarray, held_out: tuple[GpsFix, ...]) -> HoldoutScore | None:
-    if not held_out:
-        return None
-    times, enu = gps_enu(traverse, held_out)
-    antenna = antenna_at_times(traverse, world_T_body, times)
-    rms = float(np.sqrt(np.mean(np.sum((antenna[:, :2] - enu[:, :2]) ** 2, axis=1))))
-    drms = float(np.sqrt(np.mean([2.0 * f.sigma_horizontal_m**2 for f in held_out])))
-    return HoldoutScore(len(held_out), rms, drms)
-
-
-class Checkpoints(Protocol):
-    """Saves a group's state at a checkpoint (io/checkpoint.CheckpointWriter)."""
-
-    def __call__(self, state: RunState) -> None: ...
-
-    def part(self, index: int) -> Checkpoints:
-        """The writer of group `index` when groups run side by side."""
-
-    def log_folder(self, configuration: str) -> Path:
-        """Where a configuration's smoother keeps its update log (the saved states refer to it)."""
 
 
 @dataclass(frozen=True)
@@ -207,47 +111,6 @@ def new_state(job: GroupJob) -> RunState:
     localizers = {name: Localizer(job.traverse, kinds, job.estimator, seed=job.seed)
                   for name, kinds in job.configs.items()}
     return RunState(0, localizers, [None], [None], {name: [] for name in localizers})
-
-
-def peak_rss_mb() -> float:
-    """This process's peak resident memory so far."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
-def settle_garbage_collector() -> None:
-    """Collect, then set aside every object that survived from Python's garbage collector
-    (`gc.freeze`), which otherwise walks all of them at each of its full collections: the
-    traverse's stops and everything the run built so far. Without this the collections came
-    at random stops and grew with the traverse (vo_sites beside full on long_traverse: median
-    update 0.19 ms in the first km, 0.53 in the eleventh, 0.39 with the collector off).
-    Called at checkpoints, so each collection walks what a few stops made; `gc.unfreeze` at
-    the end of the run hands the rest back."""
-    gc.collect()
-    gc.freeze()
-
-
-def release_memory() -> None:
-    """Hand the memory of what was freed back to the system: glibc keeps it otherwise, and the
-    process's footprint stays where its largest graph left it."""
-    gc.collect()
-    try:
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):  # not glibc
-        pass
-
-
-def pss_mb() -> float | None:
-    """This process's proportional set size now (Linux): its resident memory with each page
-    shared with other processes (the fork server's imports) counted as its share; None where
-    the kernel does not say."""
-    try:
-        with open("/proc/self/smaps_rollup") as f:
-            for line in f:
-                if line.startswith("Pss:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return None
 
 
 def _sample_memory(state: RunState, stop: int) -> None:

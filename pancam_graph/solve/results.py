@@ -1,5 +1,6 @@
-"""The typed result of a run, owned below the run loop: what `pipeline` produces, what `io`
-writes and reads back, what plots, the report and rerun show."""
+"""The typed result of a run, owned below the run loop: what `pipeline` produces, what the
+results folder holds (store/results_folder.py writes it and reads it back), what plots, the
+report and rerun show; and metrics.json's one layout."""
 
 from __future__ import annotations
 
@@ -7,12 +8,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .config import EstimatorConfig, Scenario
-from .evaluation.consistency import Consistency
-from .evaluation.metrics import TrajectoryMetrics
-from .frontend.motion import Motion, VoMotions
+from ..config import EstimatorConfig, Scenario
+from ..evaluation.consistency import Consistency
+from ..evaluation.gps_check import HoldoutScore
+from ..evaluation.metrics import TrajectoryMetrics
+from ..frontend.motion import Motion, VoMotions
+from ..records import GpsFix, GroundTruth, Traverse
 from .localizer import InterpolatedPose, StepResult
-from .records import GpsFix, GroundTruth, Traverse
 
 
 @dataclass(frozen=True)
@@ -54,19 +56,6 @@ class SourceData:
     held_out: tuple[GpsFix, ...] = ()  # fixes kept out of every graph, for scoring
     rejected: tuple[str, ...] = ()  # what the reader left out, with reasons
     vo_motions: VoMotions | None = None  # estimated already by the source (image folders with sites)
-
-
-@dataclass(frozen=True)
-class HoldoutScore:
-    """A configuration against GPS fixes kept out of every graph."""
-
-    fixes: int
-    rms_2d_m: float  # RMS horizontal distance of the estimate to the held-out fixes
-    stated_drms_m: float  # the fixes' own stated 2-D RMS: what a perfect track would score
-
-    def as_dict(self) -> dict:
-        return {"held_out_fixes": self.fixes, "rms_2d_m": self.rms_2d_m, "stated_drms_m": self.stated_drms_m,
-                "drms_ratio": self.rms_2d_m / self.stated_drms_m}
 
 
 @dataclass(frozen=True)

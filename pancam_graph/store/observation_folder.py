@@ -35,6 +35,7 @@ from pydantic import Field
 
 from ..config import EstimatorConfig, OriginConfig, _Strict, load_toml_model
 from ..errors import InputError
+from ..formats.tables import CsvTable
 from ..geodesy import LocalFrame
 from ..kinds import KINDS
 from ..kinds.base import RowError
@@ -51,7 +52,6 @@ from ..records import (
 )
 from ..rig import Rig, rig_preset
 from ..text_files import read_text
-from .tables import CsvTable
 
 if TYPE_CHECKING:
     from ..stereo_pair import StereoCalibration
@@ -164,7 +164,7 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
     rig_source = RigSource(preset=preset, mast_height_m=rig.mast_height_m,
                            body_T_left=None if body_T_left is None else body_T_left.tolist())
     if calibration is not None:  # raw images: the preset's mast with the pair as calibrated
-        from .calibration import write_opencv_yaml
+        from ..formats.calibration import write_opencv_yaml
 
         write_opencv_yaml(folder / "calibration.yaml", calibration)
         rig_source = rig_source.model_copy(update={"calibration": "calibration.yaml"})
@@ -242,8 +242,8 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
 def _write_rectified_yaml(path: Path, rig: Rig) -> None:
     """A rectified pair as OpenCV FileStorage YAML: identical cameras, no distortion, the right
     one `baseline` along x."""
+    from ..formats.calibration import write_opencv_yaml
     from ..stereo_pair import StereoCalibration
-    from .calibration import write_opencv_yaml
 
     k = rig.wac.matrix()
     size = (rig.wac.width, rig.wac.height)
@@ -351,7 +351,7 @@ def _rig(folder: Path, source: RigSource) -> tuple[Rig, StereoCalibration | None
             return preset, None
     from dataclasses import replace
 
-    from .calibration import read_camera_info_pair, read_raw_calibration
+    from ..formats.calibration import read_camera_info_pair, read_raw_calibration
 
     right = folder / source.calibration_right if source.calibration_right else None
     raw = read_raw_calibration(folder / source.calibration, right, source.calibration_image_size)
@@ -566,7 +566,7 @@ def _read_truth_slip(path: Path) -> float | None:
 
 def _read_truth(path: Path, n: int) -> np.ndarray:
     """Checked as any KITTI pose file (finite, rotations orthonormal), one pose per stop."""
-    from .trajectories import read_kitti_poses
+    from ..formats.trajectories import read_kitti_poses
 
     poses = read_kitti_poses(path).world_T_body
     if len(poses) != n:

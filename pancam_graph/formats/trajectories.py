@@ -10,7 +10,7 @@ import numpy as np
 from ..errors import InputError
 from ..geodesy import LocalFrame
 from ..records import Trajectory
-from .gps import read_gps_file
+from .gps_logs import read_gps_file
 
 
 def read_trajectory(path: Path, origin: LocalFrame | None = None, gps_sigma_m: float = 1.0) -> Trajectory:

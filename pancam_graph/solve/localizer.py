@@ -9,15 +9,15 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from .config import EstimatorConfig
-from .errors import ConfigError
-from .frontend.motion import Motion
-from .graph import factors
-from .graph.keys import T, X
-from .graph.smoother import Smoother, poses_array
-from .kinds import KINDS, Kind
-from .kinds.base import StepCounts
-from .records import GroundTruth, Stop, Traverse
+from ..config import EstimatorConfig
+from ..errors import ConfigError
+from ..frontend.motion import Motion
+from ..graph import factors
+from ..graph.keys import T, X
+from ..graph.smoother import RelinearizeThresholds, Smoother, poses_array
+from ..kinds import KINDS, Kind
+from ..kinds.base import StepCounts
+from ..records import GroundTruth, Stop, Traverse
 
 # (key_a, key_b, a_T_b, covariance) -> factor
 MotionFactor = Callable[[int, int, gtsam.Pose3, np.ndarray], gtsam.NonlinearFactor]
@@ -62,6 +62,23 @@ class Snapshot:
     landmarks: np.ndarray  # (M, 3) world
 
 
+GPS_RELINEARIZE_SKIP = 10  # GTSAM's default; see EstimatorConfig.relinearize_skip
+
+
+def smoother_for(estimator: EstimatorConfig, with_gps: bool = False) -> Smoother:
+    """The smoother an estimator configuration asks for (`with_gps`: for a configuration with GPS)."""
+    thresholds = RelinearizeThresholds(estimator.relinearize_rotation_rad, estimator.relinearize_translation_m,
+                                       estimator.relinearize_scalar)
+    factorization = estimator.factorization.upper()
+    if factorization == "AUTO":
+        factorization = "CHOLESKY" if with_gps else "QR"
+    check, skip = estimator.relinearize_check, estimator.relinearize_skip
+    partial = check == "partial" or (check == "auto" and with_gps)
+    if skip == "auto":
+        skip = GPS_RELINEARIZE_SKIP if with_gps else 1
+    return Smoother(thresholds, skip, estimator.window_m, estimator.wildfire_threshold, factorization, partial)
+
+
 class Localizer:
     """Builds and solves the factor graph of one configuration (a list of kinds), one stop at a time."""
 
@@ -69,7 +86,7 @@ class Localizer:
         self.traverse = traverse
         self.kind_names = list(kinds)
         self.estimator = estimator
-        self.smoother = Smoother.configured(estimator, with_gps="gps" in kinds)
+        self.smoother = smoother_for(estimator, with_gps="gps" in kinds)
         self.rng = np.random.default_rng(seed)
         self.stops: list[int] = []
         self.previous_stop: Stop | None = None

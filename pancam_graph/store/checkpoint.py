@@ -1,6 +1,6 @@
 """A run's checkpoints in its staging folder, so a killed run can go on (`run --resume`).
 
-The run's inputs are written once; its state (group.RunState) at checkpoints, one file per
+The run's inputs are written once; its state (solve.state.RunState) at checkpoints, one file per
 group of configurations when groups run side by side (each group's process writes its own).
 Each file is written whole under a temporary name and renamed into place, so a kill at any
 moment leaves the last complete checkpoint. The state refers to the inputs' traverse, stops and truth by
@@ -24,15 +24,16 @@ from typing import TYPE_CHECKING, Any
 from ..errors import ResultsError
 
 if TYPE_CHECKING:
-    from ..group import RunState
-    from ..results import RunOptions, SourceData
+    from ..solve.results import RunOptions, SourceData
+    from ..solve.state import RunState
 
 CHECKPOINT_DIR = "checkpoint"
 INPUTS_FILE = "inputs.pkl"
 STATE_FILE = "state.pkl"  # a run in one process; side by side, group g's is state-g.pkl
 STATE_HEADER = "pancam-graph state; next stop"
-FORMAT = 5  # a checkpoint of another format is refused, not misread (2: the smoother's window; 3: groups;
-# 4: the partial relinearization check; 5: the smoothers' update logs in files beside the states)
+FORMAT = 6  # a checkpoint of another format is refused, not misread (2: the smoother's window; 3: groups;
+# 4: the partial relinearization check; 5: the smoothers' update logs in files beside the states;
+# 6: the run loop's classes in pancam_graph.solve)
 LOG_DIR = "log"  # the smoothers' update logs, one folder per configuration
 
 

@@ -17,14 +17,14 @@ import gtsam
 import numpy as np
 
 from ..errors import FolderInUse, InputError, ResultsError
+from ..formats.export import write_trajectory_exports
+from ..formats.tables import write_csv, write_json
 from ..geodesy import LocalFrame
-from ..results import evaluation_document, metrics_document, reproduce_command, run_configuration
 from ..rig import Camera, Rig
-from .export import write_trajectory_exports
-from .tables import write_csv, write_json
+from ..solve.results import evaluation_document, metrics_document, reproduce_command, run_configuration
 
 if TYPE_CHECKING:
-    from ..results import RunResult
+    from ..solve.results import RunResult
 
 
 LOCK_FILE = ".lock"  # in a staging folder: locked (flock) by the run that owns it, which writes its PID
@@ -145,7 +145,7 @@ def write_tum(path: Path, times_s: np.ndarray, world_T_body: np.ndarray) -> None
 
 def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """(times (N,), world_T_body (N, 4, 4)) from a TUM file."""
-    from .trajectories import read_tum as read_tum_trajectory
+    from ..formats.trajectories import read_tum as read_tum_trajectory
 
     trajectory = read_tum_trajectory(path)
     return trajectory.times_s, trajectory.world_T_body

@@ -21,21 +21,14 @@ from concurrent.futures import FIRST_EXCEPTION, Future, ProcessPoolExecutor, wai
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import replace
 
-from .errors import GraphError
-from .frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_from
-from .frontend.vo_ahead import BLOCK_STOPS, VoAhead
-from .group import (
-    Checkpoints,
-    GroupJob,
-    GroupOutcome,
-    ProgressCallback,
-    RunState,
-    new_state,
-    release_memory,
-    run_group,
-)
-from .processes import process_context
-from .records import Traverse
+from ..errors import GraphError
+from ..frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_from
+from ..frontend.vo_ahead import BLOCK_STOPS, VoAhead
+from ..processes import process_context
+from ..records import Traverse
+from .group import GroupJob, GroupOutcome, ProgressCallback, new_state, run_group
+from .memory import release_memory
+from .state import Checkpoints, RunState
 
 _stops_done = None  # in a worker: the shared count of stops each group has stepped, then "stop now"
 _run_pid = 0  # in a worker: the process it works for

@@ -1,0 +1,61 @@
+"""An estimate against GPS fixes: the antenna (the lever arm from the body) interpolated to each
+fix's time, compared with the fixes in ENU (pyproj), and the score on fixes held out of the graph."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..records import GpsFix, Traverse
+from .metrics import GPS_REFERENCE_STEP_M, TrajectoryMetrics, compare, decimated_length
+from .timed import poses_at_times
+
+
+@dataclass(frozen=True)
+class HoldoutScore:
+    """A configuration against GPS fixes kept out of every graph."""
+
+    fixes: int
+    rms_2d_m: float  # RMS horizontal distance of the estimate to the held-out fixes
+    stated_drms_m: float  # the fixes' own stated 2-D RMS: what a perfect track would score
+
+    def as_dict(self) -> dict:
+        return {"held_out_fixes": self.fixes, "rms_2d_m": self.rms_2d_m, "stated_drms_m": self.stated_drms_m,
+                "drms_ratio": self.rms_2d_m / self.stated_drms_m}
+
+
+def gps_enu(traverse: Traverse, fixes: tuple[GpsFix, ...] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Fix times and the fixes converted to ENU (N, 3) with pyproj (default: the traverse's)."""
+    fixes = traverse.gps_fixes if fixes is None else fixes
+    if not fixes:
+        return np.zeros(0), np.zeros((0, 3))
+    enu = traverse.origin.to_enu([f.lat_deg for f in fixes], [f.lon_deg for f in fixes], [f.h_m for f in fixes])
+    return np.array([f.time_s for f in fixes]), enu
+
+
+def antenna_at_times(traverse: Traverse, world_T_body: np.ndarray, times_s: np.ndarray) -> np.ndarray:
+    stops = traverse.stops
+    poses = poses_at_times(np.array([s.time_s for s in stops]), np.array([s.departure_s for s in stops]),
+                           world_T_body, times_s)
+    return np.einsum("nij,j->ni", poses[:, :3, :3], traverse.gps_lever_arm_m) + poses[:, :3, 3]
+
+
+def evaluate_against_gps(traverse: Traverse, world_T_body: np.ndarray,
+                         fixes: tuple[GpsFix, ...] | None = None) -> TrajectoryMetrics | None:
+    """The antenna, interpolated to each fix's time, against the fixes (unaligned)."""
+    times, enu = gps_enu(traverse, fixes)
+    if len(times) < 2:
+        return None
+    return compare(antenna_at_times(traverse, world_T_body, times), enu, "none",
+                   reference_length_m=decimated_length(enu, GPS_REFERENCE_STEP_M))
+
+
+def holdout_score(traverse: Traverse, world_T_body: np.ndarray, held_out: tuple[GpsFix, ...]) -> HoldoutScore | None:
+    if not held_out:
+        return None
+    times, enu = gps_enu(traverse, held_out)
+    antenna = antenna_at_times(traverse, world_T_body, times)
+    rms = float(np.sqrt(np.mean(np.sum((antenna[:, :2] - enu[:, :2]) ** 2, axis=1))))
+    drms = float(np.sqrt(np.mean([2.0 * f.sigma_horizontal_m**2 for f in held_out])))
+    return HoldoutScore(len(held_out), rms, drms)
