@@ -56,3 +56,17 @@ def test_vo_without_matches_reports_failure(short_scenario):
 
     r = StereoVO.for_traverse(traverse).estimate(traverse.stops[0].stereo, StereoObservations.empty())
     assert not r.ok and "matches" in r.reason
+
+
+def test_a_step_gtsam_cannot_solve_is_a_vo_failure_and_the_run_bridges_it():
+    """denver_trail seed 116, stop 313: the two-stop adjustment is indeterminate (GTSAM raised
+    from the VO worker and ended the whole run); it is a failed step, bridged like the others."""
+    from pancam_graph.config import load_scenario, resolve_scenario
+
+    scenario = load_scenario(resolve_scenario("denver_trail"))
+    traverse, _ = simulate(scenario, 116)
+    vo = StereoVO.for_traverse(traverse, scenario.estimator)
+    result = vo.estimate(traverse.stops[312].stereo, traverse.stops[313].stereo)
+    assert not result.ok and result.reason == "two-stop adjustment indeterminate"
+    motion = motion_between(vo, traverse.stops[312], traverse.stops[313], None, traverse.wheel_slip)
+    assert motion.bridged and motion.source != "vo"

@@ -24,6 +24,9 @@ from ..rig import Rig, triangulate_rectified, triangulation_covariance
 
 _CHI2_6DOF_99 = chi2.quantile(0.99, 6)  # a point's two stereo residuals (2 x 3 px components): outlier gate
 _CHI2_3DOF_999 = chi2.quantile(0.999, 3)  # a point's two triangulations (3-D difference): re-admission gate
+# A step whose two-stop adjustment GTSAM cannot solve (a landmark placed where the system is
+# nearly singular) is a VO failure like any other: the motion bridges it.
+_INDETERMINATE = "two-stop adjustment indeterminate"
 
 
 @dataclass(frozen=True)
@@ -103,6 +106,8 @@ class StereoVO:
         guess = self.body_T_left.compose(curr_T_prev_cam.inverse()).compose(self.left_T_body)
 
         pose, _, keep = self._bundle_adjust(a[inl], b[inl], p_prev[inl], guess, covariance=False)
+        if pose is None:
+            return VoResult(False, None, None, matches, len(inl), _INDETERMINATE)
         if keep.sum() < self.min_inliers:
             return VoResult(False, None, None, matches, int(keep.sum()), "too few inliers after BA")
         # RANSAC judged the matches by reprojecting the previous triangulation, whose range error
@@ -112,10 +117,14 @@ class StereoVO:
         agree = self._consistent(a, b, p_prev, pose)
         inl = np.flatnonzero(agree) if agree.sum() >= keep.sum() else inl[keep]
         pose, cov, keep = self._bundle_adjust(a[inl], b[inl], p_prev[inl], pose)
+        if pose is None:
+            return VoResult(False, None, None, matches, len(inl), _INDETERMINATE)
         if keep.sum() < self.min_inliers:
             return VoResult(False, None, None, matches, int(keep.sum()), "too few inliers after BA")
         if keep.sum() < len(keep):
             pose, cov, _ = self._bundle_adjust(a[inl][keep], b[inl][keep], p_prev[inl][keep], pose)
+            if pose is None:
+                return VoResult(False, None, None, matches, int(keep.sum()), _INDETERMINATE)
         step = float(np.linalg.norm(pose.translation()))
         if step > self.max_step_m:
             return VoResult(False, None, None, matches, int(keep.sum()), f"implausible step {step:.1f} m")
@@ -148,7 +157,8 @@ class StereoVO:
         return d2 < _CHI2_3DOF_999
 
     def _bundle_adjust(self, a, b, p_prev_cam, guess: gtsam.Pose3, covariance: bool = True):
-        """(pose, its 6x6 covariance or None without `covariance`, which matches pass the outlier gate)."""
+        """(pose, its 6x6 covariance or None without `covariance`, which matches pass the outlier gate);
+        (None, None, None) when GTSAM finds the two-stop system indeterminate."""
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         # A tight prior rather than a hard equality: Marginals needs an ordinary Gaussian system.
@@ -170,10 +180,13 @@ class StereoVO:
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(15)
         params.setOrdering(ordering)
-        result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+        try:
+            result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+            cov = gtsam.Marginals(graph, result).marginalCovariance(X(1)) if covariance else None
+        except RuntimeError:  # GTSAM's IndeterminateLinearSystemException: a point it cannot place
+            return None, None, None
         # Whitened residual of each stereo pair of factors: index 1 + 2j and 2 + 2j.
         err = np.array([graph.at(1 + 2 * j).error(result) + graph.at(2 + 2 * j).error(result)
                         for j in range(len(a))])
         keep = 2.0 * err < _CHI2_6DOF_99
-        cov = gtsam.Marginals(graph, result).marginalCovariance(X(1)) if covariance else None
         return result.atPose3(X(1)), cov, keep
