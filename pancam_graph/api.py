@@ -4,7 +4,7 @@
     outcome = pancam_graph.run("short_trail", seed=0, out="results/short")
     outcome.result.configurations["vo_sites"].metrics.ate_rmse_m
 
-The command line (cli.py) parses arguments into these calls and prints what they return.
+The command line (cli/) parses arguments into these calls and prints what they return.
 Errors are raised as the package's typed errors (errors.py).
 """
 
@@ -78,8 +78,14 @@ def default_out(data: SourceData) -> Path:
 
 
 def check_out(out: Path | None, option: str = "--out") -> None:
-    """Results are never written over: `out` must be new or an empty folder."""
-    if out is None or not out.exists():
+    """Results are never written over: `out` must be new or an empty folder, and no live run may
+    be writing it."""
+    from .store.results_folder import refuse_if_in_use
+
+    if out is None:
+        return
+    refuse_if_in_use(out)
+    if not out.exists():
         return
     if not out.is_dir():
         raise ConfigError(f"{option} {out}: is a file, not a folder")

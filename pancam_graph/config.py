@@ -387,6 +387,8 @@ def resolve_scenario(name_or_path: str) -> Path:
             raise ConfigError(f"{candidate}: scenario file not found")
         return candidate
     bundled = bundled_scenarios()
+    if name_or_path not in bundled and ("/" in name_or_path or "\\" in name_or_path):
+        raise ConfigError(f"{name_or_path}: no such file or folder")
     if name_or_path not in bundled:
         raise ConfigError(f"unknown scenario {name_or_path!r}; bundled: {', '.join(sorted(bundled))}")
     return bundled[name_or_path]

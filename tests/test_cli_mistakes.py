@@ -88,9 +88,8 @@ def test_two_runs_on_one_out_exactly_one_wins_and_nothing_is_lost(tmp_path):
     deadline = time.time() + 60
     while not (tmp_path / "res.partial" / ".lock").exists() and first.poll() is None and time.time() < deadline:
         time.sleep(0.05)
-    start = time.perf_counter()
     second = _cli("run", "short_trail", "--out", "res", "--quiet", cwd=tmp_path)
-    assert time.perf_counter() - start < 10.0  # at once, not after the first run
+    assert first.poll() is None  # refused while the first still runs, not after it (whatever the load)
     _assert_usage_error(second, "in use by run", "choose another --out")
     out, err = first.communicate(timeout=120)
     assert first.returncode == 0, err

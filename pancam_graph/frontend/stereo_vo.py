@@ -9,7 +9,7 @@ test on the bundle-adjustment residuals.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 
 import cv2
 import gtsam
@@ -41,26 +41,30 @@ class VoResult:
     reason: str = ""
 
 
+@dataclass
 class StereoVO:
-    def __init__(self, rig: Rig, body_T_left: gtsam.Pose3, pixel_sigma: float, *, min_inliers: int,
-                 ransac_px: float, max_step_m: float, pnp_iterations: int, pnp_confidence: float,
-                 max_range_m: float, translation_floor: float, rotation_floor_rad_per_m: float):
-        """Every setting is the estimator configuration's (`configured`): written once, there."""
-        self.rig = rig
-        self.body_T_left = body_T_left
-        self.left_T_body = body_T_left.inverse()
-        self.calibration = rig.stereo_calibration()
-        self.K = rig.wac.matrix()
-        self.noise = noise.stereo_pixels(pixel_sigma)
-        self.pixel_sigma = pixel_sigma
-        self.min_inliers = min_inliers
-        self.ransac_px = max(ransac_px, 4.0 * pixel_sigma)
-        self.max_step_m = max_step_m
-        self.pnp_iterations = pnp_iterations
-        self.pnp_confidence = pnp_confidence
-        self.max_range_m = max_range_m
-        self.translation_floor = translation_floor
-        self.rotation_floor_rad_per_m = rotation_floor_rad_per_m
+    """Two-stop stereo VO of a pair mounted at body_T_left. Every setting is the estimator
+    configuration's (`configured`): written once, there."""
+
+    rig: Rig
+    body_T_left: gtsam.Pose3
+    pixel_sigma: float
+    _: KW_ONLY
+    min_inliers: int
+    ransac_px: float
+    max_step_m: float
+    pnp_iterations: int
+    pnp_confidence: float
+    max_range_m: float
+    translation_floor: float
+    rotation_floor_rad_per_m: float
+
+    def __post_init__(self) -> None:
+        self.left_T_body = self.body_T_left.inverse()
+        self.calibration = self.rig.stereo_calibration()
+        self.K = self.rig.wac.matrix()
+        self.noise = noise.stereo_pixels(self.pixel_sigma)
+        self.ransac_px = max(self.ransac_px, 4.0 * self.pixel_sigma)
 
     @classmethod
     def for_traverse(cls, traverse: Traverse, estimator: EstimatorConfig | None = None) -> StereoVO:

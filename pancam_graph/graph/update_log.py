@@ -23,6 +23,7 @@ from typing import Any
 
 import gtsam
 
+from ..atomic import write_atomically
 from ..errors import GraphError
 from .keys import subset
 
@@ -135,16 +136,10 @@ class UpdateLog:
             self._temporary = tempfile.TemporaryDirectory(prefix="pancam-graph-log-")
             self._folder = Path(self._temporary.name)
         path = self._path(self.files)
-        temporary = path.with_name(path.name + ".tmp")
-        try:
-            with temporary.open("wb") as f:
-                pickle.dump(_Updates(self.tail), f, protocol=pickle.HIGHEST_PROTOCOL)
-                if self._temporary is None:  # a checkpoint's: it must be there if a saved state is
-                    f.flush()
-                    os.fsync(f.fileno())
-            os.replace(temporary, path)
+        try:  # a checkpoint's log must be on disk if a saved state refers to it
+            write_atomically(path, lambda f: pickle.dump(_Updates(self.tail), f, protocol=pickle.HIGHEST_PROTOCOL),
+                             durable=self._temporary is None)
         except OSError as exc:
-            temporary.unlink(missing_ok=True)
             raise GraphError(f"{path}: cannot write the smoother's update log: {exc.strerror}") from None
         self.files += 1
         self.tail = []

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import copy
 import io
-import os
 import pickle
 import shutil
 import time
@@ -21,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ..atomic import write_atomically
 from ..errors import ResultsError
 
 if TYPE_CHECKING:
@@ -189,13 +189,7 @@ def _loads(path: Path, shared: dict[str, Any], header: bool = False):
 
 
 def _write_atomically(path: Path, payload: bytes) -> None:
-    temporary = path.with_name(path.name + ".tmp")
     try:
-        with temporary.open("wb") as f:
-            f.write(payload)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(temporary, path)
+        write_atomically(path, lambda f: f.write(payload))
     except OSError as exc:
-        temporary.unlink(missing_ok=True)
         raise ResultsError(f"{path}: cannot write the checkpoint: {exc.strerror}") from None

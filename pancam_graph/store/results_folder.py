@@ -65,6 +65,14 @@ def results_folder(out: Path, resume: bool = False) -> Iterator[Path]:
                            f"they are complete in {staging}") from None
 
 
+def refuse_if_in_use(out: Path) -> None:
+    """FolderInUse now if a live run holds `out`'s staging folder (before a run spends minutes
+    reading its source only to be refused then)."""
+    staging = Path(out).with_name(Path(out).name + ".partial")
+    if (staging / LOCK_FILE).is_file():
+        os.close(_lock(staging, Path(out)))
+
+
 def _create_locked(staging: Path, out: Path) -> int:
     """Create the staging folder already locked: made and locked under a private name, then
     renamed into place, which fails if another run's (never empty) folder is there."""

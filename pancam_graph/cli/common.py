@@ -1,0 +1,141 @@
+"""What the commands share: progress bars, Ctrl-C at a progress report, and parsing of the
+options several commands take. Errors are the package's typed ones (app.py prints them)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from collections.abc import Callable
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+from ..errors import ConfigError
+from .app import console
+
+if TYPE_CHECKING:  # the heavy imports wait until a command needs them: --help stays fast
+    from ..viz.rerun_sink import RerunTarget
+
+
+def progress_bar(quiet: bool = False) -> Progress:
+    """Every long step's bar: what, how far, time so far and the time left."""
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    TextColumn("eta"), TimeRemainingColumn(), console=console, transient=True, disable=quiet)
+
+
+def with_progress(name: str, quiet: bool, work: Callable[[Callable[[str, int, int], None]], Any]) -> Any:
+    """Run `work(progress)` under a progress bar labelled `name`; Ctrl-C stops it at its next
+    report."""
+    with progress_bar(quiet) as bar, _ctrl_c_at_reports() as check:
+        task = bar.add_task(f"{escape(name)}: stops", total=None)
+
+        def report(stage: str, done: int, total: int) -> None:
+            check()
+            bar.update(task, description=f"{escape(name)}: {escape(stage)}", completed=done, total=total)
+
+        return work(report)
+
+
+@contextmanager
+def _ctrl_c_at_reports():
+    """Ctrl-C raises KeyboardInterrupt at the work's next progress report (a stop), not
+    wherever it lands: inside GTSAM's call of a Python factor it was lost and the run went on.
+    A second Ctrl-C stops at once."""
+    pressed = []
+
+    def handler(signum, frame):
+        if pressed:
+            raise KeyboardInterrupt
+        pressed.append(signum)
+
+    def check() -> None:
+        if pressed:
+            raise KeyboardInterrupt
+
+    if threading.current_thread() is not threading.main_thread():  # signals go to the main thread only
+        yield check
+        return
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield check
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+# -- parsing ----------------------------------------------------------------------------------
+
+def load_named_scenario(scenario: str):
+    from ..config import load_scenario, resolve_scenario
+
+    return load_scenario(resolve_scenario(scenario))
+
+
+def rerun_help(default_file: str) -> str:
+    return (f"rerun viewer: 'spawn', 'save' ({default_file} in the results folder), 'save:FILE.rrd', "
+            "'serve' (gRPC + web viewer), 'connect:URL' (a running viewer, e.g. rerun+http://host:9876/proxy)")
+
+
+def rerun_target(text: str | None, memory_limit: str) -> RerunTarget | None:
+    """Parse --rerun; bad values are usage errors. `save` alone leaves the path to the library."""
+    from ..viz.rerun_sink import RerunTarget
+
+    if text is None:
+        return None
+    mode, _, arg = text.partition(":")
+    if mode == "spawn" and not arg:
+        if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+            raise ConfigError("--rerun spawn: no display (DISPLAY is not set); use --rerun save (then open the "
+                              ".rrd elsewhere) or --rerun serve (a web viewer)")
+        return RerunTarget(mode, memory_limit=memory_limit)
+    if mode == "serve" and not arg:
+        return RerunTarget(mode, memory_limit=memory_limit)
+    if mode == "save":
+        if arg and not arg.endswith(".rrd"):
+            raise ConfigError(f"--rerun save:{arg}: the recording file must end in .rrd")
+        return RerunTarget("save", path=Path(arg) if arg else None)
+    if mode == "connect":
+        return RerunTarget("connect", url=arg or None)
+    raise ConfigError(f"--rerun {text!r}: expected spawn, save, save:FILE.rrd, serve or connect:URL")
+
+
+def serve_until_interrupted(url: str | None) -> None:
+    import rerun as rr
+
+    rr.serve_web_viewer(connect_to=url, open_browser=False)
+    console.print(f"rerun: serving {url}; web viewer on http://localhost:9090 (Ctrl-C to stop)")
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+
+
+def parse_configs(text: str | None) -> tuple[str, ...] | None:
+    if text is None:
+        return None
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    if not names:
+        raise ConfigError("--configs: give one or more configuration names or kinds joined by '+', "
+                          "separated by commas (e.g. vo,vo+gps)")
+    return names
+
+
+def parse_topics(text: str | None) -> tuple[str, str] | None:
+    if text is None:
+        return None
+    topics = [t.strip() for t in text.split(",") if t.strip()]
+    if len(topics) != 2:
+        raise ConfigError(f"--stereo-topics {text!r}: expected LEFT,RIGHT (two image topics)")
+    return topics[0], topics[1]
+
+
+def parse_detector(text: str | None) -> str | None:
+    if text is not None and text not in ("gftt", "orb", "sift"):
+        raise ConfigError(f"--detector {text!r}: expected gftt, orb or sift")
+    return text
+
