@@ -171,7 +171,7 @@ def _prototype() -> Rig:
 def _katwijk_pancam() -> Rig:
     # The ExoMars PanCam emulator's WAC pair as calibrated for ESA's Katwijk beach data set
     # (shared/data/real/katwijk_pancam_calib/PanCam_calibstruct.mat), rectified by OpenCV's
-    # stereoRectify; tests/test_calibration.py checks these numbers against that file. The file
+    # stereoRectify; tests/formats/test_calibration.py checks these numbers against that file. The file
     # records no image size: 1280 x 960 is inferred (the principal points lie within 20 px of its
     # centre; the calibration points reach 1196 x 921). On the ExoMars mast height; no HRC.
     wac = Camera(fx=1446.2898299710705, fy=1446.2898299710705, cx=641.9771499633789, cy=472.0479431152344,

@@ -2,7 +2,7 @@
 in the field (truncated, bytes flipped or inserted, numbers replaced by nan, inf, huge or
 negative values, lines dropped, duplicated or swapped, a byte-order mark, CRLF), each read by
 its reader. A reader may refuse a file only with the project's own errors (PancamGraphError);
-anything else escaping is a finding. `tests/test_fuzz_readers.py` runs a few hundred; run
+anything else escaping is a finding. `tests/formats/test_fuzz_readers.py` runs a few hundred; run
 `python tests/fuzz_inputs.py N` for more (the issue-15 figure: 20,000)."""
 
 from __future__ import annotations

@@ -17,7 +17,9 @@ from pancam_graph.formats.calibration import (
 )
 from pancam_graph.formats.kitti import read_cam_to_cam
 
-CALIB = Path(__file__).parent / "data" / "real" / "kitti_raw" / "2011_09_26" / "calib_cam_to_cam.txt"
+pytestmark = pytest.mark.real_data
+
+CALIB = Path(__file__).parents[1] / "data" / "real" / "kitti_raw" / "2011_09_26" / "calib_cam_to_cam.txt"
 
 
 @pytest.fixture(scope="module")
@@ -182,7 +184,7 @@ def test_a_preset_rig_with_a_calibrated_pair_reads_back_unchanged(short_scenario
     np.testing.assert_allclose(back.rectification(), rotation, atol=1e-12)
 
 
-KATWIJK = Path(__file__).parent / "data" / "real" / "katwijk_pancam_calib"
+KATWIJK = Path(__file__).parents[1] / "data" / "real" / "katwijk_pancam_calib"
 
 
 def test_katwijk_pancam_matlab_calibration_reads_with_its_published_baseline_and_focal_length():

@@ -13,7 +13,9 @@ from pancam_graph.solve.pipeline import run_traverse
 from pancam_graph.solve.results import RunOptions
 from pancam_graph.sources import SourceOptions, open_source
 
-BAG = Path(__file__).parent / "data" / "real" / "robot_localization" / "test1.bag"
+pytestmark = pytest.mark.real_data
+
+BAG = Path(__file__).parents[1] / "data" / "real" / "robot_localization" / "test1.bag"
 ODOM = "/husky_velocity_controller/odom"
 
 

@@ -17,7 +17,9 @@ from pancam_graph.formats.export import (
 from pancam_graph.formats.gps_logs import read_gps_csv, read_kfgins
 from pancam_graph.geodesy import LocalFrame
 
-REAL = Path(__file__).parent / "data" / "real"
+pytestmark = pytest.mark.real_data
+
+REAL = Path(__file__).parents[1] / "data" / "real"
 KFGINS = REAL / "kfgins" / "GNSS-RTK.txt"
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-REAL = Path(__file__).parent / "data" / "real"
+REAL = Path(__file__).parents[1] / "data" / "real"
 BAG = REAL / "robot_localization" / "test1.bag"
 DATE_FOLDER = REAL / "kitti_raw" / "2011_09_26"
 

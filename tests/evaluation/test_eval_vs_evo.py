@@ -19,7 +19,9 @@ from typer.testing import CliRunner
 
 from pancam_graph.cli import app
 
-REAL = Path(__file__).parent / "data" / "real"
+pytestmark = pytest.mark.real_data
+
+REAL = Path(__file__).parents[1] / "data" / "real"
 BAG = REAL / "robot_localization" / "test1.bag"
 KITTI = REAL / "kitti_raw" / "2011_09_26" / "2011_09_26_drive_0001_sync"
 runner = CliRunner()

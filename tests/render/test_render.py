@@ -18,6 +18,8 @@ from pancam_graph.solve.results import RunOptions
 from pancam_graph.sources import image_folder
 from pancam_graph.store.observation_folder import read_observations
 
+pytestmark = pytest.mark.render
+
 SCENARIO = Scenario.model_validate({
     "name": "render_strip", "description": "40 m for the renderer tests",
     "origin": {"lat_deg": 39.7392, "lon_deg": -105.145, "h_m": 1705.0},

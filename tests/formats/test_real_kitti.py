@@ -12,7 +12,9 @@ from pancam_graph.errors import InputError
 from pancam_graph.formats.kitti import read_kitti_raw
 from pancam_graph.geodesy import LocalFrame
 
-DATE = Path(__file__).parent / "data" / "real" / "kitti_raw" / "2011_09_26"
+pytestmark = pytest.mark.real_data
+
+DATE = Path(__file__).parents[1] / "data" / "real" / "kitti_raw" / "2011_09_26"
 DRIVE = DATE / "2011_09_26_drive_0001_sync"
 A, F = 6378137.0, 1.0 / 298.257223563  # WGS84
 
@@ -81,7 +83,7 @@ def test_reader_loads_images_of_a_generated_kitti_folder(tmp_path):
 
 # -- KITTI odometry ------------------------------------------------------------------------------
 
-PAIR = Path(__file__).parent / "data" / "real" / "kitti00_stereo_pair"
+PAIR = Path(__file__).parents[1] / "data" / "real" / "kitti00_stereo_pair"
 # sequence 00's calib.txt, the two lines the reader uses: P0 (left) and P1 (right, P1[0, 3] = -fx * baseline)
 CALIB_00 = {
     "P0": [718.856, 0, 607.1928, 0, 0, 718.856, 185.2157, 0, 0, 0, 1, 0],

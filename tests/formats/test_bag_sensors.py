@@ -12,7 +12,9 @@ from scipy.spatial.transform import Rotation
 from pancam_graph.errors import InputError
 from pancam_graph.formats.rosbag import read_images, read_imu, read_odometry, read_stereo_camera_info
 
-REAL = Path(__file__).parent / "data" / "real"
+pytestmark = pytest.mark.real_data
+
+REAL = Path(__file__).parents[1] / "data" / "real"
 BAG = REAL / "robot_localization" / "test1.bag"
 PAIR = REAL / "kitti00_stereo_pair"
 # KITTI odometry sequence 00, calib.txt P0 and P1 (rectified; P1[0, 3] = -fx * baseline)

@@ -13,7 +13,9 @@ import pytest
 from pancam_graph.errors import InputError
 from pancam_graph.formats.gps_logs import read_gps_file, read_gpx, read_kfgins, read_nmea
 
-KFGINS = Path(__file__).parent / "data" / "real" / "kfgins" / "GNSS-RTK.txt"
+pytestmark = pytest.mark.real_data
+
+KFGINS = Path(__file__).parents[1] / "data" / "real" / "kfgins" / "GNSS-RTK.txt"
 GPS_EPOCH = dt.datetime(1980, 1, 6, tzinfo=dt.UTC)
 WEEK = 2100  # the KF-GINS file carries seconds of week only; any week serves a format test
 GEOID_SEP_M = 12.3

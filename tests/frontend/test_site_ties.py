@@ -21,6 +21,8 @@ from pancam_graph.sources.image_folder import FramePairs
 from pancam_graph.sources.site_images import images_by_stop, with_site_panoramas
 from pancam_graph.store.observation_folder import read_observations
 
+pytestmark = pytest.mark.render
+
 SCENARIO = Scenario.model_validate({
     "name": "site_strip", "description": "three sites 30-40 m apart with full panoramas",
     "origin": {"lat_deg": 39.7392, "lon_deg": -105.145, "h_m": 1705.0},

@@ -18,7 +18,7 @@ from pancam_graph.solve.state import CHECKPOINT_EVERY_STOPS
 from pancam_graph.viz.rerun_live import RerunRecorder
 from pancam_graph.viz.rerun_sink import RerunTarget, open_recording
 
-TESTS = Path(__file__).parent
+TESTS = Path(__file__).parents[1]
 
 
 @pytest.fixture(scope="module")
