@@ -3,6 +3,7 @@ run resumed; the summary table."""
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -124,13 +125,14 @@ def run_command(
     from ..sources import SourceOptions
 
     processes = 1 if one_process else None
+    # the source's options as given (not yet checked): each one's flag is SourceOptions'
+    options = SourceOptions(seed, gps_topic, odom_topic, holdout_every, geoid_height, detector,
+                            skip_bad_frames or None, stereo_topics)
     if resume is not None:
-        given = {"SOURCE": source, "--out": out, "--seed": seed, "--configs": configs, "--batch": batch or None,
-                 "--gps-topic": gps_topic, "--odom-topic": odom_topic, "--holdout-every": holdout_every,
-                 "--geoid-height": geoid_height, "--detector": detector, "--stereo-topics": stereo_topics,
-                 "--skip-bad-frames": skip_bad_frames or None}
+        given = {"SOURCE": source, "--out": out, "--configs": configs, "--batch": batch or None}
         with user_input():
             clash = [name for name, value in given.items() if value is not None]
+            clash += [SourceOptions.flags()[name] for name in options.given()]
             if clash:
                 raise ConfigError(f"--resume goes on with the run's own source and options; drop {', '.join(clash)}")
             target = rerun_target(rerun, viewer_memory)
@@ -149,8 +151,8 @@ def run_command(
         start_process_server()  # it imports the package while the source loads
     with user_input():
         target = rerun_target(rerun, viewer_memory)
-        options = SourceOptions(seed, gps_topic, odom_topic, holdout_every, geoid_height, parse_detector(detector),
-                                skip_bad_frames or None, parse_topics(stereo_topics))
+        options = dataclasses.replace(options, detector=parse_detector(detector),
+                                      stereo_topics=parse_topics(stereo_topics))
         names = parse_configs(configs)
         api.check_out(out)
         data = with_progress(Path(source).name or source, quiet,

@@ -19,8 +19,9 @@ from ..formats.images import read_gray
 from ..frontend.motion import VoMotions
 from ..frontend.tracker import CameraMotion, StageTimes, StereoTracker
 from ..records import Stop, Traverse
-from ..solve.results import SourceData, SourceInfo
+from ..solve.results import SourceData, SourceInfo, SourceOptions
 from .frames import median_frame_ms, track_frames
+from .registry import Source
 from .site_images import with_site_panoramas
 
 # Pixel sigma of a landmark's views when its tie points were matched across sites from images:
@@ -148,3 +149,13 @@ def odometry_camera_motion(traverse: Traverse) -> Callable[[np.ndarray], CameraM
         return CameraMotion.from_body_motion(previous_T_current, body_T_camera, rig.wac, rig.baseline_m)
 
     return camera_motion
+
+
+def _load(text: str, options: SourceOptions, progress) -> SourceData:
+    frontend = FrontendConfig(detector=options.detector) if options.detector else None
+    return load(Path(text), frontend, progress, bool(options.skip_bad_frames))
+
+
+# Before observation folders: an image folder is one, with frames.csv for its stereo pairs.
+SOURCES = (Source("image_folder", 30, frozenset({"detector", "skip_bad_frames"}), matches, _load,
+                  "an image folder (traverse.toml with frames.csv)"),)

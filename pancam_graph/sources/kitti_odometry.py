@@ -16,8 +16,9 @@ from ..frontend.tracker import StereoTracker
 from ..geodesy import LocalFrame
 from ..records import GroundTruth, SlipPrior, StereoObservations, Stop, Traverse
 from ..rig import BODY_T_FORWARD_CAMERA, Rig
-from ..solve.results import SourceData, SourceInfo
+from ..solve.results import SourceData, SourceInfo, SourceOptions
 from .frames import median_frame_ms, track_frames
+from .registry import Source
 
 # Matching and localisation error of the front-end's features (1 sigma).
 PIXEL_SIGMA_PX = 0.5
@@ -90,3 +91,12 @@ def traverse_from_sequence(sequence, stops: list[Stop], tracker: StereoTracker, 
                              *notes),
                       options={"detector": frontend.detector})
     return SourceData(traverse, truth, REAL_IMAGE_ESTIMATOR, 0, info)
+
+
+def _load(text: str, options: SourceOptions, progress) -> SourceData:
+    frontend = FrontendConfig(detector=options.detector) if options.detector else None
+    return load(Path(text), frontend, progress, bool(options.skip_bad_frames))
+
+
+SOURCES = (Source("kitti_odometry", 50, frozenset({"detector", "skip_bad_frames"}), matches, _load,
+                  "a KITTI odometry sequence (calib.txt with image_0/image_1 or image_l/image_r)"),)

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from ..solve.results import SourceData, SourceInfo
 from ..store.observation_folder import is_observation_folder, read_observations
+from .registry import Source
 
 
 def matches(path: Path) -> bool:
@@ -17,3 +18,7 @@ def load(path: Path) -> SourceData:
     reference = "truth.kitti of the observation folder" if obs.truth is not None else "none"
     info = SourceInfo("observations", str(path), reference)
     return SourceData(obs.traverse, obs.truth, obs.estimator, obs.seed, info)
+
+
+SOURCES = (Source("observations", 40, frozenset(), matches, lambda text, options, progress: load(Path(text)),
+                  "an observation folder (traverse.toml)"),)

@@ -18,7 +18,8 @@ from ..evaluation.timed import poses_at_times
 from ..geodesy import LocalFrame
 from ..records import DeadReckoning, GpsFix, GroundTruth, OdometryTrack, SlipPrior, StereoObservations, Stop, Traverse
 from ..rig import rig_preset
-from ..solve.results import SourceData, SourceInfo
+from ..solve.results import SourceData, SourceInfo, SourceOptions
+from .registry import Source
 
 _ALIGN_DISTANCE_M = 15.0  # odometry travelled before the initial heading is taken from GPS
 
@@ -224,7 +225,7 @@ def load_stereo_bag(path: Path, left_topic: str, right_topic: str, left_info: st
         info = SourceInfo("rosbag", str(path), "none", notes=(
             f"stereo pairs from {left_topic} + {right_topic} ({unpaired} unpaired left images)",
             "the start pose is the local frame's origin (the bag gives no surveyed start)", *notes),
-            options={"left_topic": left_topic, "right_topic": right_topic})
+            options={"stereo_topics": (left_topic, right_topic)})
         return SourceData(traverse, None, REAL_IMAGE_ESTIMATOR, 0, info)
 
     stops = [Stop(k, time_s, StereoObservations.empty()) for k, (time_s, _, _) in enumerate(pairs)]
@@ -239,3 +240,38 @@ def _gray(image: np.ndarray) -> np.ndarray:
     if image.dtype != np.uint8:
         image = cv2.convertScaleAbs(image, alpha=255.0 / max(float(image.max()), 1.0))
     return image
+
+
+def _load_bag(text: str, options: SourceOptions, progress) -> SourceData:
+    """A bag's GPS and odometry, or with stereo_topics its images through the front-end."""
+    holdout = 5 if options.holdout_every is None else options.holdout_every
+    if options.stereo_topics is None:
+        options.check("rosbag", {"gps_topic", "odom_topic", "holdout_every"})
+        return load_bag(Path(text), options.gps_topic, options.odom_topic, holdout)
+    options.check("rosbag", {"stereo_topics", "detector", "skip_bad_frames"})
+    from ..config import FrontendConfig
+
+    left, right = options.stereo_topics
+    frontend = FrontendConfig(detector=options.detector) if options.detector else None
+    return load_stereo_bag(Path(text), left, right, _info_topic(left), _info_topic(right), frontend, progress,
+                           bool(options.skip_bad_frames))
+
+
+def _info_topic(image_topic: str) -> str:
+    """The CameraInfo topic beside an image topic: /left/image_rect[/compressed] -> /left/camera_info."""
+    parts = [p for p in image_topic.split("/") if p and p != "compressed"]
+    return "/" + "/".join(parts[:-1] + ["camera_info"])
+
+
+def _load_kitti_raw(text: str, options: SourceOptions, progress) -> SourceData:
+    holdout = 5 if options.holdout_every is None else options.holdout_every
+    return load_kitti_raw(Path(text), options.geoid_height_m or 0.0, holdout)
+
+
+SOURCES = (
+    Source("rosbag", 10, frozenset({"gps_topic", "odom_topic", "holdout_every", "stereo_topics", "detector",
+                                    "skip_bad_frames"}), is_bag, _load_bag,
+           "a ROS1 bag or a ROS2 bag folder (metadata.yaml)"),
+    Source("kitti_raw", 20, frozenset({"geoid_height_m", "holdout_every"}), is_kitti_drive, _load_kitti_raw,
+           "a KITTI raw drive folder (oxts/)"),
+)

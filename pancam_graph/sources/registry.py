@@ -1,0 +1,36 @@
+"""What a source is to the run: a kind of input, how to recognise it, which options it takes,
+and how to load it. Every module of this package that defines `SOURCES` is found, and its
+sources join the registry: a new source is one module (plus its test)."""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..solve.results import SourceData, SourceOptions
+
+ProgressCallback = Callable[[str, int, int], None]
+
+
+@dataclass(frozen=True)
+class Source:
+    name: str  # as metrics.json's source.kind says it
+    order: int  # recognition order: the first whose `matches` says yes reads the path
+    takes: frozenset[str]  # the SourceOptions it accepts
+    matches: Callable[[Path], bool]
+    load: Callable[[str, SourceOptions, ProgressCallback | None], SourceData]
+    describes: str  # what it is, for the message when nothing matches
+
+
+def registered() -> list[Source]:
+    """Every source of this package's modules, in recognition order."""
+    found = []
+    for module in pkgutil.iter_modules([str(Path(__file__).parent)]):
+        found += getattr(importlib.import_module(f"{__package__}.{module.name}"), "SOURCES", ())
+    names = [s.name for s in found]
+    if len(set(names)) != len(names):
+        raise TypeError(f"two sources share a name: {sorted(names)}")
+    return sorted(found, key=lambda s: s.order)
