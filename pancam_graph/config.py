@@ -165,6 +165,17 @@ DEFAULT_CONFIGURATIONS: dict[str, list[str]] = {
 REAL_IMAGE_ROTATION_FLOOR_DEG_PER_M = 0.03
 
 
+# Estimator keys that moved into their kind's own section, [estimator.<kind>] (kinds/<kind>.py).
+MOVED_KEYS = {
+    "gps_kernel": ("gps", "kernel"), "gps_outlier_probability": ("gps", "outlier_probability"),
+    "gps_time_association": ("gps", "time_association"), "gps_max_gap_s": ("gps", "max_gap_s"),
+    "tie_points_per_site": ("sites", "points_per_site"), "tie_sigma_px": ("sites", "sigma_px"),
+    "site_memory": ("sites", "memory"), "landmark_anchor_sigma_m": ("sites", "anchor_sigma_m"),
+    "tie_kernel": ("sites", "kernel"), "hrc_gate_px": ("hrc", "gate_px"), "hrc_sigma_px": ("hrc", "sigma_px"),
+    "vo_scale_sigma": ("vo_scale", "sigma"),
+}
+
+
 class _EstimatorCore(_Strict):
     """Every constant of the estimator: what is written with the results is the whole story.
     A measurement kind with its own constants (`Kind.Settings`) adds them as a section named
@@ -181,30 +192,8 @@ class _EstimatorCore(_Strict):
     vo_translation_floor: float = Field(0.0, ge=0.0, lt=1.0, description="per-step translation error the pixel "
                                         "noise does not explain, as a fraction of the step (real images)")
     vo_rotation_floor_deg_per_m: float = Field(0.0, ge=0.0, lt=10.0, description="the same for rotation")
-    vo_scale_sigma: float = Field(0.01, gt=0.0, lt=0.5, description="vo_scale kind: 1-sigma scale error "
-                                  "shared by every VO step (the stereo baseline's calibration)")
-    tie_points_per_site: int = Field(150, ge=3)
-    tie_sigma_px: float | None = Field(None, gt=0.0, le=50.0, description="pixel sigma of a landmark's stereo "
-                                       "views at sites; None: the traverse's image noise (tie points matched "
-                                       "across sites from images are found to about 1 px: docs/frontend.md)")
-    site_memory: int = Field(3, ge=1, description="earlier sites searched for tie points")
-    landmark_anchor_sigma_m: float = Field(3.0, gt=0.0, description="bearing-range anchor of a new "
-                                           "landmark from its first site, along and across the line of sight")
-    hrc_gate_px: float = Field(30.0, gt=0.0, description="HRC measurement vs WAC landmark prediction")
-    hrc_sigma_px: float | None = Field(None, gt=0.0, le=50.0, description="pixel sigma of an HRC view; None: "
-                                       "the traverse's image noise (WAC features found in HRC images carry the WAC "
-                                       "pixel's error: image folders use 7 HRC px, docs/frontend.md)")
-    tie_kernel: Literal["huber", "cauchy", "none"] = "huber"
-    gps_kernel: Literal["huber", "cauchy", "none"] = "huber"
     huber_k: float = Field(1.345, gt=0.0, description="Huber threshold in sigmas (95 % efficiency)")
     cauchy_k: float = Field(1.0, gt=0.0)
-    gps_outlier_probability: float = Field(0.99, gt=0.5, lt=1.0, description="chi-square (3 dof) level "
-                                           "above which a fix is flagged as an outlier after its update")
-    gps_time_association: Literal["interpolate", "nearest_stop"] = Field(
-        "interpolate", description="interpolate: a fix between stops constrains a pose inserted at its time; "
-        "nearest_stop: it is attached to the stop nearest in time (the old behaviour, for comparison)")
-    gps_max_gap_s: float = Field(600.0, gt=0.0, description="a fix inside a drive longer than this between "
-                                 "two motion estimates is refused")
     start_sigma_deg: float = Field(0.05, gt=0.0)
     start_sigma_m: float = Field(0.02, gt=0.0)
     relinearize_rotation_rad: float = Field(0.02, gt=0.0, description="iSAM2 relinearizes a pose whose "
@@ -234,6 +223,16 @@ class _EstimatorCore(_Strict):
                             "it entered (bounded cost per stop on long traverses); inf: the whole traverse")
     configurations: dict[str, list[str]] = Field(default_factory=lambda: dict(DEFAULT_CONFIGURATIONS),
                                                  description="name -> measurement kinds (pancam_graph/kinds/)")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _moved_keys(cls, data):
+        """Keys that became a kind's own section say where they went."""
+        if isinstance(data, dict):
+            for old, (section, new) in MOVED_KEYS.items():
+                if old in data:
+                    raise ValueError(f"{old} moved to the section [estimator.{section}] as {new}")
+        return data
 
     def kernel_k(self, kernel: str) -> float | None:
         """The threshold (sigmas) of a robust kernel named in this configuration."""

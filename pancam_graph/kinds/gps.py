@@ -5,21 +5,39 @@ antenna lever arm, a robust kernel, and a chi-square test at the updated estimat
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
+from pydantic import Field
 
 from .. import chi2
 from ..graph import factors, noise
 from ..graph.keys import X
 from ..records import GpsFix, Stop, Traverse
+from ..sections import Section
 from .base import Kind
 
 TIME_TOLERANCE_S = 1e-3  # a fix this close to a stop's time is taken at the stop
 _REASONS_KEPT = 20
 
 
+class GpsSettings(Section):
+    """[estimator.gps]"""
+
+    kernel: Literal["huber", "cauchy", "none"] = "huber"
+    outlier_probability: float = Field(0.99, gt=0.5, lt=1.0, description="chi-square (3 dof) level above which a "
+                                       "fix is flagged as an outlier after its update")
+    time_association: Literal["interpolate", "nearest_stop"] = Field(
+        "interpolate", description="interpolate: a fix between stops constrains a pose inserted at its time; "
+        "nearest_stop: it is attached to the stop nearest in time (the old behaviour, for comparison)")
+    max_gap_s: float = Field(600.0, gt=0.0, description="a fix inside a drive longer than this between two motion "
+                             "estimates is refused")
+
+
 class Gps(Kind):
     name = "gps"
     order = 5
+    Settings = GpsSettings
 
     @staticmethod
     def unavailable(traverse: Traverse) -> str | None:
@@ -27,10 +45,10 @@ class Gps(Kind):
 
     def __init__(self, localizer):
         super().__init__(localizer)
-        est = localizer.estimator
-        self.gate = chi2.quantile(est.gps_outlier_probability, 3)
-        self.interpolate = est.gps_time_association == "interpolate"
-        self.max_gap_s = est.gps_max_gap_s
+        est, settings = localizer.estimator, localizer.estimator.gps
+        self.gate = chi2.quantile(settings.outlier_probability, 3)
+        self.interpolate = settings.time_association == "interpolate"
+        self.max_gap_s = settings.max_gap_s
         self.refused: list[str] = []
         self.refused_count = 0
         self._pending: list[tuple[int, GpsFix, np.ndarray]] = []  # this stop's (key, fix, ENU)
@@ -38,7 +56,7 @@ class Gps(Kind):
         enu = localizer.traverse.origin.to_enu([f.lat_deg for f in fixes], [f.lon_deg for f in fixes],
                                                [f.h_m for f in fixes])
         self._enu = dict(zip((f.time_s for f in fixes), enu, strict=True))  # converted once, by time
-        self._kernel = est.gps_kernel, est.kernel_k(est.gps_kernel)
+        self._kernel = settings.kernel, est.kernel_k(settings.kernel)
         first = localizer.traverse.stops[0].time_s
         for fix in fixes:
             if fix.time_s < first - TIME_TOLERANCE_S:
@@ -73,7 +91,7 @@ class Gps(Kind):
             return X(prev.index) if t - prev.departure_s < stop.time_s - t else X(stop.index)
         if self._drive_too_long(prev, stop):
             self._refuse(fix, f"inside a {stop.time_s - prev.departure_s:.0f} s drive between stops {prev.index} "
-                              f"and {stop.index}, longer than gps_max_gap_s = {self.max_gap_s:g} s")
+                              f"and {stop.index}, longer than [estimator.gps] max_gap_s = {self.max_gap_s:g} s")
             return None
         return self.loc.pose_key_at(t)
 

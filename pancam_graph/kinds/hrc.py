@@ -6,17 +6,29 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
+from pydantic import Field
 
 from ..graph import factors, noise
 from ..graph.keys import L
 from ..records import Stop, Traverse
+from ..sections import Section
 from .base import Kind
 from .sites import SiteObservations
+
+
+class HrcSettings(Section):
+    """[estimator.hrc]"""
+
+    gate_px: float = Field(30.0, gt=0.0, description="HRC measurement vs WAC landmark prediction")
+    sigma_px: float | None = Field(None, gt=0.0, le=50.0, description="pixel sigma of an HRC view; None: the "
+                                   "traverse's image noise (WAC features found in HRC images carry the WAC pixel's "
+                                   "error: image folders use 7 HRC px, docs/frontend.md)")
 
 
 class Hrc(Kind):
     name = "hrc"
     order = 4
+    Settings = HrcSettings
 
     @staticmethod
     def unavailable(traverse: Traverse) -> str | None:
@@ -30,9 +42,9 @@ class Hrc(Kind):
         self.calibration = self.rig.hrc.gtsam_calibration()
         # HRC residuals start large (landmarks come from the WAC), so only a convex kernel keeps
         # them pulling: Huber, whatever the tie-point kernel is.
-        sigma_px = localizer.estimator.hrc_sigma_px or localizer.traverse.image_noise_px
+        sigma_px = localizer.estimator.hrc.sigma_px or localizer.traverse.image_noise_px
         self.noise = noise.robust("huber", noise.image_pixels(sigma_px), localizer.estimator.huber_k)
-        self.gate_px = localizer.estimator.hrc_gate_px
+        self.gate_px = localizer.estimator.hrc.gate_px
         self.added = self.rejected = 0
         localizer.kind("sites").hrc = self
 

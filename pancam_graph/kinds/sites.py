@@ -10,14 +10,17 @@ from __future__ import annotations
 
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
+from typing import Literal
 
 import gtsam
 import numpy as np
+from pydantic import Field
 
 from ..graph import factors, noise, tie_gate
 from ..graph.keys import L, X
 from ..graph.tie_gate import RelativePose, SitePoint
 from ..records import Stop, Traverse
+from ..sections import Section
 from .base import Kind
 
 # The last sites collected, for the other configurations stepping the same stop (Sites._collect)
@@ -43,9 +46,23 @@ class LandmarkReference:
     point: SitePoint
 
 
+class SitesSettings(Section):
+    """[estimator.sites]"""
+
+    points_per_site: int = Field(150, ge=3, description="tie points kept per site")
+    sigma_px: float | None = Field(None, gt=0.0, le=50.0, description="pixel sigma of a landmark's stereo views "
+                                   "at sites; None: the traverse's image noise (tie points matched across sites "
+                                   "from images are found to about 1 px: docs/frontend.md)")
+    memory: int = Field(3, ge=1, description="earlier sites searched for tie points")
+    anchor_sigma_m: float = Field(3.0, gt=0.0, description="bearing-range anchor of a new landmark from its first "
+                                  "site, along and across the line of sight")
+    kernel: Literal["huber", "cauchy", "none"] = "huber"
+
+
 class Sites(Kind):
     name = "sites"
     order = 3
+    Settings = SitesSettings
 
     @staticmethod
     def unavailable(traverse: Traverse) -> str | None:
@@ -56,11 +73,13 @@ class Sites(Kind):
         est = localizer.estimator
         self.rig = localizer.traverse.rig
         # the pixel sigma of a landmark's views: the tie noise and the tie gate's triangulations
-        self.sigma_px = est.tie_sigma_px or localizer.traverse.image_noise_px
-        self.memory = est.site_memory
-        self.anchor_sigma_m = est.landmark_anchor_sigma_m
-        self.tie_points_per_site = est.tie_points_per_site
-        self.tie_noise = noise.robust(est.tie_kernel, noise.stereo_pixels(self.sigma_px), est.kernel_k(est.tie_kernel))
+        settings: SitesSettings = est.sites
+        self.sigma_px = settings.sigma_px or localizer.traverse.image_noise_px
+        self.memory = settings.memory
+        self.anchor_sigma_m = settings.anchor_sigma_m
+        self.tie_points_per_site = settings.points_per_site
+        self.tie_noise = noise.robust(settings.kernel, noise.stereo_pixels(self.sigma_px),
+                                      est.kernel_k(settings.kernel))
         self.stereo_calibration = self.rig.stereo_calibration()
         self.sites: list[SiteObservations] = []
         self.landmarks: set[int] = set()

@@ -120,12 +120,13 @@ def with_sites(data: SourceData, obs: ObservationSet, pairs: FramePairs, fronten
     the estimator's landmark views get that sigma."""
     estimator = data.estimator
     notes = []
-    if estimator.tie_sigma_px is None:
-        estimator = estimator.model_copy(update={"tie_sigma_px": TIE_SIGMA_PX})
+    if estimator.sites.sigma_px is None:
+        sites = estimator.sites.model_copy(update={"sigma_px": TIE_SIGMA_PX})
+        estimator = estimator.model_copy(update={"sites": sites})
         notes.append(f"tie points matched across sites from images: landmark views at {TIE_SIGMA_PX} px")
     has_hrc = obs.traverse.rig.hrc is not None and any(p.camera == "hrc" for p in obs.panorama_frames)
-    if has_hrc and estimator.hrc_sigma_px is None:
-        estimator = estimator.model_copy(update={"hrc_sigma_px": HRC_SIGMA_PX})
+    if has_hrc and estimator.hrc.sigma_px is None:
+        estimator = estimator.model_copy(update={"hrc": estimator.hrc.model_copy(update={"sigma_px": HRC_SIGMA_PX})})
         notes.append(f"WAC features found in the HRC frames: HRC views at {HRC_SIGMA_PX} px")
     if progress is not None:
         progress("stereo VO (tie point predictions)", 0, 1)

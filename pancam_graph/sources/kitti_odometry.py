@@ -33,7 +33,7 @@ REAL_IMAGE_ESTIMATOR = EstimatorConfig(
     vo_max_range_m=40.0,
     vo_translation_floor=0.012,
     vo_rotation_floor_deg_per_m=REAL_IMAGE_ROTATION_FLOOR_DEG_PER_M,
-    vo_scale_sigma=0.01,
+    vo_scale={"sigma": 0.01},
     configurations={"vo": ["vo", "vo_scale"]},
 )
 

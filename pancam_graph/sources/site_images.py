@@ -128,7 +128,7 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
         stops[stop] = replace(stops[stop], site_id=site.site, panorama=tuple(
             PanoramaFrame(v.pan_rad, v.tilt_rad, v.observations) for v in site.views),
             hrc=tuple(HrcFrame(m.pan_rad, m.tilt_rad, m.track_ids, m.uv) for m in hrc))
-        recent = (recent + [site])[-vo.estimator.site_memory:]
+        recent = (recent + [site])[-vo.estimator.sites.memory:]
         report.sites.append(_without_images(site))
         if progress is not None:
             progress("site panoramas", done + 1, len(by_stop))

@@ -78,7 +78,7 @@ def test_show_config_prints_the_resolved_scenario(tmp_path):
     resolved = tomllib.loads(result.stdout)
     assert resolved["name"] == "short_trail"
     assert resolved["estimator"]["configurations"]["full"] == ["vo", "sites", "hrc", "gps"]
-    assert resolved["estimator"]["site_memory"] == 3  # every constant, defaults included
+    assert resolved["estimator"]["sites"]["memory"] == 3  # every constant, defaults included
 
 
 def test_two_runs_on_one_out_exactly_one_wins_and_nothing_is_lost(tmp_path):

@@ -59,7 +59,7 @@ def test_tie_points_between_sites_are_the_same_ground(sites):
             errors.append(truth.transfer_error((pair.a_stop, a.views[tie.a_view].body_T_camera, tie.a_uvv[[0, 2]]),
                                                (pair.b_stop, b.views[tie.b_view].body_T_camera, tie.b_uvv[[0, 2]])))
     errors = np.array(errors)
-    # measured: 160 and 173 ties, 99.7 % within 3 px, median 0.38 px (tie_sigma_px 1 px)
+    # measured: 160 and 173 ties, 99.7 % within 3 px, median 0.38 px ([estimator.sites] sigma_px 1 px)
     assert np.mean(errors < 3.0) >= 0.95
     assert np.median(errors) < 1.0
 
@@ -107,8 +107,9 @@ def test_wac_features_are_found_in_the_hrc_frames(sites):
 def test_vo_sites_from_images(sites):
     _, _, tracked, stops, report, _ = sites
     traverse = replace(tracked.traverse, stops=tuple(stops))
-    estimator = tracked.estimator.model_copy(update={"tie_sigma_px": image_folder.TIE_SIGMA_PX,
-                                                     "hrc_sigma_px": image_folder.HRC_SIGMA_PX})
+    est = tracked.estimator
+    estimator = est.model_copy(update={"sites": est.sites.model_copy(update={"sigma_px": image_folder.TIE_SIGMA_PX}),
+                                       "hrc": est.hrc.model_copy(update={"sigma_px": image_folder.HRC_SIGMA_PX})})
     result = run_traverse(traverse, tracked.truth, estimator, tracked.seed,
                           RunOptions(configs=("vo", "vo_sites", "vo_sites_hrc")))
     vo, vo_sites = result.configurations["vo"], result.configurations["vo_sites"]

@@ -11,8 +11,10 @@ from pancam_graph.solve.pipeline import run
 from pancam_graph.solve.results import RunOptions
 
 
-def _with(scenario, **estimator):
-    return scenario.model_copy(update={"estimator": scenario.estimator.model_copy(update=estimator)})
+def _with(scenario, **gps):
+    estimator = scenario.estimator
+    return scenario.model_copy(update={"estimator": estimator.model_copy(
+        update={"gps": estimator.gps.model_copy(update=gps)})})
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +26,7 @@ def test_fixes_between_stops_beat_attaching_them_to_the_nearest_stop(driving):
     """gps_driving: 1 Hz differential GPS (0.5 m) while driving between stops 2-10 m apart. Ignoring
     the fix times (the nearest stop takes each fix) costs twice the error."""
     timed = run(driving, RunOptions(seed=0, configs=("full",))).configurations["full"]
-    nearest = run(_with(driving, gps_time_association="nearest_stop"),
+    nearest = run(_with(driving, time_association="nearest_stop"),
                   RunOptions(seed=0, configs=("full",))).configurations["full"]
     assert len(timed.interpolated) > 1000 and len(nearest.interpolated) == 0
     assert timed.gps_fixes_used == nearest.gps_fixes_used > 1500
@@ -57,7 +59,7 @@ def test_fixes_outside_the_drive_are_refused_with_a_reason(short_scenario):
     mid = GpsFix(0.5 * (a.departure_s + b.time_s), fix.lat_deg, fix.lon_deg, fix.h_m, 2.0, 3.0)
     fixes = sorted((early, mid, *traverse.gps_fixes, late), key=lambda f: f.time_s)
     traverse = replace(traverse, gps_fixes=tuple(fixes))
-    long_drive = _with(short_scenario, gps_max_gap_s=1.0).estimator
+    long_drive = _with(short_scenario, max_gap_s=1.0).estimator
     loc = Localizer(traverse, ["dead_reckoning", "gps"], long_drive)
     gps = loc.kinds["gps"]
     assert gps.refused_count == 1 and "before the first stop" in gps.refused[0]
@@ -69,5 +71,5 @@ def test_fixes_outside_the_drive_are_refused_with_a_reason(short_scenario):
         loc.step(stop, motion)
     loc.finish()
     assert "after the last stop's departure" in gps.refused[-1]
-    assert gps.refused_count == 3 and "longer than gps_max_gap_s = 1 s" in gps.refused[1]
+    assert gps.refused_count == 3 and "longer than [estimator.gps] max_gap_s = 1 s" in gps.refused[1]
     assert not loc.interpolated  # the refused fix got no pose
