@@ -15,7 +15,7 @@ import tomli_w
 from pydantic import AfterValidator, BaseModel, Field, ValidationError, create_model, model_validator
 
 from .errors import ConfigError, PancamGraphError
-from .kinds import KINDS
+from .kinds import KINDS, configuration_problem
 from .sections import Section
 from .text_files import read_text
 
@@ -255,21 +255,6 @@ def _kind_sections(attribute: str) -> dict:
 
 EstimatorConfig = create_model("EstimatorConfig", __base__=_EstimatorCore, __module__=__name__,
                                **_kind_sections("Settings"))
-
-
-def configuration_problem(kinds: list[str]) -> str | None:
-    """Why a list of kinds is not a configuration, or None."""
-    unknown = [k for k in kinds if k not in KINDS]
-    if unknown:
-        return f"unknown kind {unknown[0]!r} (kinds: {', '.join(KINDS)})"
-    motion = [k for k in kinds if k in ("vo", "dead_reckoning")]
-    if len(motion) != 1:
-        return "needs exactly one motion kind, 'vo' or 'dead_reckoning'"
-    if "hrc" in kinds and "sites" not in kinds:
-        return "'hrc' adds views of site landmarks: it needs 'sites'"
-    if len(set(kinds)) != len(kinds):
-        return "a kind is listed twice"
-    return None
 
 
 class FrontendConfig(_Strict):

@@ -20,6 +20,40 @@ for _module in pkgutil.iter_modules(__path__):
 KINDS: dict[str, type[Kind]] = registered()
 
 
+def uses_vo(kinds: list[str]) -> bool:
+    """The configuration's motion is the stereo VO's."""
+    return any(KINDS[k].motion == "vo" for k in kinds)
+
+
+def absolute(kinds: list[str]) -> bool:
+    """The configuration has an absolute position (GPS): its estimate is in the world frame as it
+    stands, and its uncertainty is bounded."""
+    return any(KINDS[k].absolute for k in kinds)
+
+
+def relative_cost(kinds: list[str]) -> float:
+    """A configuration's time per stop relative to plain VO's (measured on long_traverse): what
+    balances the groups of configurations run side by side."""
+    return 1.0 + sum(KINDS[k].cost for k in kinds)
+
+
+def configuration_problem(kinds: list[str]) -> str | None:
+    """Why a list of kinds is not a configuration, or None."""
+    unknown = [k for k in kinds if k not in KINDS]
+    if unknown:
+        return f"unknown kind {unknown[0]!r} (kinds: {', '.join(KINDS)})"
+    motions = [k for k in kinds if KINDS[k].motion is not None]
+    if len(motions) != 1:
+        return "needs exactly one motion kind, " + " or ".join(repr(k) for k, c in KINDS.items() if c.motion)
+    for k in kinds:
+        for need, why in KINDS[k].needs.items():
+            if need not in kinds:
+                return f"{k!r} needs {need!r} ({why})"
+    if len(set(kinds)) != len(kinds):
+        return "a kind is listed twice"
+    return None
+
+
 def unavailable(kinds: list[str], traverse: Traverse) -> str | None:
     """Why the traverse cannot feed this configuration, or None."""
     for name in kinds:
@@ -29,4 +63,4 @@ def unavailable(kinds: list[str], traverse: Traverse) -> str | None:
     return None
 
 
-__all__ = ["KINDS", "Kind", "unavailable"]
+__all__ = ["KINDS", "Kind", "absolute", "configuration_problem", "relative_cost", "unavailable", "uses_vo"]

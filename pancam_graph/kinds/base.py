@@ -67,6 +67,11 @@ class Kind:
     Settings: ClassVar[type[Section] | None] = None  # [estimator.<name>]
     Sensor: ClassVar[type[Section] | None] = None  # a scenario's [<name>]: how it is simulated
     columns: ClassVar[tuple[str, ...]] = ()  # its observation-folder table, <name>.csv
+    # What the run loop needs to know of a kind, so that it names none:
+    motion: ClassVar[str | None] = None  # the motion between stops it stands for: "vo" or "dead_reckoning"
+    needs: ClassVar[dict[str, str]] = {}  # kinds it hooks into, which a configuration must have too: why
+    absolute: ClassVar[bool] = False  # an absolute position (bounds the uncertainty: GPS)
+    cost: ClassVar[float] = 0.0  # time per stop it adds, relative to plain VO's (balances groups of configurations)
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)
@@ -123,6 +128,14 @@ class Kind:
     def counters(self) -> dict[str, int | float | list[str]]:
         """What this kind did over the whole traverse, for metrics.json."""
         return {}
+
+    def landmarks(self) -> set[int]:
+        """The landmark variables it made (track ids)."""
+        return set()
+
+    def tie_links(self) -> list[tuple[int, int]]:
+        """(track, site stop) of each tie it made, for plots and rerun."""
+        return []
 
 
 class RowError(ValueError):

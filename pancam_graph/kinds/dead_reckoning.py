@@ -9,6 +9,7 @@ from .base import Kind
 class DeadReckoningMotion(Kind):
     name = "dead_reckoning"
     order = 1
+    motion = "dead_reckoning"
 
     @staticmethod
     def unavailable(traverse: Traverse) -> str | None:

@@ -37,6 +37,7 @@ class GpsSettings(Section):
 class Gps(Kind):
     name = "gps"
     order = 5
+    absolute = True
     Settings = GpsSettings
 
     @staticmethod

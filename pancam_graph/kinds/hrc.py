@@ -28,6 +28,7 @@ class HrcSettings(Section):
 class Hrc(Kind):
     name = "hrc"
     order = 4
+    needs = {"sites": "it adds views of the site landmarks"}
     Settings = HrcSettings
 
     @staticmethod

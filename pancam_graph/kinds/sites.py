@@ -62,6 +62,7 @@ class SitesSettings(Section):
 class Sites(Kind):
     name = "sites"
     order = 3
+    cost = 3.0
     Settings = SitesSettings
 
     @staticmethod
@@ -82,7 +83,7 @@ class Sites(Kind):
                                       est.kernel_k(settings.kernel))
         self.stereo_calibration = self.rig.stereo_calibration()
         self.sites: list[SiteObservations] = []
-        self.landmarks: set[int] = set()
+        self.landmark_ids: set[int] = set()
         self.landmark_sites: dict[int, list[int]] = defaultdict(list)  # track -> site stops seeing it
         self.references: dict[int, LandmarkReference] = {}
         self._relative_cache: dict[tuple[int, int], RelativePose] = {}  # these two: one site's step
@@ -156,7 +157,7 @@ class Sites(Kind):
         candidates: dict[int, SiteObservations] = {}
         for earlier in recent:
             for track in earlier.stereo.keys() & current.stereo.keys():
-                if track not in self.landmarks:
+                if track not in self.landmark_ids:
                     candidates.setdefault(track, earlier)
         tracks = sorted(candidates)
         if len(tracks) > self.tie_points_per_site:
@@ -178,7 +179,7 @@ class Sites(Kind):
             self.loc.smoother.insert(L(track), self.site_pose(earlier.stop).transformFrom(then.p_body),
                                      leaves_with=X(earlier.stop))
             self.loc.smoother.add(factors.landmark_anchor(earlier.stop, track, then.p_body, self.anchor_sigma_m))
-            self.landmarks.add(track)
+            self.landmark_ids.add(track)
             self.references[track] = reference
             for site in recent:
                 self._add_observations(site, track, gated=site is not earlier)
@@ -186,7 +187,7 @@ class Sites(Kind):
             added += 1
         # Landmarks already in the graph (tied earlier) seen again from here, unless they left
         # the window; a landmark that did is forgotten (no factor will touch it again).
-        for track in sorted(current.stereo.keys() & (self.landmarks - set(tracks))):
+        for track in sorted(current.stereo.keys() & (self.landmark_ids - set(tracks))):
             if track in self.references:
                 self._add_observations(current, track, gated=True)
         self.references = {t: r for t, r in self.references.items() if self.loc.smoother.live(L(t))}
@@ -215,10 +216,13 @@ class Sites(Kind):
         if self.hrc is not None:
             self.hrc.add_views(site, track, self.site_pose(site.stop))
 
+    def landmarks(self) -> set[int]:
+        return self.landmark_ids
+
     def tie_links(self) -> list[tuple[int, int]]:
         """(track, site stop) for every landmark and every site whose panorama observed it."""
         return [(track, stop) for track in sorted(self.landmark_sites) for stop in self.landmark_sites[track]]
 
     def counters(self) -> dict:
-        return {"landmarks": len(self.landmarks), "rejected_tie_points": self.rejected_ties,
+        return {"landmarks": len(self.landmark_ids), "rejected_tie_points": self.rejected_ties,
                 "rejected_tie_views": self.rejected_tie_views}

@@ -10,6 +10,7 @@ from .base import Kind
 class VisualOdometry(Kind):
     name = "vo"
     order = 0
+    motion = "vo"
 
     @staticmethod
     def unavailable(traverse: Traverse) -> str | None:

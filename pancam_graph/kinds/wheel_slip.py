@@ -60,6 +60,7 @@ def slip_odometry_factor(key_a: int, key_b: int, odom_T: gtsam.Pose3, covariance
 class WheelSlip(Kind):
     name = "wheel_slip"
     order = 2
+    cost = 2.0
     unavailable = staticmethod(DeadReckoningMotion.unavailable)  # it scales the odometry steps
 
     def __init__(self, localizer):

@@ -19,6 +19,7 @@ from ..evaluation.metrics import compare
 from ..frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_between, motion_from
 from ..frontend.stereo_vo import StereoVO
 from ..frontend.vo_ahead import VoAhead
+from ..kinds import absolute
 from ..records import GpsFix, GroundTruth, Traverse
 from .listener import NullListener, RunListener
 from .localizer import Localizer, StepResult
@@ -159,7 +160,7 @@ def _configuration_result(job: GroupJob, name: str, localizer: Localizer, steps:
     localizer.finish()
     final = localizer.final(batch=job.options.batch)
     poses = final.world_T_body
-    alignment = "none" if "gps" in localizer.kinds else "se3"
+    alignment = "none" if absolute(localizer.kind_names) else "se3"  # in the world frame as it stands
     metrics = consistency_result = None
     covariance = localizer.position_covariances()
     if truth is not None:

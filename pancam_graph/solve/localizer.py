@@ -15,7 +15,7 @@ from ..frontend.motion import Motion
 from ..graph import factors
 from ..graph.keys import T, X
 from ..graph.smoother import RelinearizeThresholds, Smoother, poses_array
-from ..kinds import KINDS, Kind
+from ..kinds import KINDS, Kind, absolute, uses_vo
 from ..kinds.base import StepCounts
 from ..records import GroundTruth, Stop, Traverse
 
@@ -86,7 +86,7 @@ class Localizer:
         self.traverse = traverse
         self.kind_names = list(kinds)
         self.estimator = estimator
-        self.smoother = smoother_for(estimator, with_gps="gps" in kinds)
+        self.smoother = smoother_for(estimator, with_gps=absolute(kinds))
         self.rng = np.random.default_rng(seed)
         self.stops: list[int] = []
         self.previous_stop: Stop | None = None
@@ -109,7 +109,7 @@ class Localizer:
 
     @property
     def uses_vo(self) -> bool:
-        return "vo" in self.kinds
+        return uses_vo(self.kind_names)
 
     # -- the step ---------------------------------------------------------------------------
 
@@ -216,12 +216,10 @@ class Localizer:
 
     @property
     def landmarks(self) -> set[int]:
-        sites = self.kinds.get("sites")
-        return sites.landmarks if sites is not None else set()
+        return set().union(*(kind.landmarks() for kind in self.kinds.values()))
 
     def tie_links(self) -> list[tuple[int, int]]:
-        sites = self.kinds.get("sites")
-        return sites.tie_links() if sites is not None else []
+        return [link for kind in self.kinds.values() for link in kind.tie_links()]
 
     def true_values(self, truth: GroundTruth) -> gtsam.Values | None:
         """True values of the variables that are not stop poses or landmarks (for the CRLB): the

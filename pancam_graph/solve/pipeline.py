@@ -8,10 +8,10 @@ from __future__ import annotations
 import time
 from dataclasses import replace
 
-from ..config import EstimatorConfig, Scenario, configuration_problem
+from ..config import EstimatorConfig, Scenario
 from ..errors import ConfigError
 from ..frontend.motion import VoMotions
-from ..kinds import unavailable
+from ..kinds import configuration_problem, relative_cost, unavailable, uses_vo
 from ..records import GpsFix, GroundTruth, Traverse
 from ..sim import simulate
 from .group import GroupJob, ProgressCallback, run_group
@@ -122,7 +122,7 @@ def run_traverse(
         results.update(outcome.results)
     results = {name: results[name] for name in chosen}
     # the motions the VO configurations were fed (a group without any was fed dead reckoning)
-    motions = next((o.motions for o in outcomes if any("vo" in chosen[c] for c in o.results)), outcomes[0].motions)
+    motions = next((o.motions for o in outcomes if any(uses_vo(chosen[c]) for c in o.results)), outcomes[0].motions)
     result = RunResult(source, scenario, estimator, options, seed, traverse, truth, tuple(held_out),
                        motions, results, skipped, time.perf_counter() - start,
                        max(o.vo_s for o in outcomes), [o.process for o in outcomes],
@@ -145,8 +145,8 @@ def configuration_groups(chosen: dict[str, list[str]], options: RunOptions, list
         return held + ([rest] if rest else [])
     if min(options.processes, len(chosen)) <= 1 or listener is not None or n < options.side_by_side_min_stops:
         return [dict(chosen)]
-    with_vo = {name: kinds for name, kinds in chosen.items() if "vo" in kinds}
-    without = {name: kinds for name, kinds in chosen.items() if "vo" not in kinds}
+    with_vo = {name: kinds for name, kinds in chosen.items() if uses_vo(kinds)}
+    without = {name: kinds for name, kinds in chosen.items() if not uses_vo(kinds)}
     if not with_vo:
         return _balanced(without, options.processes)
     return ([without] if without else []) + _balanced(with_vo, options.processes)
@@ -162,11 +162,3 @@ def _balanced(chosen: dict[str, list[str]], count: int) -> list[dict[str, list[s
         groups[g][name] = chosen[name]
         loads[g] += relative_cost(chosen[name])
     return groups
-
-
-def relative_cost(kinds: list[str]) -> float:
-    """A configuration's time per stop relative to plain VO's (measured on long_traverse):
-    what balances the groups. GPS adds nothing since its configurations relinearize with the
-    partial check every 10 updates (`full` 45 s of a core, `vo_sites` 49 s, `vo` 14 s)."""
-    has = set(kinds)
-    return 1.0 + 2.0 * ("wheel_slip" in has) + 3.0 * ("sites" in has)

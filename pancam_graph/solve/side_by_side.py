@@ -24,6 +24,7 @@ from dataclasses import replace
 from ..errors import GraphError
 from ..frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_from
 from ..frontend.vo_ahead import BLOCK_STOPS, VoAhead
+from ..kinds import uses_vo
 from ..processes import process_context
 from ..records import Traverse
 from .group import GroupJob, GroupOutcome, ProgressCallback, new_state, run_group
@@ -81,7 +82,7 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
 
 
 def _uses_vo(configs: dict[str, list[str]]) -> bool:
-    return any("vo" in kinds for kinds in configs.values())
+    return any(uses_vo(kinds) for kinds in configs.values())
 
 
 def dead_reckoning_motions(traverse: Traverse) -> list[Motion | None]:

@@ -34,7 +34,7 @@ def _assert_usage_error(result: subprocess.CompletedProcess, *words: str) -> Non
     (["run", "short_trail", "--gps-topic", "/fix"], ["--gps-topic does not apply to a scenario"]),
     (["run", str(BAG), "--seed", "3"], ["--seed does not apply to a rosbag"]),
     (["run", "short_trail", "--configs", "vo+lidar"], ["--configs vo+lidar", "'lidar'"]),
-    (["run", "short_trail", "--configs", "hrc+vo"], ["'hrc' adds views of site landmarks"]),
+    (["run", "short_trail", "--configs", "hrc+vo"], ["'hrc' needs 'sites' (it adds views of the site landmarks)"]),
     (["run", "no_such_scenario"], ["unknown scenario 'no_such_scenario'"]),
     (["run", "short_trail", "--rerun", "spawn"], ["--rerun spawn: no display"]),
     (["analyze", "--out", "full_folder"], ["--out full_folder", "not empty"]),
