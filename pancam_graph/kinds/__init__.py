@@ -20,6 +20,14 @@ for _module in pkgutil.iter_modules(__path__):
 KINDS: dict[str, type[Kind]] = registered()
 
 
+# Every kind's per-stop counters with their defaults, in registry order: steps.csv's columns.
+STEP_COUNTERS: dict[str, float | None] = {name: default for kind in KINDS.values()
+                                          for name, default in kind.step_counters.items()}
+# Every kind's whole-traverse counters with their defaults: every configuration reports them all.
+COUNTER_DEFAULTS: dict[str, float | list] = {name: default for kind in KINDS.values()
+                                             for name, default in kind.counter_defaults.items()}
+
+
 def uses_vo(kinds: list[str]) -> bool:
     """The configuration's motion is the stereo VO's."""
     return any(KINDS[k].motion == "vo" for k in kinds)
@@ -63,4 +71,5 @@ def unavailable(kinds: list[str], traverse: Traverse) -> str | None:
     return None
 
 
-__all__ = ["KINDS", "Kind", "absolute", "configuration_problem", "relative_cost", "unavailable", "uses_vo"]
+__all__ = ["COUNTER_DEFAULTS", "KINDS", "STEP_COUNTERS", "Kind", "absolute", "configuration_problem", "relative_cost",
+           "unavailable", "uses_vo"]

@@ -16,7 +16,6 @@ Its records travel in `Traverse.measurements[name]`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
 
 import gtsam
@@ -33,15 +32,12 @@ def registered() -> dict[str, type[Kind]]:
     return dict(sorted(_REGISTRY.items(), key=lambda item: item[1].order))
 
 
-@dataclass
-class StepCounts:
-    """What the kinds did at one stop (filled in during the step)."""
+class StepCounts(dict):
+    """What the kinds did at one stop, by counter name (each kind's `step_counters`), filled in
+    during the step; a counter no kind set keeps its declared default."""
 
-    new_landmarks: int = 0
-    rejected_ties: int = 0
-    gps_fixes: int = 0
-    gps_outliers: int = 0
-    gps_mahalanobis2: float | None = None  # the largest of this stop's fixes, after the update
+    def add(self, name: str, value: float = 1) -> None:
+        self[name] = self.get(name, 0) + value
 
 
 class Host(Protocol):
@@ -67,6 +63,11 @@ class Kind:
     Settings: ClassVar[type[Section] | None] = None  # [estimator.<name>]
     Sensor: ClassVar[type[Section] | None] = None  # a scenario's [<name>]: how it is simulated
     columns: ClassVar[tuple[str, ...]] = ()  # its observation-folder table, <name>.csv
+    # Its counters at each stop (steps.csv columns), with the value of a stop where it did nothing
+    # (and of a configuration without it): counts 0, a largest-of None.
+    step_counters: ClassVar[dict[str, float | None]] = {}
+    # Its counters over the whole traverse (metrics.json), the same for a configuration without it.
+    counter_defaults: ClassVar[dict[str, float | list]] = {}
     # What the run loop needs to know of a kind, so that it names none:
     motion: ClassVar[str | None] = None  # the motion between stops it stands for: "vo" or "dead_reckoning"
     needs: ClassVar[dict[str, str]] = {}  # kinds it hooks into, which a configuration must have too: why

@@ -38,6 +38,10 @@ class Gps(Kind):
     name = "gps"
     order = 5
     absolute = True
+    # fixes used in a stop's update (at the stop or on the drive to it), those failing the
+    # chi-square test at the updated estimate, and the largest squared Mahalanobis distance
+    step_counters = {"gps_fixes": 0, "gps_outliers": 0, "gps_mahalanobis2": None}
+    counter_defaults = {"gps_fixes_used": 0, "gps_outliers": 0}
     Settings = GpsSettings
 
     @staticmethod
@@ -51,6 +55,7 @@ class Gps(Kind):
         self.interpolate = settings.time_association == "interpolate"
         self.max_gap_s = settings.max_gap_s
         self.refused: list[str] = []
+        self.used = self.outliers = 0
         self.refused_count = 0
         self._pending: list[tuple[int, GpsFix, np.ndarray]] = []  # this stop's (key, fix, ENU)
         fixes = localizer.traverse.gps_fixes
@@ -115,9 +120,11 @@ class Gps(Kind):
             antenna = self.loc.smoother.pose(key).transformFrom(lever)
             sigmas = np.array([fix.sigma_horizontal_m, fix.sigma_horizontal_m, fix.sigma_vertical_m])
             d2 = float(np.sum(((antenna - enu) / sigmas) ** 2))
-            counts.gps_fixes += 1
-            counts.gps_outliers += d2 > self.gate
-            counts.gps_mahalanobis2 = max(d2, counts.gps_mahalanobis2 or 0.0)
+            counts.add("gps_fixes")
+            counts.add("gps_outliers", int(d2 > self.gate))
+            counts["gps_mahalanobis2"] = max(d2, counts.get("gps_mahalanobis2") or 0.0)
+            self.used += 1
+            self.outliers += int(d2 > self.gate)
         self._pending.clear()
 
     def finish(self) -> None:
@@ -127,4 +134,5 @@ class Gps(Kind):
                 self._refuse(fix, f"after the last stop's departure (t = {last.departure_s:.3f} s)")
 
     def counters(self) -> dict:
-        return {"gps_fixes_refused": self.refused_count, "gps_refusals": self.refused}
+        return {"gps_fixes_used": self.used, "gps_outliers": self.outliers, "gps_fixes_refused": self.refused_count,
+                "gps_refusals": self.refused}

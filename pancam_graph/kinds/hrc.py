@@ -29,6 +29,7 @@ class Hrc(Kind):
     name = "hrc"
     order = 4
     needs = {"sites": "it adds views of the site landmarks"}
+    counter_defaults = {"hrc_measurements": 0, "rejected_hrc_measurements": 0}
     Settings = HrcSettings
 
     @staticmethod

@@ -63,6 +63,8 @@ class Sites(Kind):
     name = "sites"
     order = 3
     cost = 3.0
+    step_counters = {"new_landmarks": 0, "rejected_ties": 0}
+    counter_defaults = {"landmarks": 0, "rejected_tie_points": 0, "rejected_tie_views": 0}
     Settings = SitesSettings
 
     @staticmethod
@@ -103,7 +105,7 @@ class Sites(Kind):
 
     def add(self, stop: Stop, counts) -> None:
         if stop.is_site:
-            counts.new_landmarks, counts.rejected_ties = self._add_site(stop)
+            counts["new_landmarks"], counts["rejected_ties"] = self._add_site(stop)
 
     # -- one site ------------------------------------------------------------------------------
 

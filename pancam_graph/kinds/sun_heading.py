@@ -142,6 +142,7 @@ class SunHeading(Kind):
     Settings = SunHeadingSettings
     Sensor = SunSensor
     columns = ("stop", "utc_s", "sun_x", "sun_y", "sun_z", "up_x", "up_y", "up_z")
+    step_counters = {"sun_sightings": 0, "sun_flagged": 0}
 
     @staticmethod
     def unavailable(traverse: Traverse) -> str | None:
@@ -208,6 +209,7 @@ class SunHeading(Kind):
             self.loc.smoother.add(gtsam.AttitudeFactorPose3(key, gtsam.Unit3(np.array([0.0, 0.0, 1.0])),
                                                             self._tilt_model, gtsam.Unit3(sighting.up_body)))
             self.used += 1
+            counts.add("sun_sightings")
 
     def after_update(self, stop: Stop, counts: StepCounts) -> None:
         if stop.index not in self._at_stop:
@@ -219,6 +221,7 @@ class SunHeading(Kind):
         self.largest_mahalanobis2 = max(self.largest_mahalanobis2, d2)
         if d2 > self.gate:
             self.flagged.append(stop.index)
+            counts.add("sun_flagged")
 
     def counters(self) -> dict:
         return {"sun_sightings_used": self.used, "sun_sightings_flagged": len(self.flagged),

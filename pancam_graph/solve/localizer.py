@@ -15,7 +15,7 @@ from ..frontend.motion import Motion
 from ..graph import factors
 from ..graph.keys import T, X
 from ..graph.smoother import RelinearizeThresholds, Smoother, poses_array
-from ..kinds import KINDS, Kind, absolute, uses_vo
+from ..kinds import KINDS, STEP_COUNTERS, Kind, absolute, uses_vo
 from ..kinds.base import StepCounts
 from ..records import GroundTruth, Stop, Traverse
 
@@ -30,15 +30,10 @@ class StepResult:
     stop: int
     update_ms: float  # iSAM2 update wall time of this stop
     relinearized: int  # variables iSAM2 relinearized in this stop's updates
-    new_landmarks: int
-    rejected_ties: int
-    gps_fixes: int  # fixes used in this stop's update (at the stop or on the drive to it)
-    gps_outliers: int  # of those, failing the chi-square test at the updated estimate
-    gps_mahalanobis2: float | None
+    counts: dict[str, float | None]  # every kind's per-stop counter (kinds.STEP_COUNTERS), by name
 
-    @property
-    def gps_used(self) -> bool:
-        return self.gps_fixes > 0
+    def count(self, name: str) -> float | None:
+        return self.counts.get(name, STEP_COUNTERS.get(name))
 
 
 @dataclass(frozen=True)
@@ -134,8 +129,7 @@ class Localizer:
         self.previous_stop = stop
         self._keys_at.clear()
         ms, relinearized = sum(self.smoother.update_ms[updates:]), sum(self.smoother.relinearized[updates:])
-        return StepResult(k, ms, relinearized, counts.new_landmarks, counts.rejected_ties, counts.gps_fixes,
-                          counts.gps_outliers, counts.gps_mahalanobis2)
+        return StepResult(k, ms, relinearized, dict(counts))
 
     def _add_motion(self, prev: Stop, stop: Stop, motion: Motion) -> None:
         """The between factor(s) from the previous stop. Kinds that measure while the rover drives

@@ -14,6 +14,7 @@ from ..evaluation.consistency import Consistency
 from ..evaluation.gps_check import HoldoutScore
 from ..evaluation.metrics import TrajectoryMetrics
 from ..frontend.motion import Motion, VoMotions
+from ..kinds import COUNTER_DEFAULTS
 from ..records import GpsFix, GroundTruth, Traverse
 from .localizer import InterpolatedPose, StepResult
 
@@ -124,14 +125,9 @@ class ConfigurationResult:
     def bridged_stops(self) -> int:
         return int(self.counters.get("bridged_stops", 0))
 
-    @property
-    def gps_fixes_used(self) -> int:
-        return sum(s.gps_fixes for s in self.steps)
-
-    @property
-    def gps_outliers(self) -> int:
-        """Fixes failing the chi-square test at the estimate after their update."""
-        return sum(s.gps_outliers for s in self.steps)
+    def counter(self, name: str) -> float | list:
+        """A whole-traverse counter of a kind (its default for a configuration without it)."""
+        return self.counters.get(name, COUNTER_DEFAULTS.get(name, 0))
 
 
 @dataclass(frozen=True)
@@ -262,15 +258,9 @@ def metrics_document(result: RunResult) -> dict:
         entry.update(c.metrics.as_dict() if c.metrics is not None else {})
         if c.consistency is not None:
             entry.update(c.consistency.as_dict())
+        entry.update(bridged_stops=c.bridged_stops, landmarks=c.landmarks)
+        entry.update({name: c.counter(name) for name in COUNTER_DEFAULTS if name not in entry})
         entry.update(
-            bridged_stops=c.bridged_stops,
-            landmarks=c.landmarks,
-            rejected_tie_points=int(c.counters.get("rejected_tie_points", 0)),
-            rejected_tie_views=int(c.counters.get("rejected_tie_views", 0)),
-            hrc_measurements=int(c.counters.get("hrc_measurements", 0)),
-            rejected_hrc_measurements=int(c.counters.get("rejected_hrc_measurements", 0)),
-            gps_fixes_used=c.gps_fixes_used,
-            gps_outliers=c.gps_outliers,
             interpolated_poses=len(c.interpolated),
             solver=c.solver,
             isam2_update_ms=percentiles(c.update_ms),

@@ -20,6 +20,7 @@ from ..errors import FolderInUse, InputError, ResultsError
 from ..formats.export import write_trajectory_exports
 from ..formats.tables import write_csv, write_json
 from ..geodesy import LocalFrame
+from ..kinds import STEP_COUNTERS
 from ..rig import Camera, Rig
 from ..solve.results import evaluation_document, metrics_document, reproduce_command, run_configuration
 
@@ -161,8 +162,8 @@ def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 # -- a run's results folder -----------------------------------------------------------------
 
-STEP_COLUMNS = ["config", "stop", "update_ms", "relinearized", "new_landmarks", "rejected_ties", "gps_fixes",
-                "gps_outliers", "gps_mahalanobis2"]
+# then every kind's per-stop counters (kinds.STEP_COUNTERS); a reader needs only these
+STEP_COLUMNS = ["config", "stop", "update_ms", "relinearized"]
 GPS_COLUMNS = ["time_s", "lat_deg", "lon_deg", "h_m", "sigma_h_m", "sigma_v_m", "used_in_graph"]  # h: ellipsoidal
 RUN_FILE = "run.toml"  # the complete resolved configuration of the run
 COVARIANCE_COLUMNS = ["stop", "cxx", "cxy", "cxz", "cyy", "cyz", "czz"]
@@ -213,10 +214,9 @@ def write_run(result: RunResult, folder: Path) -> None:
         write_csv(folder / f"landmarks_{name}.csv", ["track", "x_m", "y_m", "z_m", "site_stops"],
                   [(int(t), *(f"{v:.6f}" for v in p), " ".join(map(str, sites_of.get(int(t), []))))
                    for t, p in zip(c.landmark_ids, c.landmark_positions, strict=True)])
-        rows += [(name, s.stop, f"{s.update_ms:.4f}", s.relinearized, s.new_landmarks, s.rejected_ties, s.gps_fixes,
-                  s.gps_outliers, "" if s.gps_mahalanobis2 is None else f"{s.gps_mahalanobis2:.4f}")
+        rows += [(name, s.stop, f"{s.update_ms:.4f}", s.relinearized, *(_cell(s.count(c)) for c in STEP_COUNTERS))
                  for s in c.steps]
-    write_csv(folder / "steps.csv", STEP_COLUMNS, rows)
+    write_csv(folder / "steps.csv", STEP_COLUMNS + list(STEP_COUNTERS), rows)
     write_json(folder / LOCAL_FRAME_FILE, local_frame_dict(result.traverse.origin))
     (folder / "reproduce.sh").write_text(f"#!/bin/sh\n# reproduces this run\n{reproduce_command(result)}\n",
                                          encoding="utf-8")
@@ -231,8 +231,7 @@ class SavedConfiguration:
     position_covariance: np.ndarray  # (N, 3, 3)
     update_ms: np.ndarray  # (N,)
     relinearized: np.ndarray  # (N,)
-    gps_outliers: np.ndarray  # (N,) fixes flagged at each stop
-    gps_fixes: np.ndarray  # (N,) fixes used at each stop
+    counts: dict[str, np.ndarray]  # (N,) each kind's per-stop counter in steps.csv, by name (NaN: none)
     landmark_ids: np.ndarray  # (M,)
     landmark_positions: np.ndarray  # (M, 3)
     tie_links: list[tuple[int, int]]
@@ -295,6 +294,7 @@ def read_run(folder: Path) -> SavedRun:
     truth_landmarks = np.load(landmarks_path).astype(float) if landmarks_path.exists() else None
 
     steps = _read_csv(folder / "steps.csv", STEP_COLUMNS)
+    steps_counters = [c for c in (steps[0].keys() if steps else ()) if c not in STEP_COLUMNS]
     configurations = {}
     times = None
     for name in names:
@@ -314,8 +314,8 @@ def read_run(folder: Path) -> SavedRun:
             position_covariance=cov,
             update_ms=np.array([r.number("update_ms") for r in mine]),
             relinearized=np.array([r.number("relinearized") for r in mine]),
-            gps_outliers=np.array([int(r.number("gps_outliers")) for r in mine], dtype=int),
-            gps_fixes=np.array([int(r.number("gps_fixes")) for r in mine], dtype=int),
+            counts={c: np.array([r.number(c) if r.get(c, "") != "" else np.nan for r in mine])
+                    for c in steps_counters},
             landmark_ids=ids,
             landmark_positions=np.array([[r.number(c) for c in ("x_m", "y_m", "z_m")] for r in lm_rows]).reshape(-1, 3),
             tie_links=links,
@@ -366,6 +366,12 @@ def _need(path: Path) -> Path:
     if not path.exists():
         raise ResultsError(f"{path}: missing from the results folder")
     return path
+
+
+def _cell(value: float | None) -> str:
+    if value is None:
+        return ""
+    return str(value) if isinstance(value, int) else f"{value:.4f}"
 
 
 def _read_csv(path: Path, columns: list[str]) -> list[_Row]:

@@ -67,7 +67,8 @@ def report_markdown(result: RunResult, figures: bool = True) -> str:
                      f"{plots.distance_scale(result, name):.5f}", drift]
         lines.append(
             f"| {name} | {'+'.join(c.kinds)} | {' | '.join(cells)} | {c.bridged_stops} | {c.landmarks} "
-            f"| {c.gps_fixes_used} / {c.gps_outliers} | {'-' if vs is None else f'{vs.average_error_m:.2f}'} "
+            f"| {c.counter('gps_fixes_used')} / {c.counter('gps_outliers')} "
+            f"| {'-' if vs is None else f'{vs.average_error_m:.2f}'} "
             f"| {'-' if held is None else f'{held.rms_2d_m:.3f} (stated {held.stated_drms_m:.3f})'} |"
         )
     lines += [

@@ -109,13 +109,14 @@ class RerunRecorder:
                                 float(np.linalg.norm(current[:3, 3] - self.truth.positions[k])))
             self.series.add(scene.series_path("isam2_update_ms", config), *when, step.update_ms)
             self.series.add(scene.series_path("relinearized", config), *when, step.relinearized)
-            if step.gps_used:
-                self.gps_outliers[config] += step.gps_outliers
+            if step.count("gps_fixes"):
+                outliers = step.count("gps_outliers")
+                self.gps_outliers[config] += outliers
                 self.series.add(scene.series_path("gps_outliers", config), *when, self.gps_outliers[config])
-                if step.gps_outliers:
+                if outliers:
                     self.rec.log("events", rr.TextLog(
-                        f"stop {k}: {config} flags {step.gps_outliers} GPS fix(es) as outliers "
-                        f"(Mahalanobis^2 {step.gps_mahalanobis2:.1f})", level=rr.TextLogLevel.WARN))
+                        f"stop {k}: {config} flags {outliers} GPS fix(es) as outliers "
+                        f"(Mahalanobis^2 {step.count('gps_mahalanobis2'):.1f})", level=rr.TextLogLevel.WARN))
                     if config == self.primary:
                         self.flagged.add(k)
             if config == self.primary:

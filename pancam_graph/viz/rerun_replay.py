@@ -40,11 +40,12 @@ def replay(run: SavedRun, rec: rr.RecordingStream) -> None:
                     np.linalg.norm(positions - truth[:, :3, 3], axis=1))
         _series(rec, scene.series_path("isam2_update_ms", name), columns, c.update_ms)
         _series(rec, scene.series_path("relinearized", name), columns, c.relinearized)
-        used = np.flatnonzero(c.gps_fixes)
+        fixes, outliers = _count(c, "gps_fixes"), _count(c, "gps_outliers")
+        used = np.flatnonzero(fixes)
         if len(used):
             _series(rec, scene.series_path("gps_outliers", name),
                     scene.time_columns(run.stops[used], run.times_s[used], distance[used]),
-                    np.cumsum(c.gps_outliers[used]))
+                    np.cumsum(outliers[used]))
         if len(c.landmark_ids):
             rgb = scene.colour(name)
             rec.log(scene.landmarks_path(name), rr.Points3D(c.landmark_positions, radii=0.12, colors=rgb), static=True)
@@ -64,7 +65,7 @@ def replay(run: SavedRun, rec: rr.RecordingStream) -> None:
     if len(run.gps_times_s):
         # a fix is updated with the stop whose drive (or dwell) it falls in
         stop_of = np.minimum(np.searchsorted(run.departures_s, run.gps_times_s - 1e-3, side="left"), n - 1)
-        flagged = (run.configurations[primary].gps_outliers[stop_of] > 0) & run.gps_used
+        flagged = (_count(run.configurations[primary], "gps_outliers")[stop_of] > 0) & run.gps_used
         colours = [scene.OUTLIER_COLOUR if f else scene.GPS_COLOUR if u else scene.HELD_OUT_COLOUR
                    for f, u in zip(flagged, run.gps_used, strict=True)]
         enu = origin.to_enu(run.gps_lat_lon_h[:, 0], run.gps_lat_lon_h[:, 1], run.gps_lat_lon_h[:, 2])
@@ -96,3 +97,11 @@ def _log_sites(rec: rr.RecordingStream, run: SavedRun, rig, world_T_body: np.nda
             static=True)
     rec.log("world/sites", rr.Points3D(world_T_body[list(sites), :3, 3], radii=0.3, colors=(250, 210, 60),
                                        labels=[f"site {s}" for s in sites]), static=True)
+
+
+def _count(configuration, name: str) -> np.ndarray:
+    """A per-stop counter of steps.csv as integers (0 where the run has no such column)."""
+    values = configuration.counts.get(name)
+    if values is None:
+        return np.zeros(len(configuration.world_T_body), dtype=int)
+    return np.nan_to_num(values).astype(int)

@@ -29,7 +29,7 @@ def test_fixes_between_stops_beat_attaching_them_to_the_nearest_stop(driving):
     nearest = run(_with(driving, time_association="nearest_stop"),
                   RunOptions(seed=0, configs=("full",))).configurations["full"]
     assert len(timed.interpolated) > 1000 and len(nearest.interpolated) == 0
-    assert timed.gps_fixes_used == nearest.gps_fixes_used > 1500
+    assert timed.counter("gps_fixes_used") == nearest.counter("gps_fixes_used") > 1500
     assert timed.metrics.ate_rmse_m <= 0.7 * nearest.metrics.ate_rmse_m
     assert timed.metrics.ate_rmse_m < 0.5  # below the GPS sigma
 
