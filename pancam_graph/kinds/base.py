@@ -127,8 +127,9 @@ class Kind:
         """The traverse is over: anything left to account for."""
 
     def counters(self) -> dict[str, int | float | list[str]]:
-        """What this kind did over the whole traverse, for metrics.json."""
-        return {}
+        """What this kind did over the whole traverse, for metrics.json; a motion kind: the stops
+        whose motion was bridged (dead reckoning's: every step after the first)."""
+        return {"bridged_stops": self.loc.bridged_stops} if self.motion else {}
 
     def landmarks(self) -> set[int]:
         """The landmark variables it made (track ids)."""

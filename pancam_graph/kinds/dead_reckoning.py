@@ -16,6 +16,3 @@ class DeadReckoningMotion(Kind):
         if not any(s.dead_reckoning is not None for s in traverse.stops[1:]):
             return "the traverse has no odometry increments"
         return None
-
-    def counters(self) -> dict:
-        return {"bridged_stops": self.loc.bridged_stops}  # every step: the motion is dead reckoning

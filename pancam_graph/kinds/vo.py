@@ -17,6 +17,3 @@ class VisualOdometry(Kind):
         if not any(len(s.stereo) for s in traverse.stops):
             return "the traverse has no stereo observations"
         return None
-
-    def counters(self) -> dict:
-        return {"bridged_stops": self.loc.bridged_stops}
