@@ -85,6 +85,7 @@ def test_a_byte_order_mark_and_crlf_are_read_and_other_bytes_named(tmp_path):
         load_scenario(latin)
 
 
+@pytest.mark.slow
 def test_the_cli_says_which_field_and_writes_nothing(tmp_path):
     path = _scenario(tmp_path, _set("camera", "vo_range_m", [25.0, 2.0]))
     exe = Path(sys.executable).parent / "pancam-graph"

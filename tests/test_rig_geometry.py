@@ -3,6 +3,7 @@
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from pancam_graph.sim import simulate
 from pancam_graph.solve.pipeline import run_traverse
@@ -10,6 +11,7 @@ from pancam_graph.solve.results import RunOptions
 from pancam_graph.store.observation_folder import read_observations, write_observations
 
 
+@pytest.mark.slow
 def test_a_body_fixed_pair_is_where_its_transform_puts_it(short_scenario, tmp_path):
     traverse, truth = simulate(short_scenario, 2)
     # The same camera pose given as a body-fixed transform; the mast tilt no longer matters.

@@ -86,6 +86,7 @@ def test_closed_form_agrees_with_gtsam_marginals():
     assert graphs.two_site_covariance(rig, a, 40.0, 105.0, hrc=True) == pytest.approx(closed, rel=0.05)
 
 
+@pytest.mark.slow
 def test_vo_error_growth_agrees_with_monte_carlo_of_our_estimator():
     a = Assumptions()
     closed = vo_growth(AnalysisRig.preset("exomars"), a, stops=5, model="rigid")

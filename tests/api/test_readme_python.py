@@ -5,6 +5,7 @@ import json
 import re
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from pancam_graph.cli import app
@@ -23,6 +24,7 @@ def _numbers(document: dict) -> dict:
     return {name: {k: v for k, v in c.items() if k != "isam2_update_ms"} for name, c in configs.items()}
 
 
+@pytest.mark.slow
 def test_the_readme_example_runs_and_matches_the_cli(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     exec(compile(_example(), "README.md", "exec"), {"__name__": "__main__"})

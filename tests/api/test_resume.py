@@ -10,9 +10,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from pancam_graph.formats.trajectories import read_tum
 from pancam_graph.store.checkpoint import read_checkpoint, saved_stop
+
+pytestmark = pytest.mark.slow
 
 EXE = Path(sys.executable).parent / "pancam-graph"
 CONFIGS = ("dead_reckoning", "vo", "vo_sites_hrc", "full")  # wheel slip, VO, site landmarks and HRC, GPS

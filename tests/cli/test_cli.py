@@ -58,6 +58,7 @@ def results(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_run_writes_a_complete_results_folder(results, tmp_path):
     out = results
     names = {p.name for p in out.iterdir()}
@@ -148,6 +149,7 @@ def test_bad_rerun_option_is_a_usage_error_and_writes_nothing(tmp_path):
     assert not out.exists() and not (tmp_path / "out.partial").exists()
 
 
+@pytest.mark.slow
 def test_bench_prints_json(tmp_path):
     result = runner.invoke(app, ["bench", "short_trail", "--plot", str(tmp_path / "cost.png")])
     assert result.exit_code == 0, result.output
@@ -173,6 +175,7 @@ def test_scenarios_lists_bundled_files():
     assert "(invalid" not in result.output
 
 
+@pytest.mark.slow
 def test_the_reproduce_line_reproduces_the_run(tmp_path, monkeypatch):
     out = tmp_path / "first"
     first = runner.invoke(app, ["run", "short_trail", "--seed", "5", "--configs", "vo,vo+gps", "--batch",

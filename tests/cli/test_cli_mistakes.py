@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow
+
 REAL = Path(__file__).parents[1] / "data" / "real"
 BAG = REAL / "robot_localization" / "test1.bag"
 DATE_FOLDER = REAL / "kitti_raw" / "2011_09_26"

@@ -52,6 +52,7 @@ def test_anees_tells_right_from_overconfident_covariances():
     assert anees_band(30) == pytest.approx(wilson_hilferty, abs=1e-3)
 
 
+@pytest.mark.slow
 def test_run_writes_crlb_efficiency_and_anees(short_run):
     doc = metrics_document(short_run)
     for name, entry in doc["configs"].items():

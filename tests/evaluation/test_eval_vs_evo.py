@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 
 from pancam_graph.cli import app
 
-pytestmark = pytest.mark.real_data
+pytestmark = [pytest.mark.real_data, pytest.mark.slow]
 
 REAL = Path(__file__).parents[1] / "data" / "real"
 BAG = REAL / "robot_localization" / "test1.bag"

@@ -2,9 +2,11 @@
 only with the project's own errors, never a traceback from deep inside a library (issue 15).
 The 20,000-file run behind the issue's figure is `python tests/fuzz_inputs.py 20000 3`."""
 
+import pytest
 from fuzz_inputs import fuzz
 
 
+@pytest.mark.slow
 def test_every_reader_refuses_broken_files_with_its_own_errors():
     findings = fuzz(400, seed=0)
     assert findings.escaped == []

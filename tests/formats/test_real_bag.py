@@ -41,6 +41,7 @@ def bag_run():
                               source=data.info, held_out=data.held_out)
 
 
+@pytest.mark.slow
 def test_bag_runs_the_scenario_back_end_and_matches_the_fixes_it_never_saw(bag_run):
     data, result = bag_run
     assert len(data.held_out) == 197 and len(data.traverse.gps_fixes) == 792

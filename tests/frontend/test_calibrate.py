@@ -16,7 +16,7 @@ from pancam_graph.formats.calibration import read_control_field, read_opencv_yam
 from pancam_graph.formats.calibration_images import stereo_pairs
 from pancam_graph.frontend.calibrate import _centre
 
-pytestmark = pytest.mark.render
+pytestmark = [pytest.mark.render, pytest.mark.slow]
 
 EXE = Path(sys.executable).parent / "pancam-graph"
 

@@ -90,6 +90,7 @@ def kitti_run():
 
 
 @needs_sequence
+@pytest.mark.slow
 def test_vo_from_real_pixels_beats_viso2_and_its_covariance_holds(kitti_run):
     data, result = kitti_run
     vo = result.configurations["vo"]
@@ -104,6 +105,7 @@ def test_vo_from_real_pixels_beats_viso2_and_its_covariance_holds(kitti_run):
 
 
 @needs_sequence
+@pytest.mark.slow
 def test_track_writes_an_observation_folder_that_runs_the_same(kitti_run, tmp_path):
     from typer.testing import CliRunner
 
@@ -183,6 +185,7 @@ def _stereo_bag(path: Path, frames: int) -> None:
 
 
 @needs_sequence
+@pytest.mark.slow
 def test_stereo_images_from_a_ros_bag_run_the_same_front_end_and_vo(tmp_path):
     from pancam_graph.sources import SourceOptions, open_source
 

@@ -21,7 +21,7 @@ from pancam_graph.sources.image_folder import FramePairs
 from pancam_graph.sources.site_images import images_by_stop, with_site_panoramas
 from pancam_graph.store.observation_folder import read_observations
 
-pytestmark = pytest.mark.render
+pytestmark = [pytest.mark.render, pytest.mark.slow]
 
 SCENARIO = Scenario.model_validate({
     "name": "site_strip", "description": "three sites 30-40 m apart with full panoramas",

@@ -1,5 +1,6 @@
 import gtsam
 import numpy as np
+import pytest
 from scipy.stats import chi2
 
 from pancam_graph.frontend.motion import motion_between
@@ -9,6 +10,7 @@ from pancam_graph.sim import simulate
 THREE_SIGMA_6DOF = chi2.ppf(0.9973, 6)  # the 6-D counterpart of "within 3 sigma"
 
 
+@pytest.mark.slow
 def test_vo_poses_within_reported_three_sigma(short_scenario):
     """Hundreds of simulated two-stop trials (with 5 % outlier matches): the VO error is inside
     the reported covariance's 3-sigma region in at least 95 % of them."""

@@ -118,6 +118,7 @@ def _heading_deg(world_T_body):
     return np.rad2deg(np.arctan2(world_T_body[..., 1, 0], world_T_body[..., 0, 0]))
 
 
+@pytest.mark.slow
 def test_sun_sightings_hold_dead_reckonings_heading_within_the_sensors_three_sigma(denver_dead_reckoning):
     result = denver_dead_reckoning
     sightings = result.traverse.measurements["sun_heading"]

@@ -22,6 +22,7 @@ def driving():
     return load_scenario(resolve_scenario("gps_driving"))
 
 
+@pytest.mark.slow
 def test_fixes_between_stops_beat_attaching_them_to_the_nearest_stop(driving):
     """gps_driving: 1 Hz differential GPS (0.5 m) while driving between stops 2-10 m apart. Ignoring
     the fix times (the nearest stop takes each fix) costs twice the error."""
@@ -34,6 +35,7 @@ def test_fixes_between_stops_beat_attaching_them_to_the_nearest_stop(driving):
     assert timed.metrics.ate_rmse_m < 0.5  # below the GPS sigma
 
 
+@pytest.mark.slow
 def test_splitting_the_motion_keeps_its_information(short_scenario):
     """Fixes with a useless sigma: the poses inserted at their times and the split motion factors
     must leave the stops' covariances as they are without them."""

@@ -10,6 +10,8 @@ from pancam_graph.kinds.wheel_slip import slip_odometry_error, slip_odometry_fac
 from pancam_graph.solve.pipeline import run
 from pancam_graph.solve.results import RunOptions
 
+pytestmark = pytest.mark.slow
+
 POSE_A = gtsam.Pose3(gtsam.Rot3.Ypr(0.4, -0.05, 0.02), np.array([3.0, -2.0, 0.3]))
 POSE_B = gtsam.Pose3(gtsam.Rot3.Ypr(0.45, -0.03, 0.01), np.array([4.4, -1.5, 0.35]))
 

@@ -18,7 +18,7 @@ from pancam_graph.solve.results import RunOptions
 from pancam_graph.sources import image_folder
 from pancam_graph.store.observation_folder import read_observations
 
-pytestmark = pytest.mark.render
+pytestmark = [pytest.mark.render, pytest.mark.slow]
 
 SCENARIO = Scenario.model_validate({
     "name": "render_strip", "description": "40 m for the renderer tests",

@@ -7,6 +7,8 @@ from pancam_graph.config import load_scenario, resolve_scenario
 from pancam_graph.evaluation.consistency import monte_carlo_summary
 from pancam_graph.solve.pipeline import RunOptions, run
 
+pytestmark = pytest.mark.slow
+
 
 def test_short_scenario_meets_thresholds(short_run):
     c = short_run.configurations

@@ -10,6 +10,8 @@ from pancam_graph.solve.results import RunOptions
 from pancam_graph.sources import open_source
 from pancam_graph.store.checkpoint import CheckpointWriter, RunInputs, read_checkpoint
 
+pytestmark = pytest.mark.slow
+
 SIDE_BY_SIDE = RunOptions(processes=2, side_by_side_min_stops=0)
 
 

@@ -12,6 +12,8 @@ from typer.testing import CliRunner
 from pancam_graph.cli import app
 from pancam_graph.store.observation_folder import read_observations
 
+pytestmark = pytest.mark.slow
+
 runner = CliRunner()
 SEED = "3"
 

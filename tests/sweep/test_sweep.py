@@ -16,6 +16,8 @@ from pancam_graph.evaluation.consistency import monte_carlo_summary
 from pancam_graph.solve.pipeline import RunOptions, run
 from pancam_graph.sweep.spec import SweepSpec, plan
 
+pytestmark = pytest.mark.slow
+
 EXE = Path(sys.executable).parent / "pancam-graph"
 SPEC = """
 scenarios = ["short_trail", "no_sites.toml"]

@@ -31,6 +31,7 @@ def recorded(short_scenario, tmp_path_factory):
     return result, recorder, Recording(path)
 
 
+@pytest.mark.slow
 def test_recording_has_the_documented_entities(recorded):
     result, _, rec = recorded
     expected = {"/world", "/world/terrain", "/world/truth", "/world/gps", "/world/sites", "/world/sites/panoramas",
@@ -136,6 +137,7 @@ KILLED_RUN = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_killed_run_leaves_a_recording_readable_up_to_the_last_checkpoint(tmp_path):
     path = tmp_path / "killed.rrd"
     proc = subprocess.run([sys.executable, "-c", KILLED_RUN, str(path)], capture_output=True, text=True,
