@@ -100,7 +100,7 @@ def targets(work: Path) -> list[Target]:
     from pancam_graph.formats.calibration import read_stereo_calibration, write_opencv_yaml
     from pancam_graph.formats.gps_logs import read_gps_file, read_gpx, read_kfgins
     from pancam_graph.formats.trajectories import read_trajectory
-    from pancam_graph.render.images import raw_stereo_pair
+    from pancam_graph.render.scenario_images import raw_stereo_pair
     from pancam_graph.sim import simulate
     from pancam_graph.store.observation_folder import read_observations, write_observations
 

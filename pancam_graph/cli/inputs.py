@@ -71,7 +71,7 @@ def render_command(
 
             n = with_progress(sc.name, quiet, lambda report: render_control_field(sc, out, views, seed, report))
         else:
-            from ..render.images import render_scenario
+            from ..render.scenario_images import render_scenario
 
             n = with_progress(sc.name, quiet, lambda report: render_scenario(sc, out, seed, report))
     console.print(f"{n} images rendered into {out} in {time.perf_counter() - start:.0f} s")

@@ -20,7 +20,7 @@ from ..formats.calibration import write_control_field, write_opencv_yaml
 from ..formats.calibration_images import FIELD_FILE, TRUTH_FILE
 from ..frontend.calibrate import ARUCO_DICTIONARY, ControlField
 from ..rig import Camera, rig_preset
-from .images import raw_stereo_pair
+from .scenario_images import raw_stereo_pair
 
 PITCH_M = 0.20  # target spacing on a panel
 TARGET_M = 0.15  # printed marker side, black border included

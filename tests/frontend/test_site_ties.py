@@ -12,7 +12,7 @@ from pancam_graph.config import FrontendConfig, Scenario
 from pancam_graph.frontend.motion import VoMotions
 from pancam_graph.frontend.panorama import PanoramaMatcher, PanoramaView
 from pancam_graph.frontend.ties import TieMatcher, TieSettings
-from pancam_graph.render.images import render_scenario
+from pancam_graph.render.scenario_images import render_scenario
 from pancam_graph.render.truth import RenderedTruth
 from pancam_graph.solve.pipeline import run_traverse
 from pancam_graph.solve.results import RunOptions

@@ -8,8 +8,8 @@ import pytest
 
 from pancam_graph.config import Scenario
 from pancam_graph.errors import FrameError, InputError
-from pancam_graph.render.images import raw_stereo_pair, render_scenario
 from pancam_graph.render.renderer import TerrainRenderer
+from pancam_graph.render.scenario_images import raw_stereo_pair, render_scenario
 from pancam_graph.render.terrain import terrain_tiles
 from pancam_graph.sim import simulate
 from pancam_graph.sim.world import dense_path
