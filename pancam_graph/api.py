@@ -11,6 +11,7 @@ Errors are raised as the package's typed errors (errors.py).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -129,12 +130,13 @@ def run(source: str | Path = "denver_trail", *, out: Path | str | None = None, s
         configs: tuple[str, ...] | None = None, batch: bool = False, processes: int | None = None,
         source_options: SourceOptions | None = None, rerun: RerunTarget | None = None,
         checkpoint_every_s: float = 30.0, figures: bool = True, progress: ProgressCallback | None = None,
-        opened: SourceData | None = None) -> RunOutcome:
+        opened: SourceData | None = None, on_viewer: Callable[[str], None] | None = None) -> RunOutcome:
     """Run a source (a bundled scenario name, a scenario TOML, an observation or image folder, a
     ROS bag, a KITTI raw drive or odometry sequence) through every configuration it can feed (or
     `configs`), and write the results folder `out` (default results/<name>-<time>): the one
     metrics.json schema, steps.csv, trajectories, plots (`figures`) and report.md. `processes`:
-    default every core. `opened`: the source already read (open_data)."""
+    default every core. `opened`: the source already read (open_data). `on_viewer`: told the web
+    viewer's address as soon as a served recording (`rerun` mode serve) is up, before the run."""
     from .solve.pipeline import select_configurations
 
     out = Path(out) if out is not None else None
@@ -145,7 +147,7 @@ def run(source: str | Path = "denver_trail", *, out: Path | str | None = None, s
     source_options = source_options or SourceOptions(seed=seed)
     data = opened or open_data(source, source_options, out, progress)
     select_configurations(data.estimator, data.traverse, options.configs)  # before anything is written
-    return _run_into_folder(data, options, out, rerun, checkpoint_every_s, figures, progress)
+    return _run_into_folder(data, options, out, rerun, checkpoint_every_s, figures, progress, on_viewer=on_viewer)
 
 
 def resume_point(resume: Path | str) -> ResumePoint:
@@ -165,8 +167,8 @@ def resume_point(resume: Path | str) -> ResumePoint:
 
 
 def resume(point: ResumePoint | Path | str, *, processes: int | None = None, rerun: RerunTarget | None = None,
-           checkpoint_every_s: float = 30.0, figures: bool = True,
-           progress: ProgressCallback | None = None) -> RunOutcome:
+           checkpoint_every_s: float = 30.0, figures: bool = True, progress: ProgressCallback | None = None,
+           on_viewer: Callable[[str], None] | None = None) -> RunOutcome:
     """Go on with a killed run from its last checkpoint, with its own source and options, in its
     own staging folder."""
     if not isinstance(point, ResumePoint):
@@ -175,12 +177,13 @@ def resume(point: ResumePoint | Path | str, *, processes: int | None = None, rer
     if options.processes > 1:
         start_process_server()
     return _run_into_folder(point.data, options, point.out, rerun, checkpoint_every_s, figures, progress,
-                            point.states)
+                            point.states, on_viewer)
 
 
 def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, target: RerunTarget | None,
                      checkpoint_every_s: float, figures: bool, progress: ProgressCallback | None,
-                     states: list[RunState] | None = None) -> RunOutcome:
+                     states: list[RunState] | None = None,
+                     on_viewer: Callable[[str], None] | None = None) -> RunOutcome:
     from .solve.pipeline import run_traverse
     from .store.checkpoint import CheckpointWriter, RunInputs, remove_checkpoint
     from .store.results_folder import results_folder, write_run
@@ -203,6 +206,8 @@ def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, ta
                 try:
                     recording = open_recording(target, f"{data.traverse.name} seed {data.seed}")
                     listener = RerunRecorder(recording.stream)
+                    if recording.viewer_url is not None and on_viewer is not None:
+                        on_viewer(recording.viewer_url)
                 except ViewerUnavailable as exc:  # the results are the product, the viewer is not
                     warnings.append(f"{exc}; running without it")
             try:

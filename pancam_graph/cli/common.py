@@ -103,16 +103,18 @@ def rerun_target(text: str | None, memory_limit: str) -> RerunTarget | None:
     raise ConfigError(f"--rerun {text!r}: expected spawn, save, save:FILE.rrd, serve or connect:URL")
 
 
-def serve_until_interrupted(url: str | None) -> None:
-    import rerun as rr
-
-    rr.serve_web_viewer(connect_to=url, open_browser=False)
-    console.print(f"rerun: serving {url}; web viewer on http://localhost:9090 (Ctrl-C to stop)")
+def serve_until_interrupted(viewer_url: str | None) -> None:
+    """Keep serving the recording (its web viewer is up already) until Ctrl-C."""
+    console.print(f"rerun: the web viewer stays at {viewer_url} (Ctrl-C to stop)", soft_wrap=True)
     try:
         while True:
             time.sleep(1.0)
     except KeyboardInterrupt:
         pass
+
+
+def announce_viewer(viewer_url: str) -> None:
+    console.print(f"rerun: web viewer at {viewer_url} (it fills in as the run goes)", soft_wrap=True)
 
 
 def parse_configs(text: str | None) -> tuple[str, ...] | None:

@@ -17,6 +17,7 @@ from rich.text import Text
 from ..errors import ConfigError
 from .app import app, console, user_input
 from .common import (
+    announce_viewer,
     parse_configs,
     parse_detector,
     parse_topics,
@@ -70,7 +71,7 @@ def _print_outcome(outcome: RunOutcome) -> None:
         console.print(f"rerun recording: {shown} (open with `rerun {shown}` or `pancam-graph view "
                       f"{outcome.folder}`)")
     if recording is not None and recording.target.mode == "serve":
-        serve_until_interrupted(recording.served_url)
+        serve_until_interrupted(recording.viewer_url)
 
 
 @app.command("run")
@@ -144,7 +145,7 @@ def run_command(
         console.print(f"resuming {point.data.traverse.name} {where} of {n} (from {point.partial})")
         _print_outcome(with_progress(point.data.traverse.name, quiet, lambda report: api.resume(
             point, processes=processes, rerun=target, checkpoint_every_s=checkpoint_every, figures=not no_plots,
-            progress=report)))
+            progress=report, on_viewer=announce_viewer)))
         return
     source = source or "denver_trail"
     if processes is None and cores() > 1:
@@ -166,5 +167,6 @@ def run_command(
         console.print(Text(f"... {len(data.rejected) - 10} more fixes left out", style="yellow"))
     _print_outcome(with_progress(data.traverse.name, quiet, lambda report: api.run(
         source, out=out, seed=seed, configs=names, batch=batch, processes=processes, rerun=target,
-        checkpoint_every_s=checkpoint_every, figures=not no_plots, progress=report, opened=data)))
+        checkpoint_every_s=checkpoint_every, figures=not no_plots, progress=report, opened=data,
+        on_viewer=announce_viewer)))
 

@@ -34,7 +34,7 @@ def view_command(
     if recording.target.mode == "save":
         console.print(f"rerun recording: {recording.target.path}")
     elif recording.target.mode == "serve":
-        serve_until_interrupted(recording.served_url)
+        serve_until_interrupted(recording.viewer_url)
 
 
 @app.command("eval")

@@ -7,6 +7,7 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
+from urllib.parse import quote
 
 import rerun as rr
 
@@ -28,7 +29,9 @@ class RerunTarget:
 class OpenRecording:
     stream: rr.RecordingStream
     target: RerunTarget
-    served_url: str | None = None  # serve: where viewers connect
+    served_url: str | None = None  # serve: where viewers connect (gRPC)
+    viewer_url: str | None = None  # serve: the web viewer, opened on this recording
+
 
     def close(self) -> None:
         """Flush everything; a saved file gets its footer."""
@@ -50,15 +53,20 @@ def open_recording(target: RerunTarget, name: str) -> OpenRecording:
             rr.spawn(memory_limit=target.memory_limit, executable_path=_viewer_executable(), recording=stream)
         elif target.mode == "serve":
             served = stream.serve_grpc(server_memory_limit=target.memory_limit)
+            # the web viewer from the start, so the run is watched as it solves; its page needs
+            # the recording's address in ?url=, or it opens on rerun's welcome screen
+            rr.serve_web_viewer(web_port=WEB_VIEWER_PORT, open_browser=False, connect_to=served)
         else:
             _check_listening(target.url)
             stream.connect_grpc(target.url)
     except (OSError, RuntimeError) as exc:
         where = target.path or target.url or target.mode
         raise ResultsError(f"rerun: cannot open the recording ({where}): {exc}") from None
-    return OpenRecording(stream, target, served)
+    viewer = None if served is None else f"http://localhost:{WEB_VIEWER_PORT}/?url={quote(served, safe='')}"
+    return OpenRecording(stream, target, served, viewer)
 
 
+WEB_VIEWER_PORT = 9090
 CONNECT_TIMEOUT_S = 3.0
 _DEFAULT_URL = "rerun+http://127.0.0.1:9876/proxy"
 

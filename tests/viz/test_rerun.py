@@ -161,3 +161,34 @@ def test_core_never_imports_rerun():
             "sys.exit(1 if any(m == 'rerun' or m.startswith('rerun.') for m in sys.modules) else 0)")
     env = {**os.environ, "PYTHONPATH": str(TESTS.parent)}
     assert subprocess.run([sys.executable, "-c", code], env=env).returncode == 0
+
+
+@pytest.mark.slow
+def test_serve_prints_a_web_viewer_url_that_opens_the_recording_before_the_run_is_done(tmp_path):
+    """`--rerun serve`: the web viewer is up, on a URL that names the recording (?url=...), before
+    the run has written its results; the page answers there."""
+    import socket
+    import subprocess
+    import sys
+    import urllib.request
+
+    exe = Path(sys.executable).parent / "pancam-graph"
+    run = subprocess.Popen([str(exe), "run", "denver_trail", "--out", str(tmp_path / "res"), "--no-plots", "--quiet",
+                            "--rerun", "serve"], stderr=subprocess.PIPE, text=True)
+    try:
+        text = ""
+        while "web viewer at" not in text:
+            line = run.stderr.readline()
+            assert line, f"no viewer URL before the run ended: {text}"
+            text += line
+        finished_before = (tmp_path / "res" / "metrics.json").exists()
+        url = text.split("web viewer at ", 1)[1].split()[0]
+        assert url.startswith("http://localhost:9090/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A9876%2Fproxy")
+        assert not finished_before  # announced when the recording opened, not after the run
+        with socket.create_connection(("127.0.0.1", 9876), timeout=5):
+            pass
+        with urllib.request.urlopen(url, timeout=10) as page:
+            assert page.status == 200
+    finally:
+        run.kill()
+        run.wait()
