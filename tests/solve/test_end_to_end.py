@@ -82,7 +82,7 @@ def test_robust_gps_survives_multipath_outliers():
     scenario = load_scenario(resolve_scenario("gps_multipath"))
     result = run(scenario, RunOptions(seed=0))
     full = result.configurations["full"]
-    assert full.gps_fixes_used == len(result.traverse.gps_fixes) < len(result.traverse.stops)  # dropouts
+    assert full.counter("gps_fixes_used") == len(result.traverse.gps_fixes) < len(result.traverse.stops)  # dropouts
     assert full.metrics.ate_rmse_m < 2.0
 
 
