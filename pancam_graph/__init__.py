@@ -5,8 +5,8 @@ command line, `pancam-graph`, is a thin layer over it."""
 
 __version__ = "0.1.0"
 
-_API = ("run", "resume", "evaluate", "track", "simulate", "view", "open_data", "RunOutcome", "RunOptions",
-        "SourceOptions", "RunInterrupted")
+_API = ("run", "resume", "evaluate", "track", "simulate", "view", "analyze", "plan_sweep", "sweep", "open_data",
+        "RunOutcome", "RunOptions", "SourceOptions", "RunInterrupted")
 
 
 def __getattr__(name: str):

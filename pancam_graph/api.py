@@ -313,5 +313,87 @@ def view(results: Path | str, target: RerunTarget, saved: SavedRun | None = None
     return recording
 
 
-__all__ = ["ProgressCallback", "ResumePoint", "RunInterrupted", "RunOutcome", "RunOptions", "SourceOptions",
-           "check_out", "evaluate", "open_data", "resume", "resume_point", "run", "simulate", "track", "view"]
+@dataclass(frozen=True)
+class AnalysisOutcome:
+    """The seed's Chapter 3 analysis of some rigs: one row per rig and the files written."""
+
+    rows: list  # analysis.trades rows (optimal FOV, longest site spacing for 1 %, the curves)
+    assumptions: object  # analysis.design.Assumptions
+    files: list[Path]
+
+
+def analyze(out: Path | str, rigs: list[str] | None = None, sigma_px: float = 0.5,
+            custom: tuple[float, float, float] | None = None,
+            progress: Callable[[int, int], None] | None = None) -> AnalysisOutcome:
+    """Chapter 3's error analysis for rig presets (default every one) or a `custom` rig (baseline
+    m, focal length px, horizontal FOV deg), written into `out` with every assumption."""
+    from .analysis.design import AnalysisRig, Assumptions
+    from .analysis.trades import analyze as analyze_rigs
+    from .rig import RIG_PRESETS
+    from .viz.analysis_plots import write_analysis
+
+    out = Path(out)
+    check_out(out)
+    try:
+        chosen = ([AnalysisRig("custom", *custom)] if custom is not None
+                  else [AnalysisRig.preset(name) for name in (rigs or list(RIG_PRESETS))])
+    except ValueError as exc:
+        raise ConfigError(f"--rig: {exc}") from None
+    assumptions = Assumptions(sigma_px=sigma_px)
+    rows = analyze_rigs(chosen, assumptions, progress=progress)
+    return AnalysisOutcome(rows, assumptions, write_analysis(rows, assumptions, out))
+
+
+@dataclass(frozen=True)
+class SweepOutcome:
+    """A sweep done: every run's record, the table of runs and the summary over seeds, written
+    into the sweep folder (runs.csv, summary.csv, runs_status.csv)."""
+
+    records: list
+    rows: list[dict]
+    summary: list
+    folder: Path
+
+    def count(self, status: str) -> int:
+        return sum(r.status == status for r in self.records)
+
+
+@dataclass(frozen=True)
+class SweepPlan:
+    """A sweep specification read and planned into the sweep folder: the runs to do."""
+
+    timeout_s: float
+    runs: list
+    folder: Path
+
+
+def plan_sweep(spec: Path | str, out: Path | str) -> SweepPlan:
+    """Read a sweep specification (scenarios x rigs x estimator variants x seeds) and lay out its
+    runs in the sweep folder `out` (runs already done there are skipped when it runs)."""
+    from .sweep.spec import load_spec, plan
+
+    spec, out = Path(spec), Path(out)
+    specification = load_spec(spec)
+    runs = plan(specification, out, spec.parent)
+    (out / "sweep.toml").write_text(spec.read_text(encoding="utf-8"), encoding="utf-8")
+    return SweepPlan(specification.timeout_s, runs, out)
+
+
+def sweep(planned: SweepPlan, *, workers: int = 2, scheduler: str | None = None,
+          progress: Callable | None = None) -> SweepOutcome:
+    """A planned sweep's runs on Dask, one task per run (`progress(record, done, total)` hears each
+    that ends); a run that fails or times out is recorded and the others go on. Then the table of
+    runs and the summary over seeds."""
+    from .sweep.runner import run_sweep
+    from .sweep.table import run_rows, summarize, write_tables
+
+    records = run_sweep(planned.runs, planned.timeout_s, workers, scheduler, progress)
+    rows = run_rows(records)
+    summary = summarize(rows)
+    write_tables(planned.folder, records, rows, summary)
+    return SweepOutcome(records, rows, summary, planned.folder)
+
+
+__all__ = ["AnalysisOutcome", "ProgressCallback", "ResumePoint", "RunInterrupted", "RunOptions", "RunOutcome",
+           "SourceOptions", "SweepOutcome", "SweepPlan", "analyze", "check_out", "evaluate", "open_data",
+           "plan_sweep", "resume", "resume_point", "run", "simulate", "sweep", "track", "view"]

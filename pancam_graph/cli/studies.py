@@ -99,27 +99,21 @@ def sweep_command(
     per run, each writing its own results folder; then read their metrics into runs.csv and
     summary.csv (efficiency and ANEES over the seeds, as `bench --monte-carlo`). A run that
     fails or times out is recorded (runs_status.csv) and the others go on."""
-    from ..sweep.runner import run_sweep
-    from ..sweep.spec import load_spec, plan
-    from ..sweep.table import run_rows, summarize, write_tables
+    from ..api import plan_sweep, sweep
 
     with user_input():
-        sweep = load_spec(spec)
-        runs = plan(sweep, out, spec.parent)
-        (out / "sweep.toml").write_text(spec.read_text(encoding="utf-8"), encoding="utf-8")
+        planned = plan_sweep(spec, out)
     start = time.perf_counter()
     with progress_bar(quiet) as bar:
-        task = bar.add_task(f"{escape(spec.stem)}: runs", total=len(runs))
+        task = bar.add_task(f"{escape(spec.stem)}: runs", total=len(planned.runs))
 
         def report(record, done: int, total: int) -> None:
             bar.update(task, completed=done, total=total)
             if record.status in ("failed", "timeout"):
                 bar.console.print(Text(f"{record.run.name}: {record.status}: {record.message}", style="yellow"))
 
-        records = run_sweep(runs, sweep.timeout_s, workers, scheduler, report)
-    rows = run_rows(records)
-    summary = summarize(rows)
-    write_tables(out, records, rows, summary)
+        outcome = sweep(planned, workers=workers, scheduler=scheduler, progress=report)
+    runs, summary = planned.runs, outcome.summary
     table = Table(title=f"{escape(spec.stem)}: {len(runs)} runs", box=None, padding=(0, 1))
     for column in ("scenario", "rig", "variant", "config", "runs", "closure %", "ATE m", "efficiency", "ANEES"):
         table.add_column(column)
@@ -129,7 +123,7 @@ def sweep_command(
                       "-" if row.efficiency is None else f"{row.efficiency:.2f}",
                       "-" if row.anees is None else f"{row.anees:.2f} ({row.covariance})")
     Console(width=120).print(table)
-    counts = {status: sum(r.status == status for r in records) for status in ("done", "skipped", "failed", "timeout")}
+    counts = {status: outcome.count(status) for status in ("done", "skipped", "failed", "timeout")}
     console.print(f"wall {time.perf_counter() - start:.1f} s; " + ", ".join(f"{n} {k}" for k, n in counts.items())
                   + f"; tables in {out} (runs.csv, summary.csv, runs_status.csv)")
     if counts["failed"] or counts["timeout"]:
@@ -193,28 +187,17 @@ def analyze_command(
     """The seed's Chapter 3 error analysis for each rig: mapping ellipses, two-stop VO, the HRC's
     gain and the two-site BA (optimal FOV, longest site spacing for 1 %), as figures, a Table 3.2
     and analysis.json; every assumption is written with them."""
-    from ..analysis.design import AnalysisRig, Assumptions
-    from ..analysis.trades import SEED_TABLE_3_2, analyze
-    from ..api import check_out
-    from ..rig import RIG_PRESETS
-    from ..viz.analysis_plots import write_analysis
+    from ..analysis.trades import SEED_TABLE_3_2
+    from ..api import analyze
 
-    check_out(out)
     custom = [baseline, focal_px, fov_deg]
     if any(v is not None for v in custom) and not all(v is not None for v in custom):
         raise ConfigError("a custom rig needs --baseline, --focal-px and --fov together")
-    try:
-        if all(v is not None for v in custom):
-            rigs = [AnalysisRig("custom", baseline, focal_px, fov_deg)]
-        else:
-            rigs = [AnalysisRig.preset(name) for name in (rig or list(RIG_PRESETS))]
-    except ValueError as exc:
-        raise ConfigError(f"--rig: {exc}") from None
-    assumptions = Assumptions(sigma_px=sigma_px)
     start = time.perf_counter()
-    rows = with_progress("analysing rigs", False, lambda report: analyze(
-        rigs, assumptions, progress=lambda done, total: report("rigs", done, total)))
-    written = write_analysis(rows, assumptions, out)
+    outcome = with_progress("analysing rigs", False, lambda report: analyze(
+        out, rig, sigma_px, tuple(custom) if baseline is not None else None,
+        progress=lambda done, total: report("rigs", done, total)))
+    rows, assumptions, written = outcome.rows, outcome.assumptions, outcome.files
     table = Table(title=f"two-site BA, {assumptions.tie_points} tie points, sigma {sigma_px} px")
     for column in ("rig", "optimal FOV deg", "FOV, 16 tie points", "max spacing for 1 % (m)", "seed (m)"):
         table.add_column(column, justify="right")
