@@ -21,7 +21,7 @@ from ..frontend.tracker import CameraMotion, StageTimes, StereoTracker
 from ..records import Stop, Traverse
 from ..solve.results import SourceData, SourceInfo, SourceOptions
 from .frames import median_frame_ms, track_frames
-from .registry import Source
+from .registry import Source, frontend_for
 from .site_images import with_site_panoramas
 
 # Pixel sigma of a landmark's views when its tie points were matched across sites from images:
@@ -153,7 +153,7 @@ def odometry_camera_motion(traverse: Traverse) -> Callable[[np.ndarray], CameraM
 
 
 def _load(text: str, options: SourceOptions, progress) -> SourceData:
-    frontend = FrontendConfig(detector=options.detector) if options.detector else None
+    frontend = frontend_for(options)
     return load(Path(text), frontend, progress, bool(options.skip_bad_frames))
 
 

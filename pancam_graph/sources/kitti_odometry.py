@@ -18,7 +18,7 @@ from ..records import GroundTruth, SlipPrior, StereoObservations, Stop, Traverse
 from ..rig import BODY_T_FORWARD_CAMERA, Rig
 from ..solve.results import SourceData, SourceInfo, SourceOptions
 from .frames import median_frame_ms, track_frames
-from .registry import Source
+from .registry import Source, frontend_for
 
 # Matching and localisation error of the front-end's features (1 sigma).
 PIXEL_SIGMA_PX = 0.5
@@ -94,7 +94,7 @@ def traverse_from_sequence(sequence, stops: list[Stop], tracker: StereoTracker, 
 
 
 def _load(text: str, options: SourceOptions, progress) -> SourceData:
-    frontend = FrontendConfig(detector=options.detector) if options.detector else None
+    frontend = frontend_for(options)
     return load(Path(text), frontend, progress, bool(options.skip_bad_frames))
 
 

@@ -19,7 +19,7 @@ from ..geodesy import LocalFrame
 from ..records import DeadReckoning, GpsFix, GroundTruth, OdometryTrack, SlipPrior, StereoObservations, Stop, Traverse
 from ..rig import rig_preset
 from ..solve.results import SourceData, SourceInfo, SourceOptions
-from .registry import Source
+from .registry import Source, frontend_for
 
 _ALIGN_DISTANCE_M = 15.0  # odometry travelled before the initial heading is taken from GPS
 
@@ -249,10 +249,8 @@ def _load_bag(text: str, options: SourceOptions, progress) -> SourceData:
         options.check("rosbag", {"gps_topic", "odom_topic", "holdout_every"})
         return load_bag(Path(text), options.gps_topic, options.odom_topic, holdout)
     options.check("rosbag", {"stereo_topics", "detector", "skip_bad_frames"})
-    from ..config import FrontendConfig
-
     left, right = options.stereo_topics
-    frontend = FrontendConfig(detector=options.detector) if options.detector else None
+    frontend = frontend_for(options)
     return load_stereo_bag(Path(text), left, right, _info_topic(left), _info_topic(right), frontend, progress,
                            bool(options.skip_bad_frames))
 

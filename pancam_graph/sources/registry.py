@@ -10,6 +10,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..config import FrontendConfig
 from ..solve.results import SourceData, SourceOptions
 
 ProgressCallback = Callable[[str, int, int], None]
@@ -23,6 +24,11 @@ class Source:
     matches: Callable[[Path], bool]
     load: Callable[[str, SourceOptions, ProgressCallback | None], SourceData]
     describes: str  # what it is, for the message when nothing matches
+
+
+def frontend_for(options: SourceOptions) -> FrontendConfig | None:
+    """An image source's front-end settings: the detector asked for, else the source's own."""
+    return FrontendConfig(detector=options.detector) if options.detector else None
 
 
 def registered() -> list[Source]:
