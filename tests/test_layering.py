@@ -49,3 +49,18 @@ def test_no_import_cycle_in_the_package():
     assert len(modules) > 50
     edges = {m: set(graph.find_modules_directly_imported_by(m)) & modules for m in modules}
     assert _cycles(edges) == []
+
+
+def test_every_module_of_the_package_sits_in_a_layer():
+    import pkgutil
+    import tomllib
+    from pathlib import Path
+
+    import pancam_graph
+
+    pyproject = tomllib.loads((Path(pancam_graph.__file__).parents[1] / "pyproject.toml").read_text())
+    layers = pyproject["tool"]["importlinter"]["contracts"][0]["layers"]
+    layered = {name.strip().removeprefix("pancam_graph.") for layer in layers for name in layer.split("|")}
+    data = {"scenarios"}  # the bundled scenario files: no code
+    top_level = {m.name for m in pkgutil.iter_modules(pancam_graph.__path__)} - {"__main__"} - data
+    assert top_level - layered == set()

@@ -3,20 +3,25 @@ options several commands take. Errors are the package's typed ones (app.py print
 
 from __future__ import annotations
 
+import functools
+import inspect
 import os
 import signal
 import threading
 import time
+import typing
 from collections.abc import Callable
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import typer
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from ..errors import ConfigError
-from .app import console
+from ..source_options import SourceOptions
+from .app import console, user_input
 
 if TYPE_CHECKING:  # the heavy imports wait until a command needs them: --help stays fast
     from ..viz.rerun_sink import RerunTarget
@@ -127,17 +132,39 @@ def parse_configs(text: str | None) -> tuple[str, ...] | None:
     return names
 
 
-def parse_topics(text: str | None) -> tuple[str, str] | None:
-    if text is None:
-        return None
-    topics = [t.strip() for t in text.split(",") if t.strip()]
-    if len(topics) != 2:
-        raise ConfigError(f"--stereo-topics {text!r}: expected LEFT,RIGHT (two image topics)")
-    return topics[0], topics[1]
+def with_source_options(*names: str):
+    """The command takes the flags of these SourceOptions (source_options.py says each one's flag,
+    help and checks) and receives them as one `source_options` argument, checked as user input."""
+
+    def decorate(command: Callable) -> Callable:
+        hints = typing.get_type_hints(command)
+        own = [p.replace(annotation=hints[p.name]) for p in inspect.signature(command).parameters.values()
+               if p.name != "source_options"]
+        flags = SourceOptions.flags()
+        added = [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, annotation=_text_type(name),
+                                   default=typer.Option(None, flags[name], help=SourceOptions.help(name),
+                                                        min=SourceOptions.minimum(name)))
+                 for name in names]
+
+        @functools.wraps(command)
+        def with_options(**kwargs):
+            given = {name: kwargs.pop(name) for name in names}
+            with user_input():
+                # an unset flag is None (False for a switch): not given
+                options = SourceOptions(**{k: v for k, v in given.items() if v is not None and v is not False})
+            return command(**kwargs, source_options=options)
+
+        del with_options.__wrapped__  # typer reads the signature below, not the command's
+        with_options.__annotations__ = {}
+        with_options.__signature__ = inspect.Signature(own + added)
+        return with_options
+
+    return decorate
 
 
-def parse_detector(text: str | None) -> str | None:
-    if text is not None and text not in ("gftt", "orb", "sift"):
-        raise ConfigError(f"--detector {text!r}: expected gftt, orb or sift")
-    return text
+def _text_type(name: str) -> type:
+    """An option's type on the command line: its own, or text it parses (stereo topics)."""
+    value = typing.get_type_hints(SourceOptions)[name]
+    kept = [t for t in typing.get_args(value) if t is not type(None)]
+    return kept[0] if kept and kept[0] in (int, float, bool) else str
 

@@ -12,8 +12,9 @@ from rich.markup import escape
 from rich.table import Table
 
 from ..errors import ConfigError
+from ..source_options import SourceOptions
 from .app import app, console, user_input
-from .common import load_named_scenario, parse_detector, with_progress
+from .common import load_named_scenario, with_progress, with_source_options
 
 if TYPE_CHECKING:  # the heavy imports wait until a command needs them: --help stays fast
     from ..frontend.calibrate import StereoFit
@@ -21,14 +22,12 @@ if TYPE_CHECKING:  # the heavy imports wait until a command needs them: --help s
 
 
 @app.command("track")
+@with_source_options("detector", "skip_bad_frames")
 def track_command(
     source: str = typer.Argument(..., help="stereo images: a KITTI odometry sequence folder"),
     out: Path = typer.Option(..., "--out", help="observation folder to write (docs/observation_format.md)"),
-    detector: str | None = typer.Option(None, "--detector", help="gftt (default), orb or sift"),
-    skip_bad_frames: bool = typer.Option(False, "--skip-bad-frames", help="a missing, truncated or wrong-sized "
-                                         "image leaves its stop without observations (default: stop with a "
-                                         "message naming the file)"),
     quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
+    source_options: SourceOptions = SourceOptions(),
 ) -> None:
     """Run the image front-end and write what it found as an observation folder, so the back-end
     can be run again (`pancam-graph run OUT`) without the images."""
@@ -36,7 +35,8 @@ def track_command(
 
     with user_input():
         traverse = with_progress(Path(source).name, quiet, lambda report: api.track(
-            source, out, detector=parse_detector(detector), skip_bad_frames=skip_bad_frames, progress=report))
+            source, out, detector=source_options.detector,
+            skip_bad_frames=bool(source_options.skip_bad_frames), progress=report))
     frames = [len(s.stereo) for s in traverse.stops]
     console.print(f"{len(frames)} frames, median {sorted(frames)[len(frames) // 2]} features per frame; "
                   f"observations in {out}")

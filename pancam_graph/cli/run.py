@@ -3,7 +3,6 @@ run resumed; the summary table."""
 
 from __future__ import annotations
 
-import dataclasses
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -15,16 +14,16 @@ from rich.table import Table
 from rich.text import Text
 
 from ..errors import ConfigError
+from ..source_options import SourceOptions
 from .app import app, console, user_input
 from .common import (
     announce_viewer,
     parse_configs,
-    parse_detector,
-    parse_topics,
     rerun_help,
     rerun_target,
     serve_until_interrupted,
     with_progress,
+    with_source_options,
 )
 
 if TYPE_CHECKING:  # the heavy imports wait until a command needs them: --help stays fast
@@ -75,12 +74,12 @@ def _print_outcome(outcome: RunOutcome) -> None:
 
 
 @app.command("run")
+@with_source_options(*SourceOptions.flags())
 def run_command(
     source: str | None = typer.Argument(None, help="bundled scenario name, a scenario TOML file, an "
                                         "observation folder, a ROS bag or a KITTI raw drive folder "
                                         "[default: denver_trail]"),
     out: Path | None = typer.Option(None, "--out", help="results folder (default: results/<name>-<time>)"),
-    seed: int | None = typer.Option(None, "--seed", min=0, help="scenario: override its seed"),
     configs: str | None = typer.Option(None, "--configs", help="configurations to run, comma-separated: names "
                                        "(vo, vo_sites, full, ...) or kinds joined by '+' (vo+gps); default: "
                                        "every configuration the source can feed"),
@@ -88,19 +87,6 @@ def run_command(
     quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
     rerun: str | None = typer.Option(None, "--rerun", help=rerun_help("recording.rrd")),
     viewer_memory: str = typer.Option("25%", "--viewer-memory", help="memory limit of a spawned or served viewer"),
-    gps_topic: str | None = typer.Option(None, "--gps-topic", help="bag: NavSatFix topic (default: the only one)"),
-    odom_topic: str | None = typer.Option(None, "--odom-topic", help="bag: Odometry topic (default: the only one)"),
-    holdout_every: int | None = typer.Option(None, "--holdout-every", min=0,
-                                             help="bag, KITTI: keep every N-th fix out of the graph for scoring "
-                                                  "(default 5; 0: use all)"),
-    geoid_height: float | None = typer.Option(None, "--geoid-height", help="KITTI: geoid height (m) added to "
-                                                                           "OXTS alt"),
-    detector: str | None = typer.Option(None, "--detector", help="image sources: gftt (default), orb or sift"),
-    stereo_topics: str | None = typer.Option(None, "--stereo-topics", help="bag: LEFT,RIGHT rectified image "
-                                             "topics for stereo VO (CameraInfo beside each: .../camera_info)"),
-    skip_bad_frames: bool = typer.Option(False, "--skip-bad-frames", help="image folder: a missing, truncated "
-                                         "or wrong-sized image leaves its stop to the VO bridge (default: stop "
-                                         "with a message naming the file)"),
     resume: Path | None = typer.Option(None, "--resume", help="go on with a run that was killed (kill -9, power "
                                        "loss, out of memory) from its last checkpoint: its <out>.partial folder; "
                                        "the run keeps its own source and options"),
@@ -112,6 +98,7 @@ def run_command(
     checkpoint_every: float = typer.Option(30.0, "--checkpoint-every", min=0.0, help="seconds between the "
                                            "checkpoints saved for --resume (and at most 5 % of the run's time); "
                                            "0: at every site and every 25 stops"),
+    source_options: SourceOptions = SourceOptions(),
 ) -> None:
     """Solve a traverse with iSAM2 and evaluate it: every source goes through the same back-end.
 
@@ -123,17 +110,13 @@ def run_command(
     """
     from .. import api
     from ..processes import cores, start_process_server
-    from ..sources import SourceOptions
 
     processes = 1 if one_process else None
-    # the source's options as given (not yet checked): each one's flag is SourceOptions'
-    options = SourceOptions(seed, gps_topic, odom_topic, holdout_every, geoid_height, detector,
-                            skip_bad_frames or None, stereo_topics)
     if resume is not None:
         given = {"SOURCE": source, "--out": out, "--configs": configs, "--batch": batch or None}
         with user_input():
             clash = [name for name, value in given.items() if value is not None]
-            clash += [SourceOptions.flags()[name] for name in options.given()]
+            clash += [SourceOptions.flags()[name] for name in source_options.given()]
             if clash:
                 raise ConfigError(f"--resume goes on with the run's own source and options; drop {', '.join(clash)}")
             target = rerun_target(rerun, viewer_memory)
@@ -152,12 +135,10 @@ def run_command(
         start_process_server()  # it imports the package while the source loads
     with user_input():
         target = rerun_target(rerun, viewer_memory)
-        options = dataclasses.replace(options, detector=parse_detector(detector),
-                                      stereo_topics=parse_topics(stereo_topics))
         names = parse_configs(configs)
         api.check_out(out)
         data = with_progress(Path(source).name or source, quiet,
-                              lambda report: api.open_data(source, options, out, report))
+                              lambda report: api.open_data(source, source_options, out, report))
         from ..solve.pipeline import select_configurations
 
         select_configurations(data.estimator, data.traverse, names)  # before anything is written
@@ -166,7 +147,7 @@ def run_command(
     if len(data.rejected) > 10:
         console.print(Text(f"... {len(data.rejected) - 10} more fixes left out", style="yellow"))
     _print_outcome(with_progress(data.traverse.name, quiet, lambda report: api.run(
-        source, out=out, seed=seed, configs=names, batch=batch, processes=processes, rerun=target,
+        source, out=out, seed=source_options.seed, configs=names, batch=batch, processes=processes, rerun=target,
         checkpoint_every_s=checkpoint_every, figures=not no_plots, progress=report, opened=data,
         on_viewer=announce_viewer)))
 

@@ -13,8 +13,9 @@ from rich.table import Table
 from rich.text import Text
 
 from ..errors import ConfigError
+from ..source_options import SourceOptions
 from .app import EXIT_FAILURE, app, console, user_input
-from .common import parse_detector, progress_bar, rerun_help, rerun_target, serve_until_interrupted, with_progress
+from .common import progress_bar, rerun_help, rerun_target, serve_until_interrupted, with_progress
 
 
 @app.command("view")
@@ -163,7 +164,7 @@ def bench_command(
                 document = with_progress("sites", False, lambda p: bench.bench_sites(source, progress=p))
             else:
                 document = with_progress("front-end", False, lambda p: bench.bench_frontend(
-                    source, parse_detector(detector), progress=p))
+                    source, SourceOptions(detector=detector).detector, progress=p))
     elif source is not None or detector is not None:
         raise ConfigError("SOURCE and --detector go with 'bench frontend' only")
     elif monte_carlo and workers:

@@ -76,6 +76,8 @@ class Kind:
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)
+        if "name" not in cls.__dict__:  # a family of kinds (motion.MotionKind), not a kind
+            return
         if cls.name in _REGISTRY:
             raise TypeError(f"two measurement kinds are named {cls.name!r}")
         _REGISTRY[cls.name] = cls
@@ -83,9 +85,20 @@ class Kind:
     def __init__(self, localizer: Host):
         self.loc = localizer
 
-    @staticmethod
-    def unavailable(traverse: Traverse) -> str | None:
+    # What it reads, in words: a traverse without any is "a traverse with no <records>".
+    records: ClassVar[str] = ""
+
+    @classmethod
+    def has_records(cls, traverse: Traverse) -> bool:
+        """Whether the traverse holds any of this kind's measurements (its own records, by
+        default: Traverse.measurements[name])."""
+        return bool(traverse.measurements.get(cls.name))
+
+    @classmethod
+    def unavailable(cls, traverse: Traverse) -> str | None:
         """Why this traverse cannot feed the kind, or None."""
+        if cls.records and not cls.has_records(traverse):
+            return f"the traverse has no {cls.records}"
         return None
 
     # -- records: simulated, written and read (kinds with Traverse.measurements) ---------------

@@ -44,9 +44,11 @@ class Gps(Kind):
     counter_defaults = {"gps_fixes_used": 0, "gps_outliers": 0}
     Settings = GpsSettings
 
+    records = "GPS fixes"
+
     @staticmethod
-    def unavailable(traverse: Traverse) -> str | None:
-        return None if traverse.gps_fixes else "the traverse has no GPS fixes"
+    def has_records(traverse: Traverse) -> bool:
+        return bool(traverse.gps_fixes)
 
     def __init__(self, localizer):
         super().__init__(localizer)

@@ -32,11 +32,17 @@ class Hrc(Kind):
     counter_defaults = {"hrc_measurements": 0, "rejected_hrc_measurements": 0}
     Settings = HrcSettings
 
+    records = "HRC frames"
+
     @staticmethod
-    def unavailable(traverse: Traverse) -> str | None:
+    def has_records(traverse: Traverse) -> bool:
+        return any(s.hrc for s in traverse.stops)
+
+    @classmethod
+    def unavailable(cls, traverse: Traverse) -> str | None:
         if traverse.rig.hrc is None:
             return f"rig {traverse.rig.name!r} has no HRC"
-        return None if any(s.hrc for s in traverse.stops) else "the traverse has no HRC frames"
+        return super().unavailable(traverse)
 
     def __init__(self, localizer):
         super().__init__(localizer)

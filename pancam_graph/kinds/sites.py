@@ -67,9 +67,11 @@ class Sites(Kind):
     counter_defaults = {"landmarks": 0, "rejected_tie_points": 0, "rejected_tie_views": 0}
     Settings = SitesSettings
 
+    records = "site panoramas"
+
     @staticmethod
-    def unavailable(traverse: Traverse) -> str | None:
-        return None if any(s.is_site for s in traverse.stops) else "the traverse has no site panoramas"
+    def has_records(traverse: Traverse) -> bool:
+        return any(s.is_site for s in traverse.stops)
 
     def __init__(self, localizer):
         super().__init__(localizer)

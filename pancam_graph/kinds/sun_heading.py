@@ -144,9 +144,7 @@ class SunHeading(Kind):
     columns = ("stop", "utc_s", "sun_x", "sun_y", "sun_z", "up_x", "up_y", "up_z")
     step_counters = {"sun_sightings": 0, "sun_flagged": 0}
 
-    @staticmethod
-    def unavailable(traverse: Traverse) -> str | None:
-        return None if traverse.measurements.get("sun_heading") else "the traverse has no sun sightings"
+    records = "sun sightings"
 
     # -- records -------------------------------------------------------------------------------
 

@@ -16,7 +16,7 @@ from pydantic import Field
 from ..graph.keys import S
 from ..sections import Section
 from .base import Kind
-from .vo import VisualOdometry
+from .motion import VisualOdometry
 from .wheel_slip import slip_odometry_factor
 
 VO_SCALE = S(1)

@@ -16,7 +16,7 @@ import numpy as np
 from ..graph import noise
 from ..graph.keys import S
 from .base import Kind
-from .dead_reckoning import DeadReckoningMotion
+from .motion import DeadReckoningMotion
 
 SLIP = S(0)
 

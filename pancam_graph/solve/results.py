@@ -4,18 +4,18 @@ report and rerun show; and metrics.json's one layout."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..config import EstimatorConfig, Scenario
-from ..errors import ConfigError
 from ..evaluation.consistency import Consistency
 from ..evaluation.gps_check import HoldoutScore
 from ..evaluation.metrics import TrajectoryMetrics
 from ..frontend.motion import Motion, VoMotions
 from ..kinds import COUNTER_DEFAULTS
 from ..records import GpsFix, GroundTruth, Traverse
+from ..source_options import SourceOptions
 from .localizer import InterpolatedPose, StepResult
 
 
@@ -33,40 +33,6 @@ class RunOptions:
     # CLI uses every core; a script that does must guard its main module (multiprocessing "spawn").
     processes: int = 1
     side_by_side_min_stops: int = 300  # below this, starting the processes costs more than they save
-
-
-def _flag(flag: str):
-    return field(default=None, metadata={"flag": flag})
-
-
-@dataclass(frozen=True)
-class SourceOptions:
-    """Options that only some sources take (each source says which: sources/); one given to a
-    source that does not take it is an error. Each one's command-line flag is written here once:
-    the CLI's checks and the reproduce.sh of a run come from it."""
-
-    seed: int | None = _flag("--seed")  # scenario
-    gps_topic: str | None = _flag("--gps-topic")  # rosbag
-    odom_topic: str | None = _flag("--odom-topic")  # rosbag
-    holdout_every: int | None = _flag("--holdout-every")  # rosbag, kitti_raw (default 5)
-    geoid_height_m: float | None = _flag("--geoid-height")  # kitti_raw
-    detector: str | None = _flag("--detector")  # image sources: gftt, orb, sift
-    skip_bad_frames: bool | None = _flag("--skip-bad-frames")  # image sources: skip a bad image's stop
-    stereo_topics: tuple[str, str] | None = _flag("--stereo-topics")  # rosbag: left and right image topics
-
-    @staticmethod
-    def flags() -> dict[str, str]:
-        """Option name -> its command-line flag."""
-        return {f.name: f.metadata["flag"] for f in fields(SourceOptions)}
-
-    def given(self) -> dict[str, object]:
-        """The options set (not None), by name."""
-        return {name: getattr(self, name) for name in self.flags() if getattr(self, name) is not None}
-
-    def check(self, kind: str, allowed: set[str] | frozenset[str]) -> None:
-        for name in self.given():
-            if name not in allowed:
-                raise ConfigError(f"{self.flags()[name]} does not apply to a {kind} source")
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import ConfigError
-from ..solve.results import SourceData, SourceOptions
+from ..solve.results import SourceData
+from ..source_options import SourceOptions
 from .recorded import is_kitti_drive
 from .registry import ProgressCallback, Source, registered
 

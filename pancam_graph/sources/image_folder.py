@@ -19,7 +19,8 @@ from ..formats.images import read_gray
 from ..frontend.motion import VoMotions
 from ..frontend.tracker import CameraMotion, StageTimes, StereoTracker
 from ..records import Stop, Traverse
-from ..solve.results import SourceData, SourceInfo, SourceOptions
+from ..solve.results import SourceData, SourceInfo
+from ..source_options import SourceOptions
 from .frames import median_frame_ms, track_frames
 from .registry import Source, frontend_for
 from .site_images import with_site_panoramas

@@ -16,7 +16,8 @@ from ..frontend.tracker import StereoTracker
 from ..geodesy import LocalFrame
 from ..records import GroundTruth, SlipPrior, StereoObservations, Stop, Traverse
 from ..rig import BODY_T_FORWARD_CAMERA, Rig
-from ..solve.results import SourceData, SourceInfo, SourceOptions
+from ..solve.results import SourceData, SourceInfo
+from ..source_options import SourceOptions
 from .frames import median_frame_ms, track_frames
 from .registry import Source, frontend_for
 

@@ -18,7 +18,8 @@ from ..evaluation.timed import poses_at_times
 from ..geodesy import LocalFrame
 from ..records import DeadReckoning, GpsFix, GroundTruth, OdometryTrack, SlipPrior, StereoObservations, Stop, Traverse
 from ..rig import rig_preset
-from ..solve.results import SourceData, SourceInfo, SourceOptions
+from ..solve.results import SourceData, SourceInfo
+from ..source_options import SourceOptions
 from .registry import Source, frontend_for
 
 _ALIGN_DISTANCE_M = 15.0  # odometry travelled before the initial heading is taken from GPS

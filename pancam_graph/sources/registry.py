@@ -11,7 +11,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..config import FrontendConfig
-from ..solve.results import SourceData, SourceOptions
+from ..solve.results import SourceData
+from ..source_options import SourceOptions
 
 ProgressCallback = Callable[[str, int, int], None]
 
