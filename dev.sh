@@ -22,7 +22,17 @@ cmd=${1:-run}
 shift || true
 case "$cmd" in
     run)  exec .venv/bin/pancam-graph run "$@" ;;
-    test) .venv/bin/lint-imports && exec .venv/bin/python -m pytest -q "$@" ;;
+    test)
+        # the live web viewer test drives a headless Chromium: installed where apt can (root, or
+        # sudo without a password); elsewhere that test skips and says why
+        if ! command -v chromium >/dev/null && command -v apt-get >/dev/null; then
+            sudo=""; [ "$(id -u)" = 0 ] || sudo="sudo -n"
+            echo "dev.sh: installing chromium (apt) for the web viewer test" >&2
+            { $sudo apt-get install -y -qq --no-install-recommends chromium \
+                || { $sudo apt-get update -qq && $sudo apt-get install -y -qq --no-install-recommends chromium; }
+            } >/dev/null 2>&1 || echo "dev.sh: chromium not installed; the browser test will skip" >&2
+        fi
+        .venv/bin/lint-imports && exec .venv/bin/python -m pytest -q "$@" ;;
     setup) exit 0 ;;
     *)    echo "usage: ./dev.sh run|test|setup [args]" >&2; exit 2 ;;
 esac

@@ -296,9 +296,11 @@ def evaluate(estimate: Path | str, reference: Path | str, *, align: str = "none"
     return result
 
 
-def view(results: Path | str, target: RerunTarget, saved: SavedRun | None = None) -> Recording:
+def view(results: Path | str, target: RerunTarget, saved: SavedRun | None = None,
+         on_viewer: Callable[[str], None] | None = None) -> Recording:
     """Replay a finished results folder (`saved`: read already) into rerun with the live run's
-    layout; returns the closed recording (`served_url` for a served one)."""
+    layout; returns the closed recording (a served one stays served until its `stop_serving`;
+    `on_viewer` is told its web viewer's address as soon as it is up)."""
     from .store.results_folder import read_run
     from .viz.rerun_replay import replay
     from .viz.rerun_sink import open_recording
@@ -308,6 +310,8 @@ def view(results: Path | str, target: RerunTarget, saved: SavedRun | None = None
         target = dataclasses.replace(target, path=results / "replay.rrd")
     saved = saved or read_run(results)
     recording = open_recording(target, f"{saved.name} (replay of {results.name})")
+    if recording.viewer_url is not None and on_viewer is not None:
+        on_viewer(recording.viewer_url)
     replay(saved, recording.stream)
     recording.close()
     return recording

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Screenshot of the rerun viewer showing a run, rendered on the CPU (no GPU, no screen needed).
 #
-#   scripts/screenshot_viewer.sh [SCENARIO] [OUT.png]      (defaults: denver_trail docs/rerun_viewer.png)
+#   scripts/screenshot_viewer.sh [SCENARIO] [OUT.png]      (defaults: denver_trail results/rerun_viewer_native.png)
 #
 # Runs `pancam-graph run SCENARIO --rerun save` and opens the recording in rerun's native
 # viewer on a virtual X display (Xvfb); wgpu renders with Mesa's llvmpipe through Vulkan
@@ -11,7 +11,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scenario="${1:-denver_trail}"
-png="${2:-docs/rerun_viewer.png}"
+png="${2:-results/rerun_viewer_native.png}"
 
 if ! command -v xvfb-run >/dev/null || ! ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1; then
     apt-get install -y --no-install-recommends xvfb xauth mesa-vulkan-drivers >/dev/null

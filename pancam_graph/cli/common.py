@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import ipaddress
 import os
 import signal
 import threading
@@ -82,7 +83,8 @@ def load_named_scenario(scenario: str):
 
 def rerun_help(default_file: str) -> str:
     return (f"rerun viewer: 'spawn', 'save' ({default_file} in the results folder), 'save:FILE.rrd', "
-            "'serve' (gRPC + web viewer), 'connect:URL' (a running viewer, e.g. rerun+http://host:9876/proxy)")
+            "'serve' (a web viewer on 127.0.0.1; 'serve:0.0.0.0' on every interface), 'connect:URL' (a running "
+            "viewer, e.g. rerun+http://host:9876/proxy)")
 
 
 def rerun_target(text: str | None, memory_limit: str) -> RerunTarget | None:
@@ -97,25 +99,37 @@ def rerun_target(text: str | None, memory_limit: str) -> RerunTarget | None:
             raise ConfigError("--rerun spawn: no display (DISPLAY is not set); use --rerun save (then open the "
                               ".rrd elsewhere) or --rerun serve (a web viewer)")
         return RerunTarget(mode, memory_limit=memory_limit)
-    if mode == "serve" and not arg:
-        return RerunTarget(mode, memory_limit=memory_limit)
+    if mode == "serve":
+        try:
+            ipaddress.ip_address(arg or "127.0.0.1")
+        except ValueError:
+            raise ConfigError(f"--rerun serve:{arg}: expected an address to listen on, e.g. serve:0.0.0.0 "
+                              "(every interface); plain serve listens on 127.0.0.1") from None
+        return RerunTarget(mode, memory_limit=memory_limit, host=arg or "127.0.0.1")
     if mode == "save":
         if arg and not arg.endswith(".rrd"):
             raise ConfigError(f"--rerun save:{arg}: the recording file must end in .rrd")
         return RerunTarget("save", path=Path(arg) if arg else None)
     if mode == "connect":
         return RerunTarget("connect", url=arg or None)
-    raise ConfigError(f"--rerun {text!r}: expected spawn, save, save:FILE.rrd, serve or connect:URL")
+    raise ConfigError(f"--rerun {text!r}: expected spawn, save, save:FILE.rrd, serve, serve:ADDRESS or connect:URL")
 
 
-def serve_until_interrupted(viewer_url: str | None) -> None:
-    """Keep serving the recording (its web viewer is up already) until Ctrl-C."""
-    console.print(f"rerun: the web viewer stays at {viewer_url} (Ctrl-C to stop)", soft_wrap=True)
+def serve_until_interrupted(recording, serve_for_s: float | None) -> None:
+    """Keep the recording's web viewer up after the run: until Ctrl-C, or for `serve_for_s`."""
+    how_long = "Ctrl-C to stop" if serve_for_s is None else f"for {serve_for_s:g} s; Ctrl-C to stop sooner"
+    console.print(f"rerun: the web viewer stays at {recording.viewer_url} ({how_long})", soft_wrap=True)
+    end = None if serve_for_s is None else time.monotonic() + serve_for_s
     try:
-        while True:
-            time.sleep(1.0)
+        while recording.serving and (end is None or time.monotonic() < end):
+            time.sleep(0.2)
     except KeyboardInterrupt:
         pass
+    finally:
+        recording.stop_serving()
+
+
+SERVE_FOR_HELP = "with --rerun serve: keep the web viewer up this many seconds after the run (default: until Ctrl-C)"
 
 
 def announce_viewer(viewer_url: str) -> None:

@@ -17,6 +17,7 @@ from ..errors import ConfigError
 from ..source_options import SourceOptions
 from .app import app, console, user_input
 from .common import (
+    SERVE_FOR_HELP,
     announce_viewer,
     parse_configs,
     rerun_help,
@@ -53,7 +54,7 @@ def _summary_table(outcome: RunOutcome) -> Table:
     return table
 
 
-def _print_outcome(outcome: RunOutcome) -> None:
+def _print_outcome(outcome: RunOutcome, serve_for_s: float | None) -> None:
     for warning in outcome.warnings:
         console.print(Text("warning: ", style="bold yellow") + Text(warning))
     Console(width=80).print(_summary_table(outcome))
@@ -70,7 +71,7 @@ def _print_outcome(outcome: RunOutcome) -> None:
         console.print(f"rerun recording: {shown} (open with `rerun {shown}` or `pancam-graph view "
                       f"{outcome.folder}`)")
     if recording is not None and recording.target.mode == "serve":
-        serve_until_interrupted(recording.viewer_url)
+        serve_until_interrupted(recording, serve_for_s)
 
 
 @app.command("run")
@@ -87,6 +88,7 @@ def run_command(
     quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
     rerun: str | None = typer.Option(None, "--rerun", help=rerun_help("recording.rrd")),
     viewer_memory: str = typer.Option("25%", "--viewer-memory", help="memory limit of a spawned or served viewer"),
+    serve_for: float | None = typer.Option(None, "--serve-for", min=0.0, help=SERVE_FOR_HELP),
     resume: Path | None = typer.Option(None, "--resume", help="go on with a run that was killed (kill -9, power "
                                        "loss, out of memory) from its last checkpoint: its <out>.partial folder; "
                                        "the run keeps its own source and options"),
@@ -128,7 +130,7 @@ def run_command(
         console.print(f"resuming {point.data.traverse.name} {where} of {n} (from {point.partial})")
         _print_outcome(with_progress(point.data.traverse.name, quiet, lambda report: api.resume(
             point, processes=processes, rerun=target, checkpoint_every_s=checkpoint_every, figures=not no_plots,
-            progress=report, on_viewer=announce_viewer)))
+            progress=report, on_viewer=announce_viewer)), serve_for)
         return
     source = source or "denver_trail"
     if processes is None and cores() > 1:
@@ -149,5 +151,5 @@ def run_command(
     _print_outcome(with_progress(data.traverse.name, quiet, lambda report: api.run(
         source, out=out, seed=source_options.seed, configs=names, batch=batch, processes=processes, rerun=target,
         checkpoint_every_s=checkpoint_every, figures=not no_plots, progress=report, opened=data,
-        on_viewer=announce_viewer)))
+        on_viewer=announce_viewer)), serve_for)
 

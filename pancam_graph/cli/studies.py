@@ -15,7 +15,15 @@ from rich.text import Text
 from ..errors import ConfigError
 from ..source_options import SourceOptions
 from .app import EXIT_FAILURE, app, console, user_input
-from .common import progress_bar, rerun_help, rerun_target, serve_until_interrupted, with_progress
+from .common import (
+    SERVE_FOR_HELP,
+    announce_viewer,
+    progress_bar,
+    rerun_help,
+    rerun_target,
+    serve_until_interrupted,
+    with_progress,
+)
 
 
 @app.command("view")
@@ -23,6 +31,7 @@ def view_command(
     results: Path = typer.Argument(..., help="a results folder written by `pancam-graph run`"),
     rerun: str = typer.Option("spawn", "--rerun", help=rerun_help("replay.rrd")),
     viewer_memory: str = typer.Option("25%", "--viewer-memory", help="memory limit of a spawned or served viewer"),
+    serve_for: float | None = typer.Option(None, "--serve-for", min=0.0, help=SERVE_FOR_HELP),
 ) -> None:
     """Replay a finished results folder into rerun with the live run's layout."""
     from ..api import view
@@ -31,11 +40,11 @@ def view_command(
     with user_input():
         target = rerun_target(rerun, viewer_memory)
         saved = read_run(results)
-    recording = view(results, target, saved)
+    recording = view(results, target, saved, on_viewer=announce_viewer)
     if recording.target.mode == "save":
         console.print(f"rerun recording: {recording.target.path}")
     elif recording.target.mode == "serve":
-        serve_until_interrupted(recording.viewer_url)
+        serve_until_interrupted(recording, serve_for)
 
 
 @app.command("eval")

@@ -10,9 +10,13 @@ import rerun as rr
 from ..evaluation.gps_check import gps_enu
 from ..records import GroundTruth, Stop, Traverse
 from ..solve.localizer import Localizer, StepResult
-from ..solve.state import CHECKPOINT_EVERY_STOPS
 from . import rerun_scene as scene
 
+# Every configuration is re-read, and what was logged sent, every this many stops (and at the
+# end). A browser's viewer takes in a few chunks per frame, and a software-rendered one draws a
+# few frames a second: sending a chunk per entity at every checkpoint (25 stops) and site left it
+# a minute behind a 10 s run.
+REFRESH_EVERY_STOPS = 100
 FEATURES = rr.AnnotationContext([(0, "new", (200, 200, 200)), (1, "tracked from the last stop", (60, 220, 60))])
 
 
@@ -22,19 +26,19 @@ class _PrimaryRows:
     calls per checkpoint instead of several per stop (the per-call cost dominates)."""
 
     when: list[tuple[int, float, float]] = field(default_factory=list)  # stop, time, distance
-    trajectories: list[np.ndarray] = field(default_factory=list)
+    tails: list[np.ndarray] = field(default_factory=list)  # the trajectory since the last refresh
     centres: list[np.ndarray] = field(default_factory=list)
     covariances: list[np.ndarray] = field(default_factory=list)
     rover: list[np.ndarray] = field(default_factory=list)
     features: list[np.ndarray] = field(default_factory=list)
     tracked: list[np.ndarray] = field(default_factory=list)
 
-    def send(self, rec: rr.RecordingStream, trajectory_path: str, covariance_path: str) -> None:
+    def send(self, rec: rr.RecordingStream, tail_path: str, covariance_path: str) -> None:
         if not self.when:
             return
         stops, times, dist = zip(*self.when, strict=True)
         columns = scene.time_columns(stops, times, dist)
-        rec.send_columns(trajectory_path, indexes=columns, columns=rr.LineStrips3D.columns(strips=self.trajectories))
+        rec.send_columns(tail_path, indexes=columns, columns=rr.LineStrips3D.columns(strips=self.tails))
         half, quaternions = scene.ellipsoid_axes(np.array(self.covariances))
         rec.send_columns(covariance_path, indexes=columns, columns=rr.Ellipsoids3D.columns(
             centers=np.array(self.centres), half_sizes=half, quaternions=quaternions))
@@ -49,16 +53,17 @@ class _PrimaryRows:
 
 
 class RerunRecorder:
-    """Logs a run into a rerun recording stop by stop; flushes at the run's checkpoints.
+    """Logs a run into a rerun recording stop by stop, sent and flushed every `refresh_every`
+    stops and at the end.
 
     Reading a configuration's whole estimate back from iSAM2 costs about a millisecond, so
-    every configuration's trajectory (and landmarks) is re-read every `refresh_every` stops
-    and at every site; in between only the primary configuration (the richest: it also drives
-    the rover and camera) appends its newest pose and ellipsoid (`pancam-graph bench --rerun`
-    measures what recording costs).
+    every configuration's trajectory (and the landmarks, when a site has passed) is re-read
+    every `refresh_every` stops; in between only the primary configuration (the richest: it also
+    drives the rover and camera) appends its newest pose and ellipsoid (`pancam-graph bench
+    --rerun` measures what recording costs).
     """
 
-    def __init__(self, rec: rr.RecordingStream, refresh_every: int = CHECKPOINT_EVERY_STOPS):
+    def __init__(self, rec: rr.RecordingStream, refresh_every: int = REFRESH_EVERY_STOPS):
         self.rec = rec
         self.refresh_every = refresh_every
         self.series = scene.SeriesBuffer()
@@ -73,6 +78,7 @@ class RerunRecorder:
         self.configs = list(localizers)
         self.primary = self.configs[-1]  # the richest configuration drives the rover and camera
         self.positions = {c: np.zeros((0, 3)) for c in self.configs}
+        self.tail_start = dict.fromkeys(self.configs, 0)
         self.gps_outliers = dict.fromkeys(self.configs, 0)
         self.gps_times, self.gps_enu = gps_enu(traverse)  # fixes are inputs: converted once
         self.gps_lat_lon = np.array([[f.lat_deg, f.lon_deg] for f in traverse.gps_fixes]).reshape(-1, 2)
@@ -82,8 +88,8 @@ class RerunRecorder:
                                     len(departures) - 1)
         self.last_stop = -1
         self.flagged: set[int] = set()  # stops whose fix the primary configuration flagged
-        self.panoramas = np.zeros((0, 2, 3), dtype=np.float32)  # frustum segments of every site so far
         self.sites: dict[int, tuple[int, np.ndarray]] = {}  # stop -> (site id, position when logged)
+        self.site_since_refresh = False
         self.distance_m = 0.0
         self.previous_tracks = np.zeros(0, dtype=np.int64)
         rig = traverse.rig
@@ -100,9 +106,10 @@ class RerunRecorder:
         scene.set_stop_time(self.rec, k, stop.time_s, self.distance_m)
         when = (k, stop.time_s, self.distance_m)
         self.pending.when.append(when)
-        refresh = stop.is_site or (k + 1) % self.refresh_every == 0 or k + 1 == len(self.traverse.stops)
+        refresh = (k + 1) % self.refresh_every == 0 or k + 1 == len(self.traverse.stops)
+        self.site_since_refresh |= stop.is_site
         for config, localizer in self.localizers.items():
-            current = self._log_estimate(config, localizer, k, refresh, stop.is_site)
+            current = self._log_estimate(config, localizer, k, refresh, self.site_since_refresh)
             step = steps[config]
             if self.truth is not None:
                 self.series.add(scene.series_path("error_m", config), *when,
@@ -130,8 +137,16 @@ class RerunRecorder:
                 self.rec.log("events", rr.TextLog(
                     f"stop {k}: VO failed ({motion.vo_failure}); bridged by {motion.source}",
                     level=rr.TextLogLevel.WARN))
+        if refresh:
+            self.site_since_refresh = False
+            self._send()
 
     def checkpoint(self, stop: Stop) -> None:
+        """Nothing: the recording is sent at its own refreshes (a run that dies loses at most the
+        stops since the last one from the recording, never from the results)."""
+
+    def _send(self) -> None:
+        """What was logged since the last send, the GPS fixes and the map; flushed."""
         self._send_pending()
         self._log_gps()
         for config in self.configs:
@@ -156,21 +171,25 @@ class RerunRecorder:
                 self._log_landmarks(config, c.landmark_ids, c.landmark_positions, c.tie_links,
                                     {s.index: c.world_T_body[i, :3, 3] for i, s in enumerate(self.traverse.stops)})
         self.rec.log("events", rr.TextLog(f"finished: {len(self.traverse.stops)} stops, wall {result.wall_s:.1f} s"))
-        self.checkpoint(last)
+        self._send()
 
     # -- pieces ---------------------------------------------------------------------------
 
     def _send_pending(self) -> None:
         self.series.send(self.rec)
-        self.pending.send(self.rec, scene.trajectory_path(self.primary), scene.covariance_path(self.primary))
+        self.pending.send(self.rec, scene.tail_path(self.primary), scene.covariance_path(self.primary))
 
     def _log_estimate(self, config: str, localizer: Localizer, k: int, refresh: bool, at_site: bool) -> np.ndarray:
         """Log the configuration's trajectory and current 95 % ellipsoid; return the current pose.
-        The primary configuration is logged at every stop (and its landmarks and tie links at
-        every site), the others when refreshed (their landmarks once, at the end)."""
+        Every configuration's whole trajectory is logged when refreshed (the primary's landmarks
+        and tie links too after a site; the others' once, at the end). The primary's ellipsoid
+        is logged at every stop, and so is its trajectory since the last refresh (its tail): the
+        line follows the rover, without sending the whole line at every stop (on 10 km that was
+        hundreds of megabytes, more than a browser's viewer takes)."""
         if refresh:
             snapshot = localizer.snapshot()
             self.positions[config] = snapshot.world_T_body[:, :3, 3]
+            self.tail_start[config] = len(self.positions[config]) - 1
             current = snapshot.world_T_body[-1]
             if at_site and config == self.primary and len(snapshot.landmark_ids):
                 sites = {int(s): snapshot.world_T_body[i, :3, 3] for i, s in enumerate(snapshot.stops)}
@@ -182,9 +201,11 @@ class RerunRecorder:
             self.positions[config] = np.vstack([self.positions[config], current[:3, 3]])
         covariance = localizer.position_covariance(k)
         if config == self.primary:
-            self.pending.trajectories.append(self.positions[config].astype(np.float32))
+            self.pending.tails.append(self.positions[config][self.tail_start[config]:].astype(np.float32))
             self.pending.centres.append(current[:3, 3])
             self.pending.covariances.append(covariance)
+            if refresh:
+                self.rec.log(scene.trajectory_path(config), scene.trajectory(self.positions[config]))
         else:
             self.rec.log(scene.trajectory_path(config), scene.trajectory(self.positions[config]))
             self.rec.log(scene.covariance_path(config), scene.ellipsoids(current[None, :3, 3], covariance[None]))
@@ -199,11 +220,13 @@ class RerunRecorder:
 
     def _log_site(self, stop: Stop, world_T_body: np.ndarray) -> None:
         rig = self.traverse.rig
+        # the latest site's frustums only: every site's, hundreds of lines, buried the trajectories
         segments = [scene.frustum_segments(world_T_body @ rig.body_T_left(f.pan_rad, f.tilt_rad).matrix(), rig.wac)
                     for f in stop.panorama]
-        self.panoramas = np.concatenate([self.panoramas, *segments])
         self.sites[stop.index] = (stop.site_id, world_T_body[:3, 3])
-        self.rec.log("world/sites/panoramas", rr.LineStrips3D(self.panoramas, radii=0.01, colors=(250, 210, 60)))
+        if segments:
+            self.rec.log("world/sites/panoramas", rr.LineStrips3D(np.concatenate(segments), radii=0.01,
+                                                                  colors=(250, 210, 60)))
         self.rec.log("world/sites", rr.Points3D(np.array([p for _, p in self.sites.values()]), radii=0.3,
                                                 colors=(250, 210, 60),
                                                 labels=[f"site {i}" for i, _ in self.sites.values()]))

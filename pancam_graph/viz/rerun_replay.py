@@ -61,7 +61,7 @@ def replay(run: SavedRun, rec: rr.RecordingStream) -> None:
     main = run.configurations[primary].world_T_body
     rec.send_columns("world/rover", indexes=columns,
                      columns=rr.Transform3D.columns(translation=main[:, :3, 3], mat3x3=main[:, :3, :3]))
-    _log_sites(rec, run, rig, main)
+    _log_sites(rec, run, rig, main, distance)
     if len(run.gps_times_s):
         # a fix is updated with the stop whose drive (or dwell) it falls in
         stop_of = np.minimum(np.searchsorted(run.departures_s, run.gps_times_s - 1e-3, side="left"), n - 1)
@@ -83,18 +83,21 @@ def _series(rec: rr.RecordingStream, path: str, columns, values) -> None:
     rec.send_columns(path, indexes=columns, columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=float)))
 
 
-def _log_sites(rec: rr.RecordingStream, run: SavedRun, rig, world_T_body: np.ndarray) -> None:
-    strips, sites = [], {}
+def _log_sites(rec: rr.RecordingStream, run: SavedRun, rig, world_T_body: np.ndarray, distance: np.ndarray) -> None:
+    """The site markers, and each site's frustums from its stop on (as live: the latest site's)."""
+    strips: dict[int, list[np.ndarray]] = {}
+    sites = {}
     for stop, site_id, camera, pan_deg, tilt_deg in run.panoramas:
         if camera != "wac":
             continue
         mount = rig.body_T_left(np.deg2rad(pan_deg), np.deg2rad(tilt_deg)).matrix()
-        strips.append(scene.frustum_segments(world_T_body[stop] @ mount, rig.wac))
+        strips.setdefault(stop, []).append(scene.frustum_segments(world_T_body[stop] @ mount, rig.wac))
         sites[stop] = site_id
     if not sites:
         return
-    rec.log("world/sites/panoramas", rr.LineStrips3D(np.concatenate(strips), radii=0.01, colors=(250, 210, 60)),
-            static=True)
+    for stop, segments in strips.items():
+        scene.set_stop_time(rec, stop, run.times_s[stop], distance[stop])
+        rec.log("world/sites/panoramas", rr.LineStrips3D(np.concatenate(segments), radii=0.01, colors=(250, 210, 60)))
     rec.log("world/sites", rr.Points3D(world_T_body[list(sites), :3, 3], radii=0.3, colors=(250, 210, 60),
                                        labels=[f"site {s}" for s in sites]), static=True)
 

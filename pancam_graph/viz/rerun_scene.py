@@ -5,8 +5,9 @@ Entities (world = local ENU, z up):
     world/terrain                     true landmark field (simulations only), static
     world/truth                       true trajectory, static
     world/gps                         GPS fixes in ENU (grey used, red flagged outlier)
-    world/sites                       site markers; world/sites/panoramas: frustums of every frame
+    world/sites                       site markers; world/sites/panoramas: the latest site's frustums
     world/estimate/<config>/trajectory, /covariance (95 % ellipsoids), /landmarks, /ties
+    world/estimate/<config>/trajectory/tail   live: the trajectory since its last refresh
     world/rover, world/rover/left_cam  current pose of the primary configuration, its left WAC
     world/rover/left_cam/features     the stop's stereo features (green: tracked from the last stop)
     map/gps, map/truth, map/estimate/<config>, map/rover   the same in WGS84 latitude/longitude
@@ -45,6 +46,7 @@ OUTLIER_COLOUR = (230, 30, 30)
 HELD_OUT_COLOUR = (60, 120, 230)  # fixes kept out of the graph for scoring
 ELLIPSOID_SCALE_95 = float(np.sqrt(chi2.quantile(0.95, 3)))  # 95 % of a 3-D Gaussian
 FRUSTUM_DEPTH_M = 0.6
+TERRAIN_POINTS_SHOWN = 10_000  # about: the field's shape, drawn fast enough by a software renderer
 SERIES = {  # entity under plots/ -> (title, per configuration)
     "error_m": ("position error vs truth (m)", True),
     "vo_inliers": ("VO inliers per stop", False),
@@ -60,6 +62,11 @@ def colour(config: str) -> tuple[int, int, int]:
 
 def trajectory_path(config: str) -> str:
     return f"world/estimate/{config}/trajectory"
+
+
+def tail_path(config: str) -> str:
+    """The live trajectory since its last refresh (rerun_live.py)."""
+    return f"world/estimate/{config}/trajectory/tail"
 
 
 def covariance_path(config: str) -> str:
@@ -83,8 +90,11 @@ def series_path(name: str, config: str | None = None) -> str:
 
 
 def blueprint(configs: list[str], extent: np.ndarray | None = None) -> rrb.Blueprint:
-    """3-D view left; map, camera and time series right; the stop timeline, following the data.
-    `extent` (points spanning the traverse, when known) places the 3-D eye above its south side."""
+    """The 3-D traverse left; the error plot right, the other series in tabs beside it, and the
+    camera and the map in tabs below; the stop timeline, following the data. A tab draws only
+    when shown: a software-rendered browser keeps up, and the map (rerun's maps are online tiles)
+    asks for nothing offline until it is opened. `extent` (points spanning the traverse, when
+    known) places the 3-D eye above its south side."""
     plots = [rrb.TimeSeriesView(origin=series_path(name), name=title) for name, (title, _) in SERIES.items()]
     eye = None
     if extent is not None and len(extent):
@@ -92,20 +102,19 @@ def blueprint(configs: list[str], extent: np.ndarray | None = None) -> rrb.Bluep
         centre, radius = (lo + hi) / 2.0, max(float(np.max(hi - lo)) / 2.0, 10.0)
         eye = rrb.EyeControls3D(position=centre + np.array([0.0, -2.0 * radius, 1.8 * radius]),
                                 look_target=centre, eye_up=[0.0, 0.0, 1.0])
-    # Tie links and landmarks of the configurations other than the primary (last) one hide by
-    # default: they nearly coincide with the primary's and would bury the trajectories.
-    hidden = [f"- {path(c)}" for c in configs[:-1] for path in (ties_path, landmarks_path)]
+    # Tie links hide by default (thousands of lines fanning out of every site bury the
+    # trajectories), and so do the landmarks of the configurations other than the primary (last)
+    # one: they nearly coincide with the primary's.
+    hidden = [f"- {ties_path(c)}" for c in configs] + [f"- {landmarks_path(c)}" for c in configs[:-1]]
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(origin="world", name="traverse (local ENU)", eye_controls=eye,
                               contents=["+ $origin/**", *hidden]),
             rrb.Vertical(
-                rrb.Horizontal(
-                    rrb.MapView(origin="map", name="map (WGS84)"),
-                    rrb.Spatial2DView(origin="world/rover/left_cam", name="left WAC features"),
-                ),
-                rrb.Grid(*plots),
-                row_shares=[2, 3],
+                rrb.Tabs(*plots, active_tab=0),
+                rrb.Tabs(rrb.Spatial2DView(origin="world/rover/left_cam", name="left WAC features"),
+                         rrb.MapView(origin="map", name="map (WGS84, online tiles)"), active_tab=0),
+                row_shares=[1, 1],
             ),
             column_shares=[3, 2],
         ),
@@ -149,7 +158,8 @@ def log_static(
             static=True)
     rec.log("world/rover/left_cam", pinhole(rig.wac), static=True)
     if truth_landmarks is not None and len(truth_landmarks):
-        rec.log("world/terrain", rr.Points3D(truth_landmarks, radii=0.03, colors=(120, 100, 80)), static=True)
+        shown = truth_landmarks[::max(1, len(truth_landmarks) // TERRAIN_POINTS_SHOWN)]
+        rec.log("world/terrain", rr.Points3D(shown, radii=0.03, colors=(120, 100, 80)), static=True)
     if truth_positions is not None:
         rec.log("world/truth", rr.LineStrips3D([truth_positions], radii=rr.Radius.ui_points(3.0),
                                                colors=TRUTH_COLOUR), static=True)
@@ -158,8 +168,8 @@ def log_static(
     # Styles are static so the per-stop logs carry geometry only (from_fields: ~3x cheaper).
     for config in configs:
         rgb = colour(config)
-        rec.log(trajectory_path(config), rr.LineStrips3D.from_fields(radii=rr.Radius.ui_points(2.0), colors=rgb),
-                static=True)
+        for path in (trajectory_path(config), tail_path(config)):
+            rec.log(path, rr.LineStrips3D.from_fields(radii=rr.Radius.ui_points(2.0), colors=rgb), static=True)
         rec.log(covariance_path(config), rr.Ellipsoids3D.from_fields(
             colors=rgb, fill_mode=rr.components.FillMode.MajorWireframe), static=True)
     for name, (_, per_config) in SERIES.items():

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import socket
+import subprocess
 import sys
+import tempfile
+import time
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +27,7 @@ class RerunTarget:
     path: Path | None = None  # save
     url: str | None = None  # connect
     memory_limit: str = DEFAULT_VIEWER_MEMORY  # spawn and serve
+    host: str = "127.0.0.1"  # serve: the address it listens on (0.0.0.0: every interface)
 
 
 @dataclass
@@ -31,19 +36,32 @@ class OpenRecording:
     target: RerunTarget
     served_url: str | None = None  # serve: where viewers connect (gRPC)
     viewer_url: str | None = None  # serve: the web viewer, opened on this recording
-
+    server: subprocess.Popen | None = None  # serve: the process that holds the recording for viewers
 
     def close(self) -> None:
-        """Flush everything; a saved file gets its footer."""
+        """Flush everything; a saved file gets its footer. A served recording stays served (its
+        server holds it) until `stop_serving`."""
         self.stream.flush()
         if self.target.mode == "save":
             self.stream.disconnect()
+
+    @property
+    def serving(self) -> bool:
+        return self.server is not None and self.server.poll() is None
+
+    def stop_serving(self) -> None:
+        if self.server is not None and self.server.poll() is None:
+            self.server.terminate()
+            try:
+                self.server.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:
+                self.server.kill()
 
 
 def open_recording(target: RerunTarget, name: str) -> OpenRecording:
     stream = rr.RecordingStream(APP_ID, recording_id=str(uuid.uuid4()))
     stream.send_recording_name(name)
-    served = None
+    served = viewer = server = None
     try:
         if target.mode == "save":
             target.path.parent.mkdir(parents=True, exist_ok=True)
@@ -52,21 +70,84 @@ def open_recording(target: RerunTarget, name: str) -> OpenRecording:
             # the module-level spawn: RecordingStream.spawn cannot name the executable
             rr.spawn(memory_limit=target.memory_limit, executable_path=_viewer_executable(), recording=stream)
         elif target.mode == "serve":
-            served = stream.serve_grpc(server_memory_limit=target.memory_limit)
-            # the web viewer from the start, so the run is watched as it solves; its page needs
-            # the recording's address in ?url=, or it opens on rerun's welcome screen
-            rr.serve_web_viewer(web_port=WEB_VIEWER_PORT, open_browser=False, connect_to=served)
+            server, served, viewer = _start_server(target)
+            stream.connect_grpc(f"rerun+http://{_local(target.host)}:{_port(served)}/proxy")
         else:
             _check_listening(target.url)
             stream.connect_grpc(target.url)
     except (OSError, RuntimeError) as exc:
         where = target.path or target.url or target.mode
         raise ResultsError(f"rerun: cannot open the recording ({where}): {exc}") from None
-    viewer = None if served is None else f"http://localhost:{WEB_VIEWER_PORT}/?url={quote(served, safe='')}"
-    return OpenRecording(stream, target, served, viewer)
+    return OpenRecording(stream, target, served, viewer, server)
 
 
-WEB_VIEWER_PORT = 9090
+GRPC_PORT, WEB_VIEWER_PORT = 9876, 9090  # rerun's own defaults, while they are free
+SERVER_START_S = 20.0
+
+
+def _start_server(target: RerunTarget) -> tuple[subprocess.Popen, str, str]:
+    """rerun's gRPC server and web viewer in a process of their own, listening on the target's
+    address only (the SDK's in-process server listens on every interface); it lives on after the
+    run, so a viewer can still open the recording, and dies with this process. Returns the
+    process, the recording's gRPC URL and the web viewer's URL opened on the recording (the
+    page needs the recording's address in ?url=, or it opens on rerun's welcome screen)."""
+    grpc_port, web_port = _free_port(target.host, GRPC_PORT), _free_port(target.host, WEB_VIEWER_PORT)
+    command = [_server_executable(), "--serve-web", "--bind", target.host, "--port", str(grpc_port),
+               "--web-viewer-port", str(web_port), "--server-memory-limit", target.memory_limit]
+    log = tempfile.TemporaryFile()
+    server = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=log,
+                              preexec_fn=_die_with_parent if sys.platform == "linux" else None)
+    deadline = time.monotonic() + SERVER_START_S
+    while not all(_answers(_local(target.host), port) for port in (grpc_port, web_port)):
+        if server.poll() is not None or time.monotonic() > deadline:
+            server.kill()
+            log.seek(0)
+            said = log.read().decode(errors="replace").strip().splitlines()
+            raise ViewerUnavailable(f"rerun: the web viewer did not start ({' '.join(command)}): "
+                                    f"{said[-1] if said else 'no message'}")
+        time.sleep(0.1)
+    shown = socket.getfqdn() if target.host in ("0.0.0.0", "::") else target.host
+    served = f"rerun+http://{shown}:{grpc_port}/proxy"
+    return server, served, f"http://{shown}:{web_port}/?url={quote(served, safe='')}"
+
+
+def _free_port(host: str, preferred: int) -> int:
+    """The preferred port when nothing listens there, else one the system picks."""
+    for port in (preferred, 0):
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
+            try:
+                probe.bind((host, port))
+            except OSError:
+                continue
+            return probe.getsockname()[1]
+    raise ViewerUnavailable(f"rerun: cannot listen on {host}")
+
+
+def _local(host: str) -> str:
+    """How this machine reaches a server listening on `host`."""
+    return "127.0.0.1" if host in ("0.0.0.0", "::") else host
+
+
+def _answers(host: str, port: int) -> bool:
+    try:
+        with socket.create_connection((host, port), timeout=0.5):
+            return True
+    except OSError:
+        return False
+
+
+def _port(url: str) -> int:
+    from urllib.parse import urlparse
+
+    return urlparse(url.replace("rerun+", "", 1)).port
+
+
+def _die_with_parent() -> None:
+    """In the server process, before it starts: Linux ends it when the run's process ends."""
+    import ctypes
+    import signal
+
+    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
 CONNECT_TIMEOUT_S = 3.0
 _DEFAULT_URL = "rerun+http://127.0.0.1:9876/proxy"
 
@@ -83,6 +164,15 @@ def _check_listening(url: str | None) -> None:
             pass
     except OSError as exc:
         raise ViewerUnavailable(f"rerun: no viewer answers at {host}:{port} ({exc.strerror or exc})") from None
+
+
+def _server_executable() -> str:
+    """rerun's own binary (the `rerun` script starts it as a child, which would outlive us)."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("rerun_cli")
+    binary = None if spec is None or spec.origin is None else Path(spec.origin).parent / "rerun"
+    return str(binary) if binary is not None and binary.exists() else (_viewer_executable() or "rerun")
 
 
 def _viewer_executable() -> str | None:

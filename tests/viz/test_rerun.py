@@ -14,18 +14,18 @@ from scipy.stats import chi2
 
 from pancam_graph.geodesy import LocalFrame
 from pancam_graph.solve.pipeline import RunOptions, run
-from pancam_graph.solve.state import CHECKPOINT_EVERY_STOPS
 from pancam_graph.viz.rerun_live import RerunRecorder
 from pancam_graph.viz.rerun_sink import RerunTarget, open_recording
 
 TESTS = Path(__file__).parents[1]
+REFRESH_TEST = 40
 
 
 @pytest.fixture(scope="module")
 def recorded(short_scenario, tmp_path_factory):
     path = tmp_path_factory.mktemp("rerun") / "run.rrd"
     recording = open_recording(RerunTarget("save", path=path), "test")
-    recorder = RerunRecorder(recording.stream)
+    recorder = RerunRecorder(recording.stream, refresh_every=REFRESH_TEST)  # short_trail: 140 stops
     result = run(short_scenario, RunOptions(seed=0), listener=recorder)
     recording.close()
     return result, recorder, Recording(path)
@@ -50,16 +50,23 @@ def test_trajectory_points_at_a_stop(recorded):
     result, recorder, rec = recorded
     primary = recorder.primary
     assert primary == "full"
-    # The primary configuration is logged at every stop with one point per stop so far...
+    # The primary configuration's line follows the rover at every stop: the whole trajectory as
+    # at the last refresh, and its tail since then, ending on the stop's pose...
     for k in (5, 37, 101):
-        strips = rec.at(f"/world/estimate/{primary}/trajectory", k, "LineStrips3D:strips")
-        assert len(strips) == 1 and len(strips[0]) == k + 1
-    # ...the others at refresh stops (every `refresh_every` and at sites) only.
+        last_refresh = max((r for r in range(k + 1) if (r + 1) % recorder.refresh_every == 0), default=None)
+        tail = rec.at(f"/world/estimate/{primary}/trajectory/tail", k, "LineStrips3D:strips")
+        assert len(tail) == 1 and len(tail[0]) == k + 1 - (last_refresh or 0)
+        if last_refresh is not None:
+            whole = rec.at(f"/world/estimate/{primary}/trajectory", last_refresh, "LineStrips3D:strips")[0]
+            assert len(whole) == last_refresh + 1
+            np.testing.assert_allclose(array(tail[0])[0], array(whole)[-1], atol=1e-5)  # one line
+    # ...the others at refresh stops (every `refresh_every`, and the last) only.
     vo_stops = rec.stops("/world/estimate/vo/trajectory")
-    sites = {s.index for s in result.traverse.stops if s.is_site}
-    refreshed = 2 * recorder.refresh_every - 1
-    quiet = next(k for k in range(refreshed - 1, 0, -1) if k not in sites)
-    assert quiet not in vo_stops and refreshed in vo_stops and sites <= set(vo_stops)
+    n = len(result.traverse.stops)
+    refreshes = [k for k in range(n) if (k + 1) % recorder.refresh_every == 0]
+    assert n > 2 * recorder.refresh_every
+    refreshed = refreshes[1]
+    assert set(vo_stops) == {*refreshes, n - 1}  # no site forces one: the browser keeps up
     assert len(rec.at("/world/estimate/vo/trajectory", refreshed, "LineStrips3D:strips")[0]) == refreshed + 1
     # At the end the final estimate replaces the live one.
     final = array(rec.latest(f"/world/estimate/{primary}/trajectory", "LineStrips3D:strips")[0])
@@ -78,11 +85,12 @@ def test_covariance_ellipsoids_are_the_95_percent_marginals(recorded):
     np.testing.assert_allclose(np.sort(half, axis=1), expected, rtol=1e-5)
     np.testing.assert_allclose(centres, c.world_T_body[rows, :3, 3], atol=1e-4)
     # Live: VO alone grows its uncertainty with distance; the ellipsoid sits on the current pose.
-    early = array(rec.at("/world/estimate/vo/covariance", 24, "Ellipsoids3D:half_sizes"))
-    late = array(rec.at("/world/estimate/vo/covariance", 124, "Ellipsoids3D:half_sizes"))
+    first, third = REFRESH_TEST - 1, 3 * REFRESH_TEST - 1  # refreshes
+    early = array(rec.at("/world/estimate/vo/covariance", first, "Ellipsoids3D:half_sizes"))
+    late = array(rec.at("/world/estimate/vo/covariance", third, "Ellipsoids3D:half_sizes"))
     assert late.max() > 3 * early.max()
-    strip = array(rec.at("/world/estimate/vo/trajectory", 124, "LineStrips3D:strips")[0])
-    np.testing.assert_allclose(array(rec.at("/world/estimate/vo/covariance", 124, "Ellipsoids3D:centers"))[0],
+    strip = array(rec.at("/world/estimate/vo/trajectory", third, "LineStrips3D:strips")[0])
+    np.testing.assert_allclose(array(rec.at("/world/estimate/vo/covariance", third, "Ellipsoids3D:centers"))[0],
                                strip[-1], atol=1e-4)
 
 
@@ -117,41 +125,36 @@ KILLED_RUN = textwrap.dedent("""
     from pancam_graph.viz.rerun_live import RerunRecorder
     from pancam_graph.viz.rerun_sink import RerunTarget, open_recording
 
-    class KilledAfterSecondCheckpoint(RerunRecorder):
-        checkpoints = 0
-        def checkpoint(self, stop):
-            super().checkpoint(stop)
-            self.checkpoints += 1
-            if self.checkpoints == 2:
-                print(stop.index, flush=True)
-                self.kill_at = stop.index + 3
+    class KilledAfterSecondSend(RerunRecorder):
         def step(self, stop, motion, steps):
-            super().step(stop, motion, steps)
-            if stop.index == getattr(self, "kill_at", -1):
+            super().step(stop, motion, steps)  # sends at every refresh_every-th stop
+            if stop.index == 2 * self.refresh_every - 1:
+                print(stop.index, flush=True)
+            if stop.index == 2 * self.refresh_every + 2:
                 os.kill(os.getpid(), signal.SIGKILL)  # no flush, no footer: like a power cut
 
     from pathlib import Path
     recording = open_recording(RerunTarget("save", path=Path(sys.argv[1])), "killed")
     run(load_scenario(resolve_scenario("short_trail")), RunOptions(seed=0),
-        listener=KilledAfterSecondCheckpoint(recording.stream))
+        listener=KilledAfterSecondSend(recording.stream, refresh_every=40))
 """)
 
 
 @pytest.mark.slow
-def test_killed_run_leaves_a_recording_readable_up_to_the_last_checkpoint(tmp_path):
+def test_killed_run_leaves_a_recording_readable_up_to_the_last_send(tmp_path):
     path = tmp_path / "killed.rrd"
     proc = subprocess.run([sys.executable, "-c", KILLED_RUN, str(path)], capture_output=True, text=True,
                           timeout=300, env={**os.environ, "PYTHONPATH": str(TESTS.parent)})
     assert proc.returncode == -signal.SIGKILL, proc.stderr
     checkpoint = int(proc.stdout.split()[0])
-    assert checkpoint >= CHECKPOINT_EVERY_STOPS - 1
+    assert checkpoint == 2 * 40 - 1
     rec = Recording(path)
-    stops = rec.stops("/world/estimate/full/trajectory")
+    stops = rec.stops("/world/estimate/full/trajectory/tail")
     assert checkpoint <= max(stops) <= checkpoint + 3  # everything to the checkpoint, nothing after the kill
     assert stops[: checkpoint + 1] == list(range(checkpoint + 1))
     strip = rec.at("/world/estimate/full/trajectory", checkpoint, "LineStrips3D:strips")[0]
-    assert len(strip) == checkpoint + 1
-    # the series sent at the checkpoint are there too
+    assert len(strip) == checkpoint + 1  # refreshed there
+    # the series sent then are there too
     assert len(rec.temporal["/plots/isam2_update_ms/full"]) >= checkpoint + 1
 
 
@@ -163,18 +166,24 @@ def test_core_never_imports_rerun():
     assert subprocess.run([sys.executable, "-c", code], env=env).returncode == 0
 
 
+def _listening(port: int) -> set[str]:
+    import psutil
+
+    return {c.laddr.ip for c in psutil.net_connections("tcp") if c.status == "LISTEN" and c.laddr.port == port}
+
+
 @pytest.mark.slow
 def test_serve_prints_a_web_viewer_url_that_opens_the_recording_before_the_run_is_done(tmp_path):
-    """`--rerun serve`: the web viewer is up, on a URL that names the recording (?url=...), before
-    the run has written its results; the page answers there."""
-    import socket
+    """`--rerun serve`: the web viewer is up, on 127.0.0.1 and a URL that names the recording
+    (?url=...), before the run has written its results; with --serve-for it stops after that."""
+    import re
     import subprocess
     import sys
     import urllib.request
 
     exe = Path(sys.executable).parent / "pancam-graph"
-    run = subprocess.Popen([str(exe), "run", "denver_trail", "--out", str(tmp_path / "res"), "--no-plots", "--quiet",
-                            "--rerun", "serve"], stderr=subprocess.PIPE, text=True)
+    run = subprocess.Popen([str(exe), "run", "short_trail", "--out", str(tmp_path / "res"), "--no-plots", "--quiet",
+                            "--rerun", "serve", "--serve-for", "1"], stderr=subprocess.PIPE, text=True)
     try:
         text = ""
         while "web viewer at" not in text:
@@ -183,12 +192,17 @@ def test_serve_prints_a_web_viewer_url_that_opens_the_recording_before_the_run_i
             text += line
         finished_before = (tmp_path / "res" / "metrics.json").exists()
         url = text.split("web viewer at ", 1)[1].split()[0]
-        assert url.startswith("http://localhost:9090/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A9876%2Fproxy")
+        found = re.fullmatch(r"http://127\.0\.0\.1:(\d+)/\?url=rerun%2Bhttp%3A%2F%2F127\.0\.0\.1%3A(\d+)%2Fproxy", url)
+        assert found, url
         assert not finished_before  # announced when the recording opened, not after the run
-        with socket.create_connection(("127.0.0.1", 9876), timeout=5):
-            pass
+        web, grpc = int(found[1]), int(found[2])
+        assert _listening(web) == {"127.0.0.1"} and _listening(grpc) == {"127.0.0.1"}  # not every interface
         with urllib.request.urlopen(url, timeout=10) as page:
             assert page.status == 200
+        assert run.wait(timeout=120) == 0  # served 1 s after the run, then done
+        assert "stays at" in run.stderr.read()
+        assert (tmp_path / "res" / "metrics.json").exists()
+        assert not _listening(web) and not _listening(grpc)  # the server went with the run
     finally:
         run.kill()
         run.wait()

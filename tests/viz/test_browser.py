@@ -1,0 +1,86 @@
+"""The live web viewer as a user opens it: `run --rerun serve` prints a URL, and a real headless
+Chromium (Debian's `chromium`, driven by Playwright) opened on exactly that URL shows the
+traverse while the run is still solving. Set PANCAM_GRAPH_VIEWER_SCREENSHOT=FILE.png to keep
+the live frame (docs/rerun_viewer.png is one)."""
+
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pancam_graph.viz.rerun_scene import COLOURS
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.browser,
+    pytest.mark.skipif(CHROMIUM is None, reason="no headless browser: install Debian's `chromium` "
+                       "(./dev.sh test does where apt can)"),
+]
+VIEWPORT = {"width": 1600, "height": 1000}
+SHOWN = 500  # pixels of a trajectory: a few hundred metres of line at this size
+# Software WebGL: the machine has no GPU (and CI neither)
+BROWSER_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+
+
+def _traverse_pixels(png: bytes) -> int:
+    """Pixels of the 3-D view (the left 60 % of the page) in a configuration's colour."""
+    from io import BytesIO
+
+    from PIL import Image
+
+    image = np.asarray(Image.open(BytesIO(png)).convert("RGB"), dtype=int)
+    view = image[60:-40, : int(image.shape[1] * 0.6)]
+    near = [np.abs(view - np.array(rgb)).max(axis=2) < 24 for rgb in COLOURS.values()]
+    return int(np.count_nonzero(np.logical_or.reduce(near)))
+
+
+def test_the_printed_url_shows_the_traverse_live_in_a_headless_browser(tmp_path):
+    playwright = pytest.importorskip("playwright.sync_api", reason="playwright is in the [dev] extra")
+    exe = Path(sys.executable).parent / "pancam-graph"
+    out = tmp_path / "res"
+    # 10 km of dead reckoning: solving takes half a minute, time for the page to load and show it
+    run = subprocess.Popen([str(exe), "run", "long_traverse", "--configs", "dead_reckoning", "--one-process",
+                            "--out", str(out), "--no-plots", "--quiet", "--rerun", "serve"],
+                           stderr=subprocess.PIPE, text=True)
+    try:
+        text = ""
+        while "web viewer at" not in text:
+            line = run.stderr.readline()
+            assert line, f"no viewer URL: {text}"
+            text += line
+        url = text.split("web viewer at ", 1)[1].split()[0]
+        with playwright.sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM, args=BROWSER_ARGS)
+            page = browser.new_page(viewport=VIEWPORT)
+            page.goto(url)  # exactly what was printed
+            start, shown, live = time.monotonic(), 0, None
+            while time.monotonic() - start < 150:
+                time.sleep(1.0)
+                done = (out / "metrics.json").exists()
+                png = page.screenshot(timeout=120_000)  # a software-rendered page ingesting is slow
+                shown = _traverse_pixels(png)
+                if shown > SHOWN:
+                    live = not done
+                    (tmp_path / "viewer.png").write_bytes(png)
+                    target = os.environ.get("PANCAM_GRAPH_VIEWER_SCREENSHOT")
+                    if target and live:
+                        Path(target).write_bytes(png)
+                    break
+            # the control: the same page without the recording's address is rerun's welcome screen
+            bare = browser.new_page(viewport=VIEWPORT)
+            bare.goto(url.split("?", 1)[0])
+            time.sleep(5.0)
+            welcome = _traverse_pixels(bare.screenshot(timeout=120_000))
+            browser.close()
+        assert shown > SHOWN, f"the viewer showed no trajectory ({shown} pixels); see {tmp_path / 'viewer.png'}"
+        assert live, "the traverse showed only after the run had finished: not live"
+        assert welcome < SHOWN / 5, welcome
+    finally:
+        run.kill()
+        run.wait()
