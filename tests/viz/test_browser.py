@@ -5,13 +5,12 @@ the live frame (docs/rerun_viewer.png is one)."""
 
 import os
 import shutil
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from served import serve_run
 
 from pancam_graph.viz.rerun_scene import COLOURS
 
@@ -42,19 +41,10 @@ def _traverse_pixels(png: bytes) -> int:
 
 def test_the_printed_url_shows_the_traverse_live_in_a_headless_browser(tmp_path):
     playwright = pytest.importorskip("playwright.sync_api", reason="playwright is in the [dev] extra")
-    exe = Path(sys.executable).parent / "pancam-graph"
     out = tmp_path / "res"
     # 10 km of dead reckoning: solving takes half a minute, time for the page to load and show it
-    run = subprocess.Popen([str(exe), "run", "long_traverse", "--configs", "dead_reckoning", "--one-process",
-                            "--out", str(out), "--no-plots", "--quiet", "--rerun", "serve"],
-                           stderr=subprocess.PIPE, text=True)
+    run, url = serve_run("long_traverse", "--configs", "dead_reckoning", "--one-process", "--out", str(out))
     try:
-        text = ""
-        while "web viewer at" not in text:
-            line = run.stderr.readline()
-            assert line, f"no viewer URL: {text}"
-            text += line
-        url = text.split("web viewer at ", 1)[1].split()[0]
         with playwright.sync_playwright() as p:
             browser = p.chromium.launch(executable_path=CHROMIUM, args=BROWSER_ARGS)
             page = browser.new_page(viewport=VIEWPORT)

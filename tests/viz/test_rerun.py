@@ -177,21 +177,13 @@ def test_serve_prints_a_web_viewer_url_that_opens_the_recording_before_the_run_i
     """`--rerun serve`: the web viewer is up, on 127.0.0.1 and a URL that names the recording
     (?url=...), before the run has written its results; with --serve-for it stops after that."""
     import re
-    import subprocess
-    import sys
     import urllib.request
 
-    exe = Path(sys.executable).parent / "pancam-graph"
-    run = subprocess.Popen([str(exe), "run", "short_trail", "--out", str(tmp_path / "res"), "--no-plots", "--quiet",
-                            "--rerun", "serve", "--serve-for", "1"], stderr=subprocess.PIPE, text=True)
+    from served import serve_run
+
+    run, url = serve_run("short_trail", "--out", str(tmp_path / "res"), "--serve-for", "1")
     try:
-        text = ""
-        while "web viewer at" not in text:
-            line = run.stderr.readline()
-            assert line, f"no viewer URL before the run ended: {text}"
-            text += line
         finished_before = (tmp_path / "res" / "metrics.json").exists()
-        url = text.split("web viewer at ", 1)[1].split()[0]
         found = re.fullmatch(r"http://127\.0\.0\.1:(\d+)/\?url=rerun%2Bhttp%3A%2F%2F127\.0\.0\.1%3A(\d+)%2Fproxy", url)
         assert found, url
         assert not finished_before  # announced when the recording opened, not after the run
