@@ -264,14 +264,15 @@ def simulate(scenario: str | Path, out: Path | str, *, seed: int | None = None, 
 
 def evaluate(estimate: Path | str, reference: Path | str, *, align: str = "none", max_dt_s: float = 0.01,
              rpe_delta_m: float = 10.0, origin: tuple[float, float, float] | None = None, gps_sigma_m: float = 1.0,
-             out: Path | str | None = None) -> Evaluation:
+             lever_arm: tuple[float, float, float] | None = None, out: Path | str | None = None) -> Evaluation:
     """Compare a trajectory with a reference (or a GPS log) with the run's metrics; with `out`,
     write metrics.json in the run's schema (one configuration, named after the estimate) and a
-    plot."""
-    from .evaluation.evaluate import evaluate_trajectories
+    plot. Against a GPS log, an estimate with attitudes is compared at the antenna: `lever_arm`
+    (body frame, m), by default the one saved beside the estimate (a results folder's)."""
+    from .evaluation.evaluate import at_point_of_body, evaluate_trajectories
     from .formats.trajectories import read_trajectory
     from .geodesy import LocalFrame
-    from .store.results_folder import read_local_frame
+    from .store.results_folder import read_gps_lever_arm, read_local_frame
 
     estimate, reference = Path(estimate), Path(reference)
     if align not in ("none", "se3", "yaw"):
@@ -282,7 +283,16 @@ def evaluate(estimate: Path | str, reference: Path | str, *, align: str = "none"
     if (est.geodetic is None) != (ref.geodetic is None) and frame is None:
         raise ConfigError(f"{reference if ref.geodetic is not None else estimate}: a GPS log needs the ENU "
                           "origin of the other trajectory: give --origin LAT,LON,H")
+    import numpy as np
+
+    arm = None
+    if ref.geodetic is not None and est.geodetic is None and est.world_T_body is not None:
+        arm = np.asarray(lever_arm, dtype=float) if lever_arm is not None else read_gps_lever_arm(estimate.parent)
+        if arm is not None:
+            est = at_point_of_body(est, arm)
     result = evaluate_trajectories(est, ref, align, max_dt_s, rpe_delta_m)
+    if arm is not None:
+        result = dataclasses.replace(result, lever_arm_m=tuple(float(v) for v in arm))
     if out is not None:
         from .store.results_folder import write_evaluation
         from .viz.plots import evaluation_plot

@@ -60,25 +60,23 @@ def eval_command(
                                                             "first fix)"),
     gps_sigma: float = typer.Option(1.0, "--gps-sigma", help="sigma for GPS logs that state none (unused by "
                                                              "the metrics)"),
+    lever_arm: str | None = typer.Option(None, "--lever-arm", help="X,Y,Z: the GPS antenna in the body frame (m), "
+                                         "where an estimate with attitudes is compared with a GPS log (default: "
+                                         "the run's, in local_frame.json beside the estimate)"),
     out: Path | None = typer.Option(None, "--out", help="write metrics.json (and a plot) into this folder"),
 ) -> None:
     """Compare two trajectories, or a trajectory with a GPS log, with the run's metrics."""
     from ..api import evaluate
 
     with user_input():
-        frame = None
-        if origin is not None:
-            try:
-                frame = tuple(float(v) for v in origin.split(","))
-            except ValueError:
-                frame = ()
-            if len(frame) != 3:
-                raise ConfigError(f"--origin {origin!r}: expected LAT,LON,H in degrees and metres")
+        frame = _three_numbers("--origin", origin, "LAT,LON,H in degrees and metres")
+        arm = _three_numbers("--lever-arm", lever_arm, "X,Y,Z in metres")
         result = evaluate(estimate, reference, align=align, max_dt_s=max_dt, rpe_delta_m=rpe_delta, origin=frame,
-                          gps_sigma_m=gps_sigma, out=out)
+                          gps_sigma_m=gps_sigma, lever_arm=arm, out=out)
     m = result.metrics
+    at = "" if result.lever_arm_m is None else f", at the antenna {list(result.lever_arm_m)} m"
     table = Table(title=escape(f"{estimate.name} vs {reference.name} ({len(result.reference)} matched, "
-                               f"{result.association}, alignment {result.alignment})"))
+                               f"{result.association}, alignment {result.alignment}{at})"))
     cells = {
         "ATE RMSE m": m.ate_rmse_m, "avg err m": m.average_error_m, "closure m": m.closure_error_m,
         "rel. closure %": m.relative_closure_pct, "length ratio": m.length_ratio,
@@ -92,6 +90,18 @@ def eval_command(
     Console(width=80).print(table)
     if out is not None:
         console.print(f"metrics in {out / 'metrics.json'}, plot {out / 'eval.png'}")
+
+
+def _three_numbers(flag: str, text: str | None, expected: str) -> tuple[float, float, float] | None:
+    if text is None:
+        return None
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3:
+        raise ConfigError(f"{flag} {text!r}: expected {expected}")
+    return values
 
 
 @app.command("sweep")

@@ -30,6 +30,7 @@ class Evaluation:
     alignment: str
     reference_T_estimate: np.ndarray  # 4x4 transform applied to the estimate
     metrics: TrajectoryMetrics
+    lever_arm_m: tuple[float, float, float] | None = None  # the estimate's point: this point of the body
 
     def as_dict(self) -> dict:
         return {
@@ -39,7 +40,18 @@ class Evaluation:
             "association": self.association,
             "alignment": self.alignment,
             "reference_T_estimate": self.reference_T_estimate.tolist(),
+            "estimate_point": "body origin" if self.lever_arm_m is None else
+            f"GPS antenna at {list(self.lever_arm_m)} m in the body frame",
         }
+
+
+def at_point_of_body(trajectory: Trajectory, body_point_m: np.ndarray) -> Trajectory:
+    """The track of a point fixed in the body (a GPS antenna at its lever arm): what a GPS log
+    records, where the trajectory is the body's origin."""
+    if trajectory.world_T_body is None:
+        raise EvaluationError(f"{trajectory.source}: positions only, no attitude to carry a lever arm")
+    moved = trajectory.world_T_body[:, :3, :3] @ np.asarray(body_point_m, dtype=float) + trajectory.positions
+    return Trajectory(trajectory.source, moved, trajectory.times_s, None, trajectory.geodetic)
 
 
 def associate(est_times: np.ndarray, ref_times: np.ndarray, max_dt_s: float) -> tuple[np.ndarray, np.ndarray]:

@@ -125,9 +125,12 @@ def _set_aside_dead_partial(staging: Path, out: Path) -> None:
 LOCAL_FRAME_FILE = "local_frame.json"  # the ENU origin of every trajectory in a results folder
 
 
-def local_frame_dict(origin: LocalFrame) -> dict:
-    return {"lat_deg": origin.lat0_deg, "lon_deg": origin.lon0_deg, "h_m": origin.h0_m,
-            "frame": "local ENU (east, north, up) tangent at this WGS84 point, ellipsoidal height"}
+def local_frame_dict(origin: LocalFrame, gps_lever_arm_m: np.ndarray | None = None) -> dict:
+    frame = {"lat_deg": origin.lat0_deg, "lon_deg": origin.lon0_deg, "h_m": origin.h0_m,
+             "frame": "local ENU (east, north, up) tangent at this WGS84 point, ellipsoidal height"}
+    if gps_lever_arm_m is not None:  # where a GPS log's positions are on the body (eval uses it)
+        frame["gps_lever_arm_m"] = [float(v) for v in gps_lever_arm_m]
+    return frame
 
 
 def read_local_frame(folder: Path) -> LocalFrame | None:
@@ -140,6 +143,18 @@ def read_local_frame(folder: Path) -> LocalFrame | None:
         return LocalFrame(float(d["lat_deg"]), float(d["lon_deg"]), float(d["h_m"]))
     except (ValueError, KeyError, TypeError) as exc:
         raise ResultsError(f"{path}: expected lat_deg, lon_deg, h_m: {exc}") from None
+
+
+def read_gps_lever_arm(folder: Path) -> np.ndarray | None:
+    """The GPS antenna in the body frame saved beside a results folder's trajectories, if any."""
+    path = Path(folder) / LOCAL_FRAME_FILE
+    if not path.is_file():
+        return None
+    try:
+        arm = json.loads(path.read_text(encoding="utf-8")).get("gps_lever_arm_m")
+        return None if arm is None else np.array([float(v) for v in arm]).reshape(3)
+    except (ValueError, TypeError, AttributeError) as exc:
+        raise ResultsError(f"{path}: gps_lever_arm_m must be three numbers (x, y, z metres): {exc}") from None
 
 
 def write_tum(path: Path, times_s: np.ndarray, world_T_body: np.ndarray) -> None:
@@ -217,7 +232,7 @@ def write_run(result: RunResult, folder: Path) -> None:
         rows += [(name, s.stop, f"{s.update_ms:.4f}", s.relinearized, *(_cell(s.count(c)) for c in STEP_COUNTERS))
                  for s in c.steps]
     write_csv(folder / "steps.csv", STEP_COLUMNS + list(STEP_COUNTERS), rows)
-    write_json(folder / LOCAL_FRAME_FILE, local_frame_dict(result.traverse.origin))
+    write_json(folder / LOCAL_FRAME_FILE, local_frame_dict(result.traverse.origin, result.traverse.gps_lever_arm_m))
     (folder / "reproduce.sh").write_text(f"#!/bin/sh\n# reproduces this run\n{reproduce_command(result)}\n",
                                          encoding="utf-8")
     for name, c in result.configurations.items():

@@ -205,10 +205,30 @@ def test_eval_reads_the_tools_own_wgs84_trajectory_and_gps_log(results, tmp_path
     closure = {}
     for estimate in ("trajectory_vo_wgs84.csv", "trajectory_vo.tum"):
         out = tmp_path / estimate
+        # the body's origin on both sides: the CSV has no attitude to carry the antenna's lever arm
         result = runner.invoke(app, ["eval", str(results / estimate), str(results / "gps_fixes.csv"),
-                                     "--out", str(out)])
+                                     "--lever-arm", "0,0,0", "--out", str(out)])
         assert result.exit_code == 0, result.output
         (metrics,) = json.loads((out / "metrics.json").read_text())["configs"].values()
         closure[estimate] = metrics["closure_error_m"]
     assert closure["trajectory_vo_wgs84.csv"] == pytest.approx(closure["trajectory_vo.tum"], abs=1e-3)
     assert closure["trajectory_vo.tum"] > 0.1  # the GPS log is noisy: a real difference, not zero
+
+
+def test_eval_against_the_runs_own_fixes_gives_its_vs_gps(results, tmp_path):
+    """A trajectory with attitudes against a GPS log is compared at the antenna (the lever arm
+    saved in local_frame.json): the figures the run itself reports as vs_gps."""
+    run = json.loads((results / "metrics.json").read_text())["configs"]
+    for name in ("vo", "full"):
+        out = tmp_path / name
+        result = runner.invoke(app, ["eval", str(results / f"trajectory_{name}.tum"), str(results / "gps_fixes.csv"),
+                                     "--out", str(out)])
+        assert result.exit_code == 0, result.output
+        (ours,) = json.loads((out / "metrics.json").read_text())["configs"].values()
+        for metric in ("average_error_m", "ate_rmse_m", "closure_error_m"):
+            assert ours[metric] == pytest.approx(run[name]["vs_gps"][metric], abs=0.01), (name, metric)
+    # the body origin instead is 1.8 m below the antenna: what eval compared before
+    result = runner.invoke(app, ["eval", str(results / "trajectory_full.tum"), str(results / "gps_fixes.csv"),
+                                 "--lever-arm", "0,0,0", "--out", str(tmp_path / "origin")])
+    (origin,) = json.loads((tmp_path / "origin" / "metrics.json").read_text())["configs"].values()
+    assert origin["average_error_m"] > run["full"]["vs_gps"]["average_error_m"] + 0.1
