@@ -11,13 +11,14 @@ Errors are raised as the package's typed errors (errors.py).
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .errors import ConfigError, FrameError, PancamGraphError, ViewerUnavailable
+from .errors import ConfigError, FrameError, RunInterrupted, ViewerUnavailable
 from .evaluation.evaluate import Evaluation
 from .processes import cores, start_process_server
 from .records import Traverse
@@ -30,18 +31,6 @@ from .viz.rerun_sink import RerunTarget
 
 if TYPE_CHECKING:
     from .store.results_folder import SavedRun
-
-
-class RunInterrupted(PancamGraphError):
-    """Ctrl-C stopped a run; what was done is in `partial`, and a resume goes on from
-    `resume_stop` (None: no checkpoint was saved yet)."""
-
-    def __init__(self, partial: Path, resume_stop: int | None):
-        goes_on = (f"`pancam-graph run --resume {partial}` goes on from stop {resume_stop}" if resume_stop is not None
-                   else "no checkpoint was saved yet")
-        super().__init__(f"what was done is in {partial}; {goes_on}")
-        self.partial = partial
-        self.resume_stop = resume_stop
 
 
 @dataclass(frozen=True)
@@ -213,7 +202,9 @@ def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, ta
             try:
                 result = run_traverse(data.traverse, data.truth, data.estimator, data.seed, options, progress,
                                       listener, source=data.info, scenario=data.scenario, held_out=data.held_out,
-                                      save=checkpoints, resume=states, vo_motions=data.vo_motions)
+                                      save=checkpoints, resume=states, vo_motions=data.vo_motions,
+                                      # the wall time counts the source's reading (an image source's front-end)
+                                      started=None if states else time.perf_counter() - data.load_s)
                 write_run(result, folder)
                 report = write_report(result, folder, figures)
                 remove_checkpoint(folder)

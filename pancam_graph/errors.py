@@ -3,6 +3,10 @@
 Library code raises these; only the CLI turns them into messages and exit codes.
 """
 
+from __future__ import annotations
+
+from pathlib import Path
+
 
 class PancamGraphError(Exception):
     """Base class of every error this package raises on purpose."""
@@ -53,3 +57,15 @@ class FolderInUse(ResultsError):
 
 class ViewerUnavailable(ResultsError):
     """A rerun viewer to connect to does not answer; the run goes on without it."""
+
+
+class RunInterrupted(PancamGraphError):
+    """Ctrl-C stopped a run; what was done is in `partial`, and a resume goes on from
+    `resume_stop` (None: no checkpoint was saved yet)."""
+
+    def __init__(self, partial: Path, resume_stop: int | None):
+        goes_on = (f"`pancam-graph run --resume {partial}` goes on from stop {resume_stop}" if resume_stop is not None
+                   else "no checkpoint was saved yet")
+        super().__init__(f"what was done is in {partial}; {goes_on}")
+        self.partial = partial
+        self.resume_stop = resume_stop

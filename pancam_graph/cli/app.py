@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.text import Text
 from typer.core import TyperGroup
 
-from ..errors import ConfigError, FolderInUse, InputError, PancamGraphError
+from ..errors import ConfigError, FolderInUse, InputError, PancamGraphError, RunInterrupted
 
 console = Console(stderr=True)
 EXIT_USAGE = 2  # bad input: a file, a folder, an option
@@ -44,8 +44,6 @@ class _Commands(TyperGroup):
         return sorted(super().list_commands(ctx), key=lambda name: name != "run")  # the main job first
 
     def invoke(self, ctx):
-        from ..api import RunInterrupted
-
         _reading_input.set(False)
         try:
             return super().invoke(ctx)

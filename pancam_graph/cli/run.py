@@ -37,7 +37,7 @@ def _summary_table(outcome: RunOutcome) -> Table:
 
     result = outcome.result
     held = any(c.holdout is not None for c in result.configurations.values())
-    table = Table(title=f"{escape(result.name)} (seed {result.seed}, {len(result.traverse.stops)} stops)",
+    table = Table(title=f"{escape(result.title)} ({len(result.traverse.stops)} stops)",
                   box=box.SIMPLE_HEAD, padding=(0, 1), caption="m: metres against the reference; GPS m: average "
                   "error against the fixes in the graph" + ("; held m: RMS 2-D to the held-out fixes" if held else ""))
     table.add_column("config", justify="left", no_wrap=True)
@@ -78,9 +78,10 @@ def _print_outcome(outcome: RunOutcome, serve_for_s: float | None) -> None:
 @with_source_options(*SourceOptions.flags())
 def run_command(
     source: str | None = typer.Argument(None, help="bundled scenario name, a scenario TOML file, an "
-                                        "observation folder, a ROS bag or a KITTI raw drive folder "
-                                        "[default: denver_trail]"),
-    out: Path | None = typer.Option(None, "--out", help="results folder (default: results/<name>-<time>)"),
+                                        "observation folder, a rendered image folder, a ROS bag, a KITTI raw "
+                                        "drive folder or a KITTI odometry sequence folder [default: denver_trail]"),
+    out: Path | None = typer.Option(None, "--out", help="results folder (default: "
+                                    "results/<name>-<YYYYmmdd-HHMMSS>)"),
     configs: str | None = typer.Option(None, "--configs", help="configurations to run, comma-separated: names "
                                        "(vo, vo_sites, full, ...) or kinds joined by '+' (vo+gps); default: "
                                        "every configuration the source can feed"),

@@ -45,6 +45,8 @@ class SourceInfo:
     reference: str  # what the metrics compare against, in words
     notes: tuple[str, ...] = ()
     options: dict = field(default_factory=dict)
+    # What the world frame's first two axes are (plots' axis names): ENU, or a recorded frame
+    axes: tuple[str, str] = ("east", "north")
 
 
 @dataclass(frozen=True)
@@ -58,6 +60,7 @@ class SourceData:
     held_out: tuple[GpsFix, ...] = ()  # fixes kept out of every graph, for scoring
     rejected: tuple[str, ...] = ()  # what the reader left out, with reasons
     vo_motions: VoMotions | None = None  # estimated already by the source (image folders with sites)
+    load_s: float = 0.0  # what reading the source took (an image source's front-end): part of the run's wall
 
 
 @dataclass(frozen=True)
@@ -138,6 +141,11 @@ class RunResult:
     @property
     def name(self) -> str:
         return self.traverse.name
+
+    @property
+    def title(self) -> str:
+        """The run's name, with its seed where it is a simulation (a recording has none)."""
+        return f"{self.name}, seed {self.seed}" if self.scenario is not None else self.name
 
     @property
     def description(self) -> str:

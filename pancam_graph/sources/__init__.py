@@ -6,6 +6,8 @@ loop. A module's `SOURCES` say how to recognise it, which options it takes and h
 
 from __future__ import annotations
 
+import dataclasses
+import time
 from pathlib import Path
 
 from ..errors import ConfigError
@@ -38,9 +40,11 @@ def open_source(text: str, options: SourceOptions = SourceOptions(),
                 progress: ProgressCallback | None = None) -> SourceData:
     """The source named by `text`, loaded (images: the front-end runs over every frame,
     reporting to `progress`). An option the source does not take is an error."""
+    start = time.perf_counter()
     source = source_for(text)
     options.check(source.name, source.takes)
-    return source.load(text, options, progress)
+    data = source.load(text, options, progress)
+    return dataclasses.replace(data, load_s=time.perf_counter() - start)
 
 
 __all__ = ["SOURCES", "Source", "SourceData", "SourceOptions", "open_source", "source_for", "source_kind"]

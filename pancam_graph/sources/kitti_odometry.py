@@ -90,7 +90,8 @@ def traverse_from_sequence(sequence, stops: list[Stop], tracker: StereoTracker, 
                              "placeholders at 0 N 0 E",
                              f"front-end {frontend.detector}: median {median_frame_ms(tracker):.1f} ms per frame",
                              *notes),
-                      options={"detector": frontend.detector})
+                      options={"detector": frontend.detector},
+                      axes=("forward of the first pose", "left of the first pose"))
     return SourceData(traverse, truth, REAL_IMAGE_ESTIMATOR, 0, info)
 
 

@@ -38,7 +38,7 @@ def report_markdown(result: RunResult, figures: bool = True) -> str:
     length = result.reference_distance()[-1]
     where = " in this folder" if result.scenario is not None else ""
     lines = [
-        f"# {result.name}, seed {result.seed}",
+        f"# {result.title}",
         "",
         f"{result.description}",
         "",

@@ -91,6 +91,18 @@ def kitti_run():
 
 @needs_sequence
 @pytest.mark.slow
+def test_a_recorded_sequence_is_titled_without_a_seed_and_plotted_in_its_own_frame(kitti_run, tmp_path):
+    from pancam_graph.viz.report import write_report
+
+    _, result = kitti_run
+    assert result.title == "kitti_odometry_51"  # a recording has no seed
+    assert result.source.axes == ("forward of the first pose", "left of the first pose")  # not east, north
+    write_report(result, tmp_path, figures=False)
+    assert (tmp_path / "report.md").read_text().startswith("# kitti_odometry_51\n")
+
+
+@needs_sequence
+@pytest.mark.slow
 def test_vo_from_real_pixels_beats_viso2_and_its_covariance_holds(kitti_run):
     data, result = kitti_run
     vo = result.configurations["vo"]
