@@ -133,7 +133,7 @@ SERVE_FOR_HELP = "with --rerun serve: keep the web viewer up this many seconds a
 
 
 def announce_viewer(viewer_url: str) -> None:
-    console.print(f"rerun: web viewer at {viewer_url} (it fills in as the run goes)", soft_wrap=True)
+    console.print(f"rerun: web viewer at {viewer_url} (it fills in as the recording comes)", soft_wrap=True)
 
 
 def parse_configs(text: str | None) -> tuple[str, ...] | None:

@@ -50,7 +50,10 @@ class OpenRecording:
         return self.server is not None and self.server.poll() is None
 
     def stop_serving(self) -> None:
-        if self.server is not None and self.server.poll() is None:
+        if self.server is None:
+            return
+        self.stream.disconnect()  # first: a stream left on a stopped server complains at exit
+        if self.server.poll() is None:
             self.server.terminate()
             try:
                 self.server.wait(timeout=5.0)

@@ -1,5 +1,6 @@
 import json
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -232,3 +233,23 @@ def test_eval_against_the_runs_own_fixes_gives_its_vs_gps(results, tmp_path):
                                  "--lever-arm", "0,0,0", "--out", str(tmp_path / "origin")])
     (origin,) = json.loads((tmp_path / "origin" / "metrics.json").read_text())["configs"].values()
     assert origin["average_error_m"] > run["full"]["vs_gps"]["average_error_m"] + 0.1
+
+
+def test_view_serves_a_saved_run_on_localhost_until_serve_for_ends(results):
+    import subprocess
+    import sys
+    import urllib.request
+
+    exe = Path(sys.executable).parent / "pancam-graph"
+    view = subprocess.Popen([str(exe), "view", str(results), "--rerun", "serve", "--serve-for", "3"],
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        line = view.stderr.readline()
+        assert "web viewer at http://127.0.0.1:" in line and "?url=rerun%2Bhttp" in line, line
+        with urllib.request.urlopen(line.split("web viewer at ", 1)[1].split()[0], timeout=10) as page:
+            assert page.status == 200
+        assert view.wait(timeout=60) == 0
+        assert "ERROR" not in view.stderr.read()  # the stream let go of the server before it stopped
+    finally:
+        view.kill()
+        view.wait()
