@@ -164,8 +164,8 @@ class RerunRecorder:
         site_rows = [i for i, s in enumerate(self.traverse.stops) if s.is_site] + [len(self.traverse.stops) - 1]
         for config, c in result.configurations.items():
             self.positions[config] = c.world_T_body[:, :3, 3]
-            self.rec.log(scene.trajectory_path(config), scene.trajectory(self.positions[config]))
-            self.rec.log(scene.covariance_path(config), scene.ellipsoids(
+            self.rec.log(scene.estimate_path(config, "trajectory"), scene.trajectory(self.positions[config]))
+            self.rec.log(scene.estimate_path(config, "covariance"), scene.ellipsoids(
                 self.positions[config][site_rows], c.position_covariance[site_rows]))
             if len(c.landmark_ids):
                 self._log_landmarks(config, c.landmark_ids, c.landmark_positions, c.tie_links,
@@ -177,7 +177,8 @@ class RerunRecorder:
 
     def _send_pending(self) -> None:
         self.series.send(self.rec)
-        self.pending.send(self.rec, scene.tail_path(self.primary), scene.covariance_path(self.primary))
+        self.pending.send(self.rec, scene.estimate_path(self.primary, "trajectory/tail"),
+                          scene.estimate_path(self.primary, "covariance"))
 
     def _log_estimate(self, config: str, localizer: Localizer, k: int, refresh: bool, at_site: bool) -> np.ndarray:
         """Log the configuration's trajectory and current 95 % ellipsoid; return the current pose.
@@ -205,17 +206,18 @@ class RerunRecorder:
             self.pending.centres.append(current[:3, 3])
             self.pending.covariances.append(covariance)
             if refresh:
-                self.rec.log(scene.trajectory_path(config), scene.trajectory(self.positions[config]))
+                self.rec.log(scene.estimate_path(config, "trajectory"), scene.trajectory(self.positions[config]))
         else:
-            self.rec.log(scene.trajectory_path(config), scene.trajectory(self.positions[config]))
-            self.rec.log(scene.covariance_path(config), scene.ellipsoids(current[None, :3, 3], covariance[None]))
+            self.rec.log(scene.estimate_path(config, "trajectory"), scene.trajectory(self.positions[config]))
+            self.rec.log(scene.estimate_path(config, "covariance"),
+                         scene.ellipsoids(current[None, :3, 3], covariance[None]))
         return current
 
     def _log_landmarks(self, config, ids, points, links, site_positions) -> None:
         rgb = scene.colour(config)
-        self.rec.log(scene.landmarks_path(config), rr.Points3D(points, radii=0.12, colors=rgb))
+        self.rec.log(scene.estimate_path(config, "landmarks"), rr.Points3D(points, radii=0.12, colors=rgb))
         ties = scene.tie_strips(links, ids, points, site_positions)
-        self.rec.log(scene.ties_path(config),
+        self.rec.log(scene.estimate_path(config, "ties"),
                      rr.LineStrips3D(ties, radii=rr.Radius.ui_points(0.5), colors=(*rgb, scene.TIE_ALPHA)))
 
     def _log_site(self, stop: Stop, world_T_body: np.ndarray) -> None:

@@ -29,10 +29,10 @@ def replay(run: SavedRun, rec: rr.RecordingStream) -> None:
     for name, c in run.configurations.items():
         positions = c.world_T_body[:, :3, 3]
         # The trajectory as it would stand at each stop: one growing strip per stop.
-        rec.send_columns(scene.trajectory_path(name), indexes=columns,
+        rec.send_columns(scene.estimate_path(name, "trajectory"), indexes=columns,
                          columns=rr.LineStrips3D.columns(strips=[positions[: k + 1] for k in range(n)]))
         half, quaternions = scene.ellipsoid_axes(c.position_covariance)
-        rec.send_columns(scene.covariance_path(name), indexes=columns,
+        rec.send_columns(scene.estimate_path(name, "covariance"), indexes=columns,
                          columns=rr.Ellipsoids3D.columns(centers=positions, half_sizes=half,
                                                          quaternions=quaternions))
         if truth is not None:
@@ -48,9 +48,10 @@ def replay(run: SavedRun, rec: rr.RecordingStream) -> None:
                     np.cumsum(outliers[used]))
         if len(c.landmark_ids):
             rgb = scene.colour(name)
-            rec.log(scene.landmarks_path(name), rr.Points3D(c.landmark_positions, radii=0.12, colors=rgb), static=True)
+            rec.log(scene.estimate_path(name, "landmarks"), rr.Points3D(c.landmark_positions, radii=0.12, colors=rgb),
+                    static=True)
             sites = {int(k): positions[k] for k in {stop for _, stop in c.tie_links}}
-            rec.log(scene.ties_path(name), rr.LineStrips3D(
+            rec.log(scene.estimate_path(name, "ties"), rr.LineStrips3D(
                 scene.tie_strips(c.tie_links, c.landmark_ids, c.landmark_positions, sites),
                 radii=rr.Radius.ui_points(0.5), colors=(*rgb, scene.TIE_ALPHA)), static=True)
         rec.log(scene.map_path(name), scene.geo_line(origin, positions, name), static=True)

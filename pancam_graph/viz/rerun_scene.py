@@ -60,25 +60,10 @@ def colour(config: str) -> tuple[int, int, int]:
     return COLOURS.get(config, (200, 200, 0))
 
 
-def trajectory_path(config: str) -> str:
-    return f"world/estimate/{config}/trajectory"
-
-
-def tail_path(config: str) -> str:
-    """The live trajectory since its last refresh (rerun_live.py)."""
-    return f"world/estimate/{config}/trajectory/tail"
-
-
-def covariance_path(config: str) -> str:
-    return f"world/estimate/{config}/covariance"
-
-
-def landmarks_path(config: str) -> str:
-    return f"world/estimate/{config}/landmarks"
-
-
-def ties_path(config: str) -> str:
-    return f"world/estimate/{config}/ties"
+def estimate_path(config: str, part: str) -> str:
+    """A configuration's entity in the 3-D view; `part`: trajectory, trajectory/tail (live: the
+    trajectory since its last refresh, rerun_live.py), covariance, landmarks or ties."""
+    return f"world/estimate/{config}/{part}"
 
 
 def map_path(config: str) -> str:
@@ -105,7 +90,8 @@ def blueprint(configs: list[str], extent: np.ndarray | None = None) -> rrb.Bluep
     # Tie links hide by default (thousands of lines fanning out of every site bury the
     # trajectories), and so do the landmarks of the configurations other than the primary (last)
     # one: they nearly coincide with the primary's.
-    hidden = [f"- {ties_path(c)}" for c in configs] + [f"- {landmarks_path(c)}" for c in configs[:-1]]
+    hidden = ([f"- {estimate_path(c, 'ties')}" for c in configs]
+              + [f"- {estimate_path(c, 'landmarks')}" for c in configs[:-1]])
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(origin="world", name="traverse (local ENU)", eye_controls=eye,
@@ -168,9 +154,9 @@ def log_static(
     # Styles are static so the per-stop logs carry geometry only (from_fields: ~3x cheaper).
     for config in configs:
         rgb = colour(config)
-        for path in (trajectory_path(config), tail_path(config)):
+        for path in (estimate_path(config, "trajectory"), estimate_path(config, "trajectory/tail")):
             rec.log(path, rr.LineStrips3D.from_fields(radii=rr.Radius.ui_points(2.0), colors=rgb), static=True)
-        rec.log(covariance_path(config), rr.Ellipsoids3D.from_fields(
+        rec.log(estimate_path(config, "covariance"), rr.Ellipsoids3D.from_fields(
             colors=rgb, fill_mode=rr.components.FillMode.MajorWireframe), static=True)
     for name, (_, per_config) in SERIES.items():
         for config in configs if per_config else [None]:
