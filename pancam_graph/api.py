@@ -268,6 +268,8 @@ def evaluate(estimate: Path | str, reference: Path | str, *, align: str = "none"
     estimate, reference = Path(estimate), Path(reference)
     if align not in ("none", "se3", "yaw"):
         raise ConfigError(f"--align {align!r}: expected none, se3 or yaw")
+    if not rpe_delta_m > 0.0:
+        raise ConfigError(f"--rpe-delta {rpe_delta_m:g}: the relative pose error's distance must be more than 0 m")
     frame = LocalFrame(*origin) if origin is not None else read_local_frame(estimate.parent)
     est = read_trajectory(estimate, frame, gps_sigma_m)
     ref = read_trajectory(reference, frame, gps_sigma_m)

@@ -6,6 +6,7 @@ where they enter the code), path distances measured along the path from its star
 
 from __future__ import annotations
 
+import math
 import tomllib
 from importlib import resources
 from pathlib import Path
@@ -62,6 +63,14 @@ class PathConfig(_Strict):
         for i in self.sharp_turns:
             if not 0 < i < len(self.waypoints) - 1:
                 raise ValueError(f"sharp_turns index {i} is not an interior waypoint")
+        steps = [math.dist(a, b) for a, b in zip(self.waypoints, self.waypoints[1:], strict=False)]
+        if 0.0 in steps:
+            i = steps.index(0.0)
+            raise ValueError(f"waypoints {i} and {i + 1} are the same point: a path needs distinct consecutive "
+                             "waypoints")
+        length = sum(steps)
+        if length < hi:
+            raise ValueError(f"the path is {length:.2f} m long, shorter than one stop spacing ({hi} m)")
         return self
 
 
@@ -310,9 +319,10 @@ class _ScenarioCore(_Strict):
     """A simulated traverse: the path, the world, the sensors and the estimator. A measurement
     kind with a simulated sensor (`Kind.Sensor`) adds its section, `[<kind>]` (Scenario below)."""
 
-    name: str
+    # it names the results folder: no path separators or control characters
+    name: str = Field(min_length=1, max_length=100, pattern=r"^[^\x00-\x1f/\\]+$")
     description: str = ""
-    seed: int = 0
+    seed: int = Field(0, ge=0, lt=2**63)
     rig: Literal["exomars", "mer_navcam", "mer_pancam", "prototype"] = "exomars"
     origin: OriginConfig
     path: PathConfig

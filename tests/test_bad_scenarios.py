@@ -43,6 +43,13 @@ def _waypoint(value):
     return change
 
 
+def _path(waypoints):
+    def change(data):
+        data["path"]["waypoints"] = waypoints
+        data["path"]["sharp_turns"] = []
+    return change
+
+
 @pytest.mark.parametrize("change,words", [
     (_set("origin", "h_m", math.nan), ["origin.h_m", "finite"]),
     (_waypoint(math.inf), ["path.waypoints.1.0", "finite"]),
@@ -60,6 +67,11 @@ def _waypoint(value):
     (_set("gps", "lever_arm_m", [0.0, 0.0, 1e308]), ["lever_arm_m", "within 10 m"]),
     (_set("dead_reckoning", "wheel_slip_mean", math.nan), ["dead_reckoning.wheel_slip_mean", "finite"]),
     (_set("estimator", "start_sigma_m", math.inf), ["estimator.start_sigma_m", "finite"]),
+    (_path([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]), ["waypoints 0 and 1 are the same point"]),
+    (_path([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0]]), ["the path is 0.50 m long"]),
+    (_set("name", "trail\x00x"), ["name", "should match pattern"]),
+    (_set("name", "../elsewhere"), ["name", "should match pattern"]),
+    (_set("seed", 2**64), ["seed", "less than 9223372036854775808"]),
 ])
 def test_a_bad_field_is_named(tmp_path, change, words):
     path = _scenario(tmp_path, change)

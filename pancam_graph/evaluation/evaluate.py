@@ -99,6 +99,10 @@ def evaluate_trajectories(
     est = Trajectory(est.source, est.positions @ rot.T + t, est.times_s,
                      None if est.world_T_body is None else ref_T_est @ est.world_T_body)
     ref_length = decimated_length(ref.positions, GPS_REFERENCE_STEP_M) if ref.world_T_body is None else None
+    if (ref_length if ref_length is not None else float(np.sum(np.linalg.norm(np.diff(ref.positions, axis=0),
+                                                                               axis=1)))) <= 0.0:
+        raise EvaluationError(f"{reference.source}: the reference stands still over the {len(ref)} matched poses; "
+                              "closure, drift and length ratio are relative to the distance travelled")
     both_poses = est.world_T_body is not None and ref.world_T_body is not None
     metrics = compare(est.positions, ref.positions, alignment,
                       est.world_T_body if both_poses else None, ref.world_T_body if both_poses else None,

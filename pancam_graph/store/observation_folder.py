@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 import tomli_w
-from pydantic import Field
+from pydantic import AfterValidator, Field
 
 from ..config import EstimatorConfig, OriginConfig, _Strict, load_toml_model
 from ..errors import InputError
@@ -75,6 +75,26 @@ Matrix3 = tuple[tuple[float, float, float], tuple[float, float, float], tuple[fl
 Matrix4 = tuple[tuple[float, float, float, float], tuple[float, float, float, float],
                 tuple[float, float, float, float], tuple[float, float, float, float]]
 Sigma = Annotated[float, Field(gt=0.0, le=1e4)]
+RIGID_TOLERANCE = 1e-6  # of R'R against identity and of det R against 1: a rounded rotation passes
+
+
+def _rigid(matrix: Matrix4) -> Matrix4:
+    """A 4x4 that is a rigid transform: a rotation (orthonormal, det +1), a translation, and
+    the last row 0 0 0 1."""
+    m = np.array(matrix, dtype=float)
+    if not np.all(np.isfinite(m)):
+        raise ValueError("not finite")
+    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=RIGID_TOLERANCE):
+        raise ValueError(f"last row is {m[3].tolist()}, expected [0, 0, 0, 1]")
+    rotation = m[:3, :3]
+    off = float(np.max(np.abs(rotation.T @ rotation - np.eye(3))))
+    if off > RIGID_TOLERANCE or np.linalg.det(rotation) < 0.0:
+        raise ValueError(f"its 3x3 part is not a rotation (R'R differs from identity by {off:.3g}, det "
+                         f"{np.linalg.det(rotation):.3g}): expected orthonormal axes with det +1")
+    return matrix
+
+
+RigidTransform = Annotated[Matrix4, AfterValidator(_rigid)]
 
 
 class RigSource(_Strict):
@@ -88,7 +108,7 @@ class RigSource(_Strict):
     calibration_image_size: tuple[int, int] | None = Field(
         None, description="width, height px: for a MATLAB calibration that does not record it")
     mast_height_m: float = Field(1.5, gt=0.0, le=20.0)
-    body_T_left: Matrix4 | None = Field(
+    body_T_left: RigidTransform | None = Field(
         None, description="4x4: the navigation pair's left camera in the body frame, for a body-fixed pair "
         "(default: on the mast at pan 0 and traverse_tilt_rad)")
     rectification: Matrix3 | None = Field(
@@ -105,7 +125,7 @@ class Manifest(_Strict):
     traverse_tilt_rad: float = Field(ge=-1.5708, le=1.5708, description="mast tilt of the navigation stereo pair "
                                      "(pan 0)")
     gps_lever_arm_m: tuple[LeverArm, LeverArm, LeverArm] = (0.0, 0.0, 0.0)
-    start_world_T_body: Matrix4 = Field(description="4x4, surveyed start pose in local ENU")
+    start_world_T_body: RigidTransform = Field(description="4x4, surveyed start pose in local ENU")
     start_sigmas: tuple[Sigma, Sigma, Sigma, Sigma, Sigma, Sigma] = Field(
         description="rotation rad x3, position m x3 (1 sigma)")
     wheel_slip_mean: float = Field(0.0, ge=-0.5, le=1.0, description="expected odometry slip shared along the "

@@ -126,3 +126,14 @@ def test_view_replays_a_recorded_drive(pairs, tmp_path):
     result = runner.invoke(app, ["view", str(bag), "--rerun", f"save:{tmp_path / 'bag.rrd'}"])
     assert result.exit_code == 0, result.output
     assert (tmp_path / "bag.rrd").stat().st_size > 100_000
+
+
+def test_eval_refuses_a_standing_reference_and_a_zero_rpe_distance(tmp_path):
+    still = tmp_path / "still.tum"
+    still.write_text("".join(f"{t} 1 2 3 0 0 0 1\n" for t in range(5)))
+    moving = tmp_path / "moving.tum"
+    moving.write_text("".join(f"{t} {t} 0 0 0 0 0 1\n" for t in range(5)))
+    result = runner.invoke(app, ["eval", str(moving), str(still)])
+    assert result.exit_code == 2 and "still.tum: the reference stands still over the 5 matched poses" in result.output
+    result = runner.invoke(app, ["eval", str(moving), str(moving), "--rpe-delta", "0"])
+    assert result.exit_code == 2 and "--rpe-delta 0: the relative pose error's distance must be more" in result.output

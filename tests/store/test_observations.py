@@ -162,6 +162,28 @@ def test_manifest_numbers_must_be_finite(folders, tmp_path, old, new, words):
     assert words in " ".join(str(error.value).split())
 
 
+@pytest.mark.parametrize("factor,words", [
+    (0.0, "not a rotation"),  # a zero axis: once the smoother's indeterminate system at x0
+    (2.0, "not a rotation"),  # a scale
+    (-1.0, "det -1"),  # a reflection: orthonormal, but not a rotation
+])
+def test_a_start_pose_that_is_not_rigid_is_refused(folders, tmp_path, factor, words):
+    import tomllib
+
+    import tomli_w
+
+    from pancam_graph.errors import InputError
+
+    folder = _copy(folders, tmp_path)
+    manifest = tomllib.loads((folder / "traverse.toml").read_text())
+    manifest["start_world_T_body"][0][:3] = [factor * v for v in manifest["start_world_T_body"][0][:3]]
+    (folder / "traverse.toml").write_text(tomli_w.dumps(manifest))
+    with pytest.raises(InputError) as error:
+        read_observations(folder)
+    message = " ".join(str(error.value).split())
+    assert "start_world_T_body" in message and words in message, message
+
+
 def test_a_nan_in_truth_kitti_is_named_when_read_not_after_the_run(folders, tmp_path):
     from pancam_graph.errors import InputError
 
