@@ -10,6 +10,7 @@ from pydantic import Field, ValidationError, model_validator
 
 from ..config import Scenario, _describe, _Strict, dump_scenario, load_scenario, load_toml_model, resolve_scenario
 from ..errors import ConfigError
+from ..kinds import configuration_problem
 
 RUN_TIMEOUT_S = 3600.0
 
@@ -67,14 +68,10 @@ def load_spec(path: Path) -> SweepSpec:
 
 
 def plan(spec: SweepSpec, out: Path, spec_folder: Path = Path(".")) -> list[SweepRun]:
-    """Write each combination's resolved scenario into `out/scenarios/` (checked now, not in a
-    worker) and list every run. A scenario file is found relative to the spec's folder."""
-    scenario_folder = Path(out) / "scenarios"
-    try:
-        scenario_folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ConfigError(f"--out {out}: cannot create the sweep folder: {exc.strerror}") from None
-    runs = []
+    """Write each combination's resolved scenario into `out/scenarios/` and list every run. All
+    of it is checked first (scenarios, rigs, variants, configuration names), so a bad
+    specification writes nothing. A scenario file is found relative to the spec's folder."""
+    combinations: list[tuple[str, Scenario, str, SweepVariant]] = []  # label, scenario, rig, variant
     named: dict[str, str] = {}
     for name in spec.scenarios:
         beside = spec_folder / name
@@ -88,13 +85,26 @@ def plan(spec: SweepSpec, out: Path, spec_folder: Path = Path(".")) -> list[Swee
         for rig in spec.rigs or [base.rig]:
             for variant in spec.variants:
                 scenario = _combined(base, rig, variant, name)
-                label = f"{scenario.name}-{rig}-{variant.name}"
-                path = scenario_folder / f"{label}.toml"
-                path.write_text(dump_scenario(scenario), encoding="utf-8")
-                for seed in range(spec.first_seed, spec.first_seed + spec.seeds):
-                    runs.append(SweepRun(scenario.name, rig, variant.name, seed, path,
-                                         Path(out) / "runs" / f"{label}-seed{seed}",
-                                         tuple(spec.configs) if spec.configs else None))
+                for config in spec.configs or []:
+                    kinds = scenario.estimator.configurations.get(config, config.split("+"))
+                    problem = configuration_problem(list(kinds))
+                    if problem:
+                        raise ConfigError(f"sweep: configs {config!r} ({scenario.name}, variant {variant.name}): "
+                                          f"{problem}; defined: {', '.join(scenario.estimator.configurations)}")
+                combinations.append((f"{scenario.name}-{rig}-{variant.name}", scenario, rig, variant))
+    scenario_folder = Path(out) / "scenarios"
+    try:
+        scenario_folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"--out {out}: cannot create the sweep folder: {exc.strerror}") from None
+    runs = []
+    for label, scenario, rig, variant in combinations:
+        path = scenario_folder / f"{label}.toml"
+        path.write_text(dump_scenario(scenario), encoding="utf-8")
+        for seed in range(spec.first_seed, spec.first_seed + spec.seeds):
+            runs.append(SweepRun(scenario.name, rig, variant.name, seed, path,
+                                 Path(out) / "runs" / f"{label}-seed{seed}",
+                                 tuple(spec.configs) if spec.configs else None))
     return runs
 
 

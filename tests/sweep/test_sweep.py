@@ -4,6 +4,7 @@ the reducer's efficiency and ANEES are bench --monte-carlo's."""
 
 import csv
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -105,3 +106,18 @@ def test_two_scenario_files_of_one_name_are_refused(tmp_path):
     spec = SweepSpec(scenarios=["short_trail", "copy.toml"], seeds=1)
     with pytest.raises(ConfigError, match="short_trail and copy.toml are both named 'short_trail'"):
         plan(spec, tmp_path / "sweep", tmp_path)
+
+
+@pytest.mark.parametrize("text,words", [
+    ('scenarios = ["short_trail"]\nconfigs = ["vo", "lidar"]\n', "sweep: configs 'lidar' (short_trail, variant "
+     "default): unknown kind 'lidar'"),
+    ('scenarios = ["short_trail", "nope"]\n', "unknown scenario 'nope'"),
+])
+def test_a_bad_specification_is_refused_before_anything_is_written(tmp_path, text, words):
+    from pancam_graph.api import plan_sweep
+    from pancam_graph.errors import ConfigError
+
+    (tmp_path / "spec.toml").write_text(text)
+    with pytest.raises(ConfigError, match=re.escape(words)):
+        plan_sweep(tmp_path / "spec.toml", tmp_path / "sweep")
+    assert not (tmp_path / "sweep").exists()  # no scenarios/ folder left behind, no Dask run started
