@@ -193,10 +193,8 @@ def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, ta
                 if target.mode == "save" and target.path is None:
                     target = dataclasses.replace(target, path=folder / "recording.rrd")
                 try:
-                    recording = open_recording(target, f"{data.traverse.name} seed {data.seed}")
+                    recording = open_recording(target, f"{data.traverse.name} seed {data.seed}", on_viewer)
                     listener = RerunRecorder(recording.stream)
-                    if recording.viewer_url is not None and on_viewer is not None:
-                        on_viewer(recording.viewer_url)
                 except ViewerUnavailable as exc:  # the results are the product, the viewer is not
                     warnings.append(f"{exc}; running without it")
             try:
@@ -312,9 +310,7 @@ def view(results: Path | str, target: RerunTarget, saved: SavedRun | None = None
     if target.mode == "save" and target.path is None:
         target = dataclasses.replace(target, path=results / "replay.rrd")
     saved = saved or read_run(results)
-    recording = open_recording(target, f"{saved.name} (replay of {results.name})")
-    if recording.viewer_url is not None and on_viewer is not None:
-        on_viewer(recording.viewer_url)
+    recording = open_recording(target, f"{saved.name} (replay of {results.name})", on_viewer)
     replay(saved, recording.stream)
     recording.close()
     return recording

@@ -18,6 +18,7 @@ from pydantic import AfterValidator, BaseModel, Field, ValidationError, create_m
 from .errors import ConfigError, PancamGraphError
 from .kinds import KINDS, configuration_problem
 from .sections import Section
+from .source_options import DETECTORS
 from .text_files import read_text
 
 
@@ -269,7 +270,7 @@ EstimatorConfig = create_model("EstimatorConfig", __base__=_EstimatorCore, __mod
 class FrontendConfig(_Strict):
     """Images -> stereo observations (frontend/tracker.py). Pixels unless said otherwise."""
 
-    detector: Literal["gftt", "orb", "sift"] = "gftt"
+    detector: Literal[DETECTORS] = "gftt"
     max_features: int = Field(1500, ge=20, le=20000, description="features kept per frame")
     min_distance_px: int = Field(8, ge=1, le=100, description="between corners")
     gftt_quality: float = Field(0.001, gt=0.0, lt=1.0, description="of a cell's strongest corner")

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..errors import EvaluationError
 from ..records import Trajectory
+from .gps_check import antenna_positions
 from .metrics import (
     GPS_REFERENCE_STEP_M,
     RPE_DELTA_M,
@@ -17,6 +18,7 @@ from .metrics import (
     compare,
     decimated_length,
     fit_alignment,
+    path_length,
 )
 
 MAX_DT_S = 0.01  # default association tolerance (evo's default)
@@ -50,8 +52,8 @@ def at_point_of_body(trajectory: Trajectory, body_point_m: np.ndarray) -> Trajec
     records, where the trajectory is the body's origin."""
     if trajectory.world_T_body is None:
         raise EvaluationError(f"{trajectory.source}: positions only, no attitude to carry a lever arm")
-    moved = trajectory.world_T_body[:, :3, :3] @ np.asarray(body_point_m, dtype=float) + trajectory.positions
-    return Trajectory(trajectory.source, moved, trajectory.times_s, None, trajectory.geodetic)
+    return Trajectory(trajectory.source, antenna_positions(trajectory.world_T_body, body_point_m),
+                      trajectory.times_s, None, trajectory.geodetic)
 
 
 def associate(est_times: np.ndarray, ref_times: np.ndarray, max_dt_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -98,9 +100,9 @@ def evaluate_trajectories(
     ref_T_est[:3, :3], ref_T_est[:3, 3] = rot, t
     est = Trajectory(est.source, est.positions @ rot.T + t, est.times_s,
                      None if est.world_T_body is None else ref_T_est @ est.world_T_body)
-    ref_length = decimated_length(ref.positions, GPS_REFERENCE_STEP_M) if ref.world_T_body is None else None
-    if (ref_length if ref_length is not None else float(np.sum(np.linalg.norm(np.diff(ref.positions, axis=0),
-                                                                               axis=1)))) <= 0.0:
+    ref_length = (decimated_length(ref.positions, GPS_REFERENCE_STEP_M) if ref.world_T_body is None
+                  else path_length(ref.positions))
+    if ref_length <= 0.0:
         raise EvaluationError(f"{reference.source}: the reference stands still over the {len(ref)} matched poses; "
                               "closure, drift and length ratio are relative to the distance travelled")
     both_poses = est.world_T_body is not None and ref.world_T_body is not None

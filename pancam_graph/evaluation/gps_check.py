@@ -34,11 +34,17 @@ def gps_enu(traverse: Traverse, fixes: tuple[GpsFix, ...] | None = None) -> tupl
     return np.array([f.time_s for f in fixes]), enu
 
 
+def antenna_positions(world_T_body: np.ndarray, lever_arm_m: np.ndarray) -> np.ndarray:
+    """Where a point fixed in the body (the GPS antenna at its lever arm) is at each pose."""
+    arm = np.asarray(lever_arm_m, dtype=float)
+    return np.einsum("nij,j->ni", world_T_body[:, :3, :3], arm) + world_T_body[:, :3, 3]
+
+
 def antenna_at_times(traverse: Traverse, world_T_body: np.ndarray, times_s: np.ndarray) -> np.ndarray:
     stops = traverse.stops
     poses = poses_at_times(np.array([s.time_s for s in stops]), np.array([s.departure_s for s in stops]),
                            world_T_body, times_s)
-    return np.einsum("nij,j->ni", poses[:, :3, :3], traverse.gps_lever_arm_m) + poses[:, :3, 3]
+    return antenna_positions(poses, traverse.gps_lever_arm_m)
 
 
 def evaluate_against_gps(traverse: Traverse, world_T_body: np.ndarray,

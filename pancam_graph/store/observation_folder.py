@@ -75,7 +75,7 @@ Matrix3 = tuple[tuple[float, float, float], tuple[float, float, float], tuple[fl
 Matrix4 = tuple[tuple[float, float, float, float], tuple[float, float, float, float],
                 tuple[float, float, float, float], tuple[float, float, float, float]]
 Sigma = Annotated[float, Field(gt=0.0, le=1e4)]
-RIGID_TOLERANCE = 1e-6  # of R'R against identity and of det R against 1: a rounded rotation passes
+RIGID_TOLERANCE = 1e-6  # of R'R against identity (orthonormal axes have det +-1: its sign is checked)
 
 
 def _rigid(matrix: Matrix4) -> Matrix4:

@@ -133,13 +133,23 @@ def local_frame_dict(origin: LocalFrame, gps_lever_arm_m: np.ndarray | None = No
     return frame
 
 
-def read_local_frame(folder: Path) -> LocalFrame | None:
-    """The origin saved beside a results folder's trajectories, if there is one."""
+def _local_frame_file(folder: Path) -> tuple[Path, dict] | None:
     path = Path(folder) / LOCAL_FRAME_FILE
     if not path.is_file():
         return None
     try:
-        d = json.loads(path.read_text(encoding="utf-8"))
+        return path, json.loads(path.read_text(encoding="utf-8"))
+    except ValueError as exc:
+        raise ResultsError(f"{path}: not JSON: {exc}") from None
+
+
+def read_local_frame(folder: Path) -> LocalFrame | None:
+    """The origin saved beside a results folder's trajectories, if there is one."""
+    found = _local_frame_file(folder)
+    if found is None:
+        return None
+    path, d = found
+    try:
         return LocalFrame(float(d["lat_deg"]), float(d["lon_deg"]), float(d["h_m"]))
     except (ValueError, KeyError, TypeError) as exc:
         raise ResultsError(f"{path}: expected lat_deg, lon_deg, h_m: {exc}") from None
@@ -147,13 +157,13 @@ def read_local_frame(folder: Path) -> LocalFrame | None:
 
 def read_gps_lever_arm(folder: Path) -> np.ndarray | None:
     """The GPS antenna in the body frame saved beside a results folder's trajectories, if any."""
-    path = Path(folder) / LOCAL_FRAME_FILE
-    if not path.is_file():
+    path, d = _local_frame_file(folder) or (None, {})
+    arm = d.get("gps_lever_arm_m") if isinstance(d, dict) else None
+    if arm is None:  # a folder from before the arm was saved: the body origin
         return None
     try:
-        arm = json.loads(path.read_text(encoding="utf-8")).get("gps_lever_arm_m")
-        return None if arm is None else np.array([float(v) for v in arm]).reshape(3)
-    except (ValueError, TypeError, AttributeError) as exc:
+        return np.array([float(v) for v in arm]).reshape(3)
+    except (ValueError, TypeError) as exc:
         raise ResultsError(f"{path}: gps_lever_arm_m must be three numbers (x, y, z metres): {exc}") from None
 
 

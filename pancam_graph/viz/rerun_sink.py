@@ -8,6 +8,7 @@ import sys
 import tempfile
 import time
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -19,6 +20,10 @@ from ..errors import ResultsError, ViewerUnavailable
 from .rerun_scene import APP_ID
 
 DEFAULT_VIEWER_MEMORY = "25%"  # of system RAM; the viewer drops the oldest data beyond it
+GRPC_PORT, WEB_VIEWER_PORT = 9876, 9090  # rerun's own defaults: served there while they are free
+SERVER_START_S = 20.0
+CONNECT_TIMEOUT_S = 3.0
+_DEFAULT_URL = f"rerun+http://127.0.0.1:{GRPC_PORT}/proxy"
 
 
 @dataclass(frozen=True)
@@ -61,7 +66,9 @@ class OpenRecording:
                 self.server.kill()
 
 
-def open_recording(target: RerunTarget, name: str) -> OpenRecording:
+def open_recording(target: RerunTarget, name: str, on_viewer: Callable[[str], None] | None = None) -> OpenRecording:
+    """The recording stream to `target`; a served one's web viewer address goes to `on_viewer`
+    as soon as it is up."""
     stream = rr.RecordingStream(APP_ID, recording_id=str(uuid.uuid4()))
     stream.send_recording_name(name)
     served = viewer = server = None
@@ -73,27 +80,26 @@ def open_recording(target: RerunTarget, name: str) -> OpenRecording:
             # the module-level spawn: RecordingStream.spawn cannot name the executable
             rr.spawn(memory_limit=target.memory_limit, executable_path=_viewer_executable(), recording=stream)
         elif target.mode == "serve":
-            server, served, viewer = _start_server(target)
-            stream.connect_grpc(f"rerun+http://{_local(target.host)}:{_port(served)}/proxy")
+            server, grpc_port, served, viewer = _start_server(target)
+            stream.connect_grpc(f"rerun+http://{_local(target.host)}:{grpc_port}/proxy")
         else:
             _check_listening(target.url)
             stream.connect_grpc(target.url)
     except (OSError, RuntimeError) as exc:
         where = target.path or target.url or target.mode
         raise ResultsError(f"rerun: cannot open the recording ({where}): {exc}") from None
+    if viewer is not None and on_viewer is not None:
+        on_viewer(viewer)
     return OpenRecording(stream, target, served, viewer, server)
 
 
-GRPC_PORT, WEB_VIEWER_PORT = 9876, 9090  # rerun's own defaults, while they are free
-SERVER_START_S = 20.0
-
-
-def _start_server(target: RerunTarget) -> tuple[subprocess.Popen, str, str]:
+def _start_server(target: RerunTarget) -> tuple[subprocess.Popen, int, str, str]:
     """rerun's gRPC server and web viewer in a process of their own, listening on the target's
     address only (the SDK's in-process server listens on every interface); it lives on after the
     run, so a viewer can still open the recording, and dies with this process. Returns the
-    process, the recording's gRPC URL and the web viewer's URL opened on the recording (the
-    page needs the recording's address in ?url=, or it opens on rerun's welcome screen)."""
+    process, its gRPC port, the recording's gRPC URL and the web viewer's URL opened on the
+    recording (the page needs the recording's address in ?url=, or it opens on rerun's welcome
+    screen)."""
     grpc_port, web_port = _free_port(target.host, GRPC_PORT), _free_port(target.host, WEB_VIEWER_PORT)
     command = [_server_executable(), "--serve-web", "--bind", target.host, "--port", str(grpc_port),
                "--web-viewer-port", str(web_port), "--server-memory-limit", target.memory_limit]
@@ -101,7 +107,7 @@ def _start_server(target: RerunTarget) -> tuple[subprocess.Popen, str, str]:
     server = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=log,
                               preexec_fn=_die_with_parent if sys.platform == "linux" else None)
     deadline = time.monotonic() + SERVER_START_S
-    while not all(_answers(_local(target.host), port) for port in (grpc_port, web_port)):
+    while any(_refused(_local(target.host), port, 0.5) for port in (grpc_port, web_port)):
         if server.poll() is not None or time.monotonic() > deadline:
             server.kill()
             log.seek(0)
@@ -111,7 +117,7 @@ def _start_server(target: RerunTarget) -> tuple[subprocess.Popen, str, str]:
         time.sleep(0.1)
     shown = socket.getfqdn() if target.host in ("0.0.0.0", "::") else target.host
     served = f"rerun+http://{shown}:{grpc_port}/proxy"
-    return server, served, f"http://{shown}:{web_port}/?url={quote(served, safe='')}"
+    return server, grpc_port, served, f"http://{shown}:{web_port}/?url={quote(served, safe='')}"
 
 
 def _free_port(host: str, preferred: int) -> int:
@@ -131,18 +137,13 @@ def _local(host: str) -> str:
     return "127.0.0.1" if host in ("0.0.0.0", "::") else host
 
 
-def _answers(host: str, port: int) -> bool:
+def _refused(host: str, port: int, timeout_s: float) -> OSError | None:
+    """Why nothing accepts a connection at host:port, or None when something does."""
     try:
-        with socket.create_connection((host, port), timeout=0.5):
-            return True
-    except OSError:
-        return False
-
-
-def _port(url: str) -> int:
-    from urllib.parse import urlparse
-
-    return urlparse(url.replace("rerun+", "", 1)).port
+        with socket.create_connection((host, port), timeout=timeout_s):
+            return None
+    except OSError as exc:
+        return exc
 
 
 def _die_with_parent() -> None:
@@ -151,22 +152,17 @@ def _die_with_parent() -> None:
     import signal
 
     ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-CONNECT_TIMEOUT_S = 3.0
-_DEFAULT_URL = "rerun+http://127.0.0.1:9876/proxy"
 
 
 def _check_listening(url: str | None) -> None:
     """A viewer that does not listen would make every flush wait forever: find out first."""
-    import socket
     from urllib.parse import urlparse
 
     parsed = urlparse((url or _DEFAULT_URL).replace("rerun+", "", 1))
-    host, port = parsed.hostname or "127.0.0.1", parsed.port or 9876
-    try:
-        with socket.create_connection((host, port), timeout=CONNECT_TIMEOUT_S):
-            pass
-    except OSError as exc:
-        raise ViewerUnavailable(f"rerun: no viewer answers at {host}:{port} ({exc.strerror or exc})") from None
+    host, port = parsed.hostname or "127.0.0.1", parsed.port or GRPC_PORT
+    refused = _refused(host, port, CONNECT_TIMEOUT_S)
+    if refused is not None:
+        raise ViewerUnavailable(f"rerun: no viewer answers at {host}:{port} ({refused.strerror or refused})")
 
 
 def _server_executable() -> str:
