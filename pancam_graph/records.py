@@ -8,7 +8,6 @@ travels separately (`GroundTruth`) and is used only for evaluation.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import cached_property
 
 import gtsam
 import numpy as np
@@ -142,12 +141,12 @@ class Traverse:
     gps_lever_arm_m: np.ndarray  # antenna in the body frame
     start_world_T_body: np.ndarray  # 4x4, surveyed start pose
     start_sigmas: np.ndarray  # (6,) [rot rad x3, pos m x3]
-    gps_fixes: tuple[GpsFix, ...] = ()  # in time order, each used at its own time
     wheel_slip: SlipPrior = SlipPrior()
     # The navigation stereo pair's left camera in the body frame; None: on the mast at pan 0 and
     # the traverse tilt (PanCam). A body-fixed pair (a car, a rover's navigation cameras) gives it.
     body_T_nav_left: np.ndarray | None = None
-    # Records of the kinds that are not part of every stop (kinds/base.py), by kind name.
+    # Records of the kinds that are not part of every stop (kinds/base.py), by kind name: the
+    # GPS fixes are measurements["gps"], in time order.
     measurements: dict[str, tuple] = field(default_factory=dict)
 
     def body_T_nav(self) -> gtsam.Pose3:
@@ -156,14 +155,10 @@ class Traverse:
             return gtsam.Pose3(self.body_T_nav_left)
         return self.rig.body_T_left(0.0, self.traverse_tilt_rad)
 
-    @cached_property
-    def gps_times_s(self) -> np.ndarray:
-        return np.array([f.time_s for f in self.gps_fixes])
-
-    def fixes_between(self, after_s: float, until_s: float) -> list[GpsFix]:
-        """The fixes with after_s < time_s <= until_s."""
-        lo, hi = np.searchsorted(self.gps_times_s, [after_s, until_s], side="right")
-        return list(self.gps_fixes[lo:hi])
+    @property
+    def gps_fixes(self) -> tuple[GpsFix, ...]:
+        """The GPS kind's records, which evaluation and the views also read as a reference."""
+        return self.measurements.get("gps", ())
 
 
 @dataclass(frozen=True)

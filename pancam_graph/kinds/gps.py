@@ -15,7 +15,7 @@ from ..graph import factors, noise
 from ..graph.keys import X
 from ..records import GpsFix, Stop, Traverse
 from ..sections import Section
-from .base import Kind
+from .base import Kind, RowError
 
 TIME_TOLERANCE_S = 1e-3  # a fix this close to a stop's time is taken at the stop
 _REASONS_KEPT = 20
@@ -45,10 +45,29 @@ class Gps(Kind):
     Settings = GpsSettings
 
     records = "GPS fixes"
+    # its observation-folder table, gps.csv (h ellipsoidal; a `stop` column of older folders is
+    # ignored: each fix is used at its own time)
+    columns = ("time_s", "lat_deg", "lon_deg", "h_m", "sigma_h_m", "sigma_v_m")
 
-    @staticmethod
-    def has_records(traverse: Traverse) -> bool:
-        return bool(traverse.gps_fixes)
+    @classmethod
+    def to_rows(cls, records: tuple[GpsFix, ...]) -> list[tuple[float, ...]]:
+        return [(f.time_s, f.lat_deg, f.lon_deg, f.h_m, f.sigma_horizontal_m, f.sigma_vertical_m) for f in records]
+
+    @classmethod
+    def from_rows(cls, rows, traverse: Traverse) -> tuple[GpsFix, ...]:
+        """Fixes in time order: times must increase."""
+        fixes: list[GpsFix] = []
+        for line, (t, lat, lon, h, sigma_h, sigma_v) in rows:
+            if not -90 <= lat <= 90:
+                raise RowError(line, f"lat_deg {lat:g}: expected -90..90 degrees")
+            if not -180 <= lon <= 360:
+                raise RowError(line, f"lon_deg {lon:g}: expected -180..360 degrees")
+            if not (sigma_h > 0 and sigma_v > 0):
+                raise RowError(line, f"sigma_h_m {sigma_h:g}, sigma_v_m {sigma_v:g}: expected positive metres")
+            if fixes and t <= fixes[-1].time_s:
+                raise RowError(line, f"time_s {t:g} does not increase (previous fix {fixes[-1].time_s:g})")
+            fixes.append(GpsFix(t, lat, lon, h, sigma_h, sigma_v))
+        return tuple(fixes)
 
     def __init__(self, localizer):
         super().__init__(localizer)
@@ -61,6 +80,7 @@ class Gps(Kind):
         self.refused_count = 0
         self._pending: list[tuple[int, GpsFix, np.ndarray]] = []  # this stop's (key, fix, ENU)
         fixes = localizer.traverse.gps_fixes
+        self._times_s = np.array([f.time_s for f in fixes])
         enu = localizer.traverse.origin.to_enu([f.lat_deg for f in fixes], [f.lon_deg for f in fixes],
                                                [f.h_m for f in fixes])
         self._enu = dict(zip((f.time_s for f in fixes), enu, strict=True))  # converted once, by time
@@ -77,7 +97,8 @@ class Gps(Kind):
 
     def _window(self, prev: Stop | None, stop: Stop) -> list[GpsFix]:
         after = stop.time_s - TIME_TOLERANCE_S if prev is None else prev.departure_s
-        return self.loc.traverse.fixes_between(after, stop.departure_s)
+        lo, hi = np.searchsorted(self._times_s, [after, stop.departure_s], side="right")
+        return list(self.loc.traverse.gps_fixes[lo:hi])  # after < time_s <= departure
 
     def _drive_too_long(self, prev: Stop, stop: Stop) -> bool:
         return stop.time_s - prev.departure_s > self.max_gap_s

@@ -93,7 +93,7 @@ def drive_traverse(name: str, source: str, odometry: OdometryTrack, fixes: list[
         start_world_T_body=world_T_odom @ odom[0].matrix(),
         start_sigmas=np.array([np.deg2rad(5.0), np.deg2rad(5.0), np.deg2rad(30.0), 3 * sigma_h, 3 * sigma_h,
                                3 * sigma_v]),
-        gps_fixes=tuple(f for f, u in zip(fixes, used, strict=True) if u),
+        measurements={"gps": tuple(f for f, u in zip(fixes, used, strict=True) if u)},
         # wheel odometry calibrated by its driver: no expected slip, a few percent either way
         wheel_slip=SlipPrior(0.0, noise.translation_fraction),
     )
@@ -222,7 +222,7 @@ def load_stereo_bag(path: Path, left_topic: str, right_topic: str, left_info: st
             name=Path(path).stem, rig=Rig(Path(path).stem, cam, stereo.baseline_m, mast_height_m=1.0),
             origin=origin, stops=tuple(stops), traverse_tilt_rad=0.0, image_noise_px=0.5,
             gps_lever_arm_m=np.zeros(3), start_world_T_body=np.eye(4), start_sigmas=np.array([1e-4] * 3 + [1e-3] * 3),
-            gps_fixes=tuple(sorted(fixes, key=lambda f: f.time_s)), body_T_nav_left=BODY_T_FORWARD_CAMERA)
+            measurements={"gps": tuple(sorted(fixes, key=lambda f: f.time_s))}, body_T_nav_left=BODY_T_FORWARD_CAMERA)
         info = SourceInfo("rosbag", str(path), "none", notes=(
             f"stereo pairs from {left_topic} + {right_topic} ({unpaired} unpaired left images)",
             "the start pose is the local frame's origin (the bag gives no surveyed start)", *notes),

@@ -6,13 +6,13 @@ A folder (documented in docs/observation_format.md):
     stereo.csv      stop,time_s,track,u_left,u_right,v        navigation stereo pair, rectified px
     panorama.csv    stop,site,pan_rad,tilt_rad,track,u_left,u_right,v   (optional) site panoramas
     hrc.csv         stop,pan_rad,tilt_rad,track,u,v                     (optional) HRC frames
-    gps.csv         time_s,lat_deg,lon_deg,h_m,sigma_h_m,sigma_v_m      (optional) each used at its time
     odometry.csv    stop,r11..r33,tx,ty,tz,c00..c55 (upper triangle)    (optional) dead reckoning
     truth.kitti     (optional) reference pose of every stop, KITTI layout, for evaluation
     truth_landmarks.csv  track,x_m,y_m,z_m (optional, with truth.kitti) true landmarks (ENU)
     truth.toml      wheel_slip = ... (optional, with truth.kitti) the traverse's true slip
     <kind>.csv      (optional) the records of a measurement kind with a table of its own
-                    (Kind.columns in pancam_graph/kinds/), e.g. sun_heading.csv
+                    (Kind.columns in pancam_graph/kinds/): gps.csv (time_s,lat_deg,lon_deg,h_m,
+                    sigma_h_m,sigma_v_m, each fix used at its time), sun_heading.csv
 
 Stops are numbered 0..N-1 and every stop has at least one row in stereo.csv (a stop that saw
 nothing has one row with empty track and pixel fields, so its time is still known); an optional
@@ -41,7 +41,6 @@ from ..kinds import KINDS
 from ..kinds.base import RowError
 from ..records import (
     DeadReckoning,
-    GpsFix,
     GroundTruth,
     HrcFrame,
     PanoramaFrame,
@@ -64,7 +63,6 @@ PANORAMA_FRAME_COLUMNS = ["stop", "site", "camera", "pan_rad", "tilt_rad", "left
 STEREO_COLUMNS = ["stop", "time_s", "track", "u_left", "u_right", "v"]
 PANORAMA_COLUMNS = ["stop", "site", "pan_rad", "tilt_rad", "track", "u_left", "u_right", "v"]
 HRC_COLUMNS = ["stop", "pan_rad", "tilt_rad", "track", "u", "v"]
-GPS_COLUMNS = ["time_s", "lat_deg", "lon_deg", "h_m", "sigma_h_m", "sigma_v_m"]
 _UPPER = np.triu_indices(6)
 ODOMETRY_COLUMNS = (["stop"] + [f"r{i}{j}" for i in range(1, 4) for j in range(1, 4)] + ["tx", "ty", "tz"]
                     + [f"c{i}{j}" for i, j in zip(*_UPPER, strict=True)])
@@ -210,7 +208,7 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
     def r(x) -> str:  # shortest text that reads back to the same float
         return repr(float(x))
 
-    stereo, panorama, hrc, gps, odometry = [], [], [], [], []
+    stereo, panorama, hrc, odometry = [], [], [], []
     for s in traverse.stops:
         obs = s.stereo
         stereo += [(s.index, r(s.time_s), r(s.dwell_s), int(t), r(a), r(b), r(c))
@@ -227,14 +225,12 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
             m, cov = s.dead_reckoning.prev_T_curr, s.dead_reckoning.covariance
             odometry.append((s.index, *(r(v) for v in m[:3, :3].ravel()), *(r(v) for v in m[:3, 3]),
                              *(r(v) for v in cov[_UPPER])))
-    gps = [(r(g.time_s), r(g.lat_deg), r(g.lon_deg), r(g.h_m), r(g.sigma_horizontal_m), r(g.sigma_vertical_m))
-           for g in traverse.gps_fixes]
     if frames is None:
         _write_csv(folder / "stereo.csv", STEREO_COLUMNS[:2] + ["dwell_s"] + STEREO_COLUMNS[2:], stereo)
     else:
         _write_csv(folder / FRAMES, FRAME_COLUMNS, [(s.index, r(s.time_s), r(s.dwell_s), left, right)
                                                    for s, (left, right) in zip(traverse.stops, frames, strict=True)])
-    tables = [("gps.csv", GPS_COLUMNS, gps), ("odometry.csv", ODOMETRY_COLUMNS, odometry),
+    tables = [("odometry.csv", ODOMETRY_COLUMNS, odometry),
               (PANORAMA_FRAMES, PANORAMA_FRAME_COLUMNS,
                [(f.stop, f.site, f.camera, r(f.pan_rad), r(f.tilt_rad), f.left, f.right or "")
                 for f in panorama_frames])]
@@ -305,7 +301,6 @@ def read_observations(folder: Path) -> ObservationSet:
     n = len(times)
     panoramas, sites = _read_panorama(folder / "panorama.csv", n)
     hrc = _read_hrc(folder / "hrc.csv", n)
-    gps = _read_gps(folder / "gps.csv")
     odometry = _read_odometry(folder / "odometry.csv", n)
     stops = tuple(Stop(k, times[k], stereo[k], sites.get(k), panoramas.get(k, ()), hrc.get(k, ()), odometry.get(k),
                        dwells[k]) for k in range(n))
@@ -320,7 +315,7 @@ def read_observations(folder: Path) -> ObservationSet:
     traverse = Traverse(manifest.name, rig, LocalFrame(o.lat_deg, o.lon_deg, o.h_m), stops,
                         manifest.traverse_tilt_rad, manifest.image_noise_px,
                         np.array(manifest.gps_lever_arm_m, dtype=float), start, np.array(manifest.start_sigmas),
-                        gps_fixes=gps, wheel_slip=SlipPrior(manifest.wheel_slip_mean, manifest.wheel_slip_sigma),
+                        wheel_slip=SlipPrior(manifest.wheel_slip_mean, manifest.wheel_slip_sigma),
                         body_T_nav_left=body_T_left)
     measurements = _read_kind_tables(folder, traverse)
     if measurements:
@@ -506,24 +501,6 @@ def _read_hrc(path: Path, n: int) -> dict[int, tuple[HrcFrame, ...]]:
     frames = _read_frames(CsvTable(path, HRC_COLUMNS), n, ["u", "v"])
     return {k: tuple(HrcFrame(pan, tilt, tracks, uv) for (pan, tilt), (tracks, uv) in by_frame.items())
             for k, by_frame in frames.items()}
-
-
-def _read_gps(path: Path) -> tuple[GpsFix, ...]:
-    """Fixes in time order (times must increase); a `stop` column of older folders is ignored:
-    each fix is used at its own time."""
-    if not path.is_file():
-        return ()
-    table = CsvTable(path, GPS_COLUMNS)
-    fixes = []
-    for line, row in table.rows:
-        t, lat, lon, h, sh, sv = (table.number(line, c, v) for c, v in zip(GPS_COLUMNS, table.values(line, row),
-                                                                            strict=True))
-        if not (-90 <= lat <= 90 and -180 <= lon <= 360) or sh <= 0 or sv <= 0:
-            raise InputError(f"{path}: line {line}: latitude/longitude out of range or sigma not positive")
-        if fixes and t <= fixes[-1].time_s:
-            raise InputError(f"{path}: line {line}: time_s {t} does not increase (previous fix {fixes[-1].time_s})")
-        fixes.append(GpsFix(t, lat, lon, h, sh, sv))
-    return tuple(fixes)
 
 
 def _read_odometry(path: Path, n: int) -> dict[int, DeadReckoning]:

@@ -60,7 +60,7 @@ def test_fixes_outside_the_drive_are_refused_with_a_reason(short_scenario):
     a, b = traverse.stops[3], traverse.stops[4]
     mid = GpsFix(0.5 * (a.departure_s + b.time_s), fix.lat_deg, fix.lon_deg, fix.h_m, 2.0, 3.0)
     fixes = sorted((early, mid, *traverse.gps_fixes, late), key=lambda f: f.time_s)
-    traverse = replace(traverse, gps_fixes=tuple(fixes))
+    traverse = replace(traverse, measurements={**traverse.measurements, "gps": tuple(fixes)})
     long_drive = _with(short_scenario, max_gap_s=1.0).estimator
     loc = Localizer(traverse, ["dead_reckoning", "gps"], long_drive)
     gps = loc.kinds["gps"]
