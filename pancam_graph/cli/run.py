@@ -56,11 +56,11 @@ def _summary_table(outcome: RunOutcome) -> Table:
 
 def _print_outcome(outcome: RunOutcome, serve_for_s: float | None) -> None:
     for warning in outcome.warnings:
-        console.print(Text("warning: ", style="bold yellow") + Text(warning))
+        console.print(Text("warning: ", style="bold yellow") + Text(warning), soft_wrap=True)
     Console(width=80).print(_summary_table(outcome))
     sys.stdout.flush()
     for name, reason in outcome.result.skipped.items():
-        console.print(Text(f"not run: {name} ({reason})", style="dim"))
+        console.print(Text(f"not run: {name} ({reason})", style="dim"), soft_wrap=True)
     saved = (f" ({outcome.checkpoints} checkpoints saved in {outcome.checkpoint_s:.1f} s)"
              if outcome.checkpoints else "")
     console.print(f"wall {outcome.result.wall_s:.1f} s{saved}; results in {outcome.folder} "
@@ -146,9 +146,9 @@ def run_command(
 
         select_configurations(data.estimator, data.traverse, names)  # before anything is written
     for reason in data.rejected[:10]:
-        console.print(Text("fix left out: ", style="yellow") + Text(reason))
+        console.print(Text("fix left out: ", style="yellow") + Text(reason), soft_wrap=True)
     if len(data.rejected) > 10:
-        console.print(Text(f"... {len(data.rejected) - 10} more fixes left out", style="yellow"))
+        console.print(Text(f"... {len(data.rejected) - 10} more fixes left out", style="yellow"), soft_wrap=True)
     _print_outcome(with_progress(data.traverse.name, quiet, lambda report: api.run(
         source, out=out, seed=source_options.seed, configs=names, batch=batch, processes=processes, rerun=target,
         checkpoint_every_s=checkpoint_every, figures=not no_plots, progress=report, opened=data,

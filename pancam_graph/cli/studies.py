@@ -130,7 +130,8 @@ def sweep_command(
         def report(record, done: int, total: int) -> None:
             bar.update(task, completed=done, total=total)
             if record.status in ("failed", "timeout"):
-                bar.console.print(Text(f"{record.run.name}: {record.status}: {record.message}", style="yellow"))
+                bar.console.print(Text(f"{record.run.name}: {record.status}: {record.message}", style="yellow"),
+                                  soft_wrap=True)
 
         outcome = sweep(planned, workers=workers, scheduler=scheduler, progress=report)
     runs, summary = planned.runs, outcome.summary

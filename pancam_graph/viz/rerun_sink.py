@@ -155,14 +155,31 @@ def _die_with_parent() -> None:
 
 
 def _check_listening(url: str | None) -> None:
-    """A viewer that does not listen would make every flush wait forever: find out first."""
+    """A viewer that does not answer would make every flush, and the process's exit, wait
+    forever (rerun's gRPC client waits without a limit): find out first. A rerun viewer speaks
+    gRPC, so it answers HTTP/2's connection preface with its SETTINGS; a listener that never
+    answers, or a server of another protocol, does not."""
     from urllib.parse import urlparse
 
     parsed = urlparse((url or _DEFAULT_URL).replace("rerun+", "", 1))
     host, port = parsed.hostname or "127.0.0.1", parsed.port or GRPC_PORT
-    refused = _refused(host, port, CONNECT_TIMEOUT_S)
-    if refused is not None:
-        raise ViewerUnavailable(f"rerun: no viewer answers at {host}:{port} ({refused.strerror or refused})")
+    try:
+        with socket.create_connection((host, port), timeout=CONNECT_TIMEOUT_S) as connection:
+            connection.sendall(_HTTP2_PREFACE + _HTTP2_EMPTY_SETTINGS)
+            reply = connection.recv(64)  # a frame header first: length (3 bytes), type, flags, stream
+    except TimeoutError:
+        raise ViewerUnavailable(f"rerun: {host}:{port} accepts connections but does not answer within "
+                                f"{CONNECT_TIMEOUT_S:g} s: not a rerun viewer, or a stalled one") from None
+    except OSError as exc:
+        raise ViewerUnavailable(f"rerun: no viewer answers at {host}:{port} ({exc.strerror or exc})") from None
+    if len(reply) < 4 or reply[3] != _HTTP2_SETTINGS:
+        said = reply.decode("latin-1").strip().splitlines()[0][:60] if reply.strip() else "it closed the connection"
+        raise ViewerUnavailable(f"rerun: {host}:{port} is not a rerun viewer (it answered {said!r}, not gRPC)")
+
+
+_HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n"
+_HTTP2_SETTINGS = 0x4
+_HTTP2_EMPTY_SETTINGS = bytes([0, 0, 0, _HTTP2_SETTINGS, 0, 0, 0, 0, 0])
 
 
 def _server_executable() -> str:
