@@ -18,7 +18,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .errors import ConfigError, FrameError, RunInterrupted, ViewerUnavailable
+from .errors import ConfigError, FrameError, RunInterrupted, ViewerUnavailable, writing
 from .evaluation.evaluate import Evaluation
 from .processes import cores, start_process_server
 from .records import Traverse
@@ -105,7 +105,8 @@ def _kept_frontend_work(exc: FrameError, out: Path | None) -> FrameError:
     kept = out.with_name(out.name + ".partial") / "observations"
     try:
         with results_folder(out) as folder:
-            write_observations(folder / "observations", data.traverse, data.estimator, data.seed, data.truth)
+            with writing(folder / "observations", "the front-end's observations"):
+                write_observations(folder / "observations", data.traverse, data.estimator, data.seed, data.truth)
             raise exc  # leaving as a failed run keeps the folder as <out>.partial
     except FrameError:
         pass
@@ -194,7 +195,7 @@ def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, ta
                     target = dataclasses.replace(target, path=folder / "recording.rrd")
                 try:
                     recording = open_recording(target, f"{data.traverse.name} seed {data.seed}", on_viewer)
-                    listener = RerunRecorder(recording.stream)
+                    listener = RerunRecorder(recording)
                 except ViewerUnavailable as exc:  # the results are the product, the viewer is not
                     warnings.append(f"{exc}; running without it")
             try:
@@ -203,12 +204,15 @@ def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, ta
                                       save=checkpoints, resume=states, vo_motions=data.vo_motions,
                                       # the wall time counts the source's reading (an image source's front-end)
                                       started=None if states else time.perf_counter() - data.load_s)
-                write_run(result, folder)
-                report = write_report(result, folder, figures)
+                with writing(folder, "the results"):
+                    write_run(result, folder)
+                    report = write_report(result, folder, figures)
                 remove_checkpoint(folder)
             finally:
                 if recording is not None:  # also on failure: keep what was recorded
                     recording.close()
+                    if recording.failure is not None:
+                        warnings.append(f"{recording.failure}; the run went on without it")
     except KeyboardInterrupt:
         saved = checkpoints.saved_stops if checkpoints is not None else []
         raise RunInterrupted(out.with_name(out.name + ".partial"), min(saved) if saved else None) from None
@@ -232,7 +236,8 @@ def track(source: str | Path, out: Path | str, *, detector: str | None = None, s
                           "sequence folder)")
     data = open_data(source, SourceOptions(detector=detector, skip_bad_frames=skip_bad_frames or None), out,
                      progress)
-    write_observations(out, data.traverse, data.estimator, data.seed, data.truth)
+    with writing(out, "the observation folder", discard=not out.exists()):
+        write_observations(out, data.traverse, data.estimator, data.seed, data.truth)
     return data.traverse
 
 
@@ -247,7 +252,8 @@ def simulate(scenario: str | Path, out: Path | str, *, seed: int | None = None, 
     check_out(out)
     seed = sc.seed if seed is None else seed
     traverse, true = simulate_scenario(sc, seed)
-    write_observations(out, traverse, sc.estimator, seed, true if truth else None, sc.rig)
+    with writing(out, "the observation folder", discard=not out.exists()):
+        write_observations(out, traverse, sc.estimator, seed, true if truth else None, sc.rig)
     return traverse
 
 
@@ -291,9 +297,10 @@ def evaluate(estimate: Path | str, reference: Path | str, *, align: str = "none"
         out = Path(out)
         if out.exists() and not out.is_dir():
             raise ConfigError(f"--out {out}: is a file, not a folder")
-        out.mkdir(parents=True, exist_ok=True)
-        write_evaluation(result, estimate.stem, out)
-        evaluation_plot(result, out / "eval.png")
+        with writing(out, "the evaluation", discard=not out.exists()):
+            out.mkdir(parents=True, exist_ok=True)
+            write_evaluation(result, estimate.stem, out)
+            evaluation_plot(result, out / "eval.png")
     return result
 
 
@@ -301,7 +308,8 @@ def view(results: Path | str, target: RerunTarget, saved: SavedRun | None = None
          on_viewer: Callable[[str], None] | None = None) -> Recording:
     """Replay a finished results folder (`saved`: read already) into rerun with the live run's
     layout; returns the closed recording (a served one stays served until its `stop_serving`;
-    `on_viewer` is told its web viewer's address as soon as it is up)."""
+    `on_viewer` is told its web viewer's address as soon as it is up; its `failure` says why
+    it stopped, if it did)."""
     from .store.results_folder import read_run
     from .viz.rerun_replay import replay
     from .viz.rerun_sink import open_recording

@@ -373,6 +373,6 @@ def _time_recorded_run(scenario, seed: int) -> float:
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
         recording = open_recording(RerunTarget("save", path=Path(tmp) / "bench.rrd"), "bench")
-        run(scenario, RunOptions(seed=seed), listener=RerunRecorder(recording.stream))
+        run(scenario, RunOptions(seed=seed), listener=RerunRecorder(recording))
         recording.close()
         return time.perf_counter() - start

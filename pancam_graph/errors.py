@@ -5,6 +5,8 @@ Library code raises these; only the CLI turns them into messages and exit codes.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 
@@ -56,7 +58,8 @@ class FolderInUse(ResultsError):
 
 
 class ViewerUnavailable(ResultsError):
-    """A rerun viewer to connect to does not answer; the run goes on without it."""
+    """The rerun recording cannot be made: no viewer answers, or its file cannot be written.
+    A run goes on without it."""
 
 
 class RunInterrupted(PancamGraphError):
@@ -69,3 +72,18 @@ class RunInterrupted(PancamGraphError):
         super().__init__(f"what was done is in {partial}; {goes_on}")
         self.partial = partial
         self.resume_stop = resume_stop
+
+
+@contextmanager
+def writing(where: Path, what: str, discard: bool = False) -> Iterator[None]:
+    """Files written inside: an OSError (a full disk, a permission) becomes one ResultsError
+    naming the file, or `where` when the system does not say which file (a failed write()).
+    `discard`: `where` is a folder this write makes, removed again on failure (no half folder)."""
+    try:
+        yield
+    except OSError as exc:
+        if discard:
+            import shutil
+
+            shutil.rmtree(where, ignore_errors=True)
+        raise ResultsError(f"{exc.filename or where}: cannot write {what}: {exc.strerror or exc}") from None

@@ -4,6 +4,8 @@ into a message and an exit code (`_Commands.invoke`), and the console script `ma
 from __future__ import annotations
 
 import contextvars
+import os
+import sys
 from contextlib import contextmanager
 
 import typer
@@ -19,6 +21,7 @@ EXIT_FAILURE = 1  # the work itself failed
 EXIT_INTERRUPTED = 130  # Ctrl-C (128 + SIGINT)
 _USAGE_ERRORS = (ConfigError, InputError, FolderInUse)
 _interrupt_reported = False  # a command said what Ctrl-C left behind: main() adds nothing
+_rerun_stuck = False  # a recording failed: rerun's exit handler would wait for ever on it
 # True while a command reads what the user gave it: whatever fails there is bad input (exit 2).
 _reading_input: contextvars.ContextVar[bool] = contextvars.ContextVar("reading_input", default=False)
 
@@ -80,9 +83,29 @@ def _main(version: bool = typer.Option(False, "--version", callback=_version, is
 
 
 
+def leave_without_rerun() -> None:
+    """A rerun recording failed (a full disk, a viewer that stopped reading): rerun's exit
+    handler would wait for it for ever, so the process ends without it once all is written."""
+    global _rerun_stuck
+    _rerun_stuck = True
+
+
 def main() -> None:
     """The console script: Ctrl-C and the operating system's errors as one line and an exit code
     (the package's own errors are `_Commands.invoke`'s)."""
+    # rerun's own log lines about a recording it cannot write: the command says it in one line
+    os.environ.setdefault("RUST_LOG", "warn,re_log_encoding=off,re_sdk=off,re_grpc_client=off")
+    try:
+        _app_until_exit()
+    except SystemExit as exc:
+        if _rerun_stuck:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(exc.code if isinstance(exc.code, int) else EXIT_FAILURE)
+        raise
+
+
+def _app_until_exit() -> None:
     try:
         app()
     except KeyboardInterrupt:
@@ -93,5 +116,5 @@ def main() -> None:
             console.print(Text("interrupted", style="bold red"))
         raise
     except OSError as exc:  # a full disk, a permission: one line, not a traceback
-        _error(f"{exc.filename or ''}: {exc.strerror or exc}")
+        _error(f"{exc.filename}: {exc.strerror or exc}" if exc.filename else exc.strerror or str(exc))
         raise SystemExit(EXIT_FAILURE) from None

@@ -15,7 +15,7 @@ from rich.text import Text
 
 from ..errors import ConfigError
 from ..source_options import SourceOptions
-from .app import app, console, user_input
+from .app import app, console, leave_without_rerun, user_input
 from .common import (
     SERVE_FOR_HELP,
     announce_viewer,
@@ -66,7 +66,9 @@ def _print_outcome(outcome: RunOutcome, serve_for_s: float | None) -> None:
     console.print(f"wall {outcome.result.wall_s:.1f} s{saved}; results in {outcome.folder} "
                   f"(report: {outcome.report})")
     recording = outcome.recording
-    if recording is not None and recording.target.mode == "save":
+    if recording is not None and recording.failure is not None:  # its warning is printed above
+        leave_without_rerun()
+    if recording is not None and recording.target.mode == "save" and recording.failure is None:
         shown = recording.target.path
         console.print(f"rerun recording: {shown} (open with `rerun {shown}` or `pancam-graph view "
                       f"{outcome.folder}`)")

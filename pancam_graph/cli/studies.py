@@ -12,9 +12,9 @@ from rich.markup import escape
 from rich.table import Table
 from rich.text import Text
 
-from ..errors import ConfigError
+from ..errors import ConfigError, ResultsError
 from ..source_options import SourceOptions
-from .app import EXIT_FAILURE, app, console, user_input
+from .app import EXIT_FAILURE, app, console, leave_without_rerun, user_input
 from .common import (
     SERVE_FOR_HELP,
     announce_viewer,
@@ -41,6 +41,9 @@ def view_command(
         target = rerun_target(rerun, viewer_memory)
         saved = read_run(results)
     recording = view(results, target, saved, on_viewer=announce_viewer)
+    if recording.failure is not None:  # the replay is all view makes
+        leave_without_rerun()
+        raise ResultsError(recording.failure)
     if recording.target.mode == "save":
         console.print(f"rerun recording: {recording.target.path}")
     elif recording.target.mode == "serve":
@@ -71,8 +74,9 @@ def eval_command(
     with user_input():
         frame = _three_numbers("--origin", origin, "LAT,LON,H in degrees and metres")
         arm = _three_numbers("--lever-arm", lever_arm, "X,Y,Z in metres")
-        result = evaluate(estimate, reference, align=align, max_dt_s=max_dt, rpe_delta_m=rpe_delta, origin=frame,
-                          gps_sigma_m=gps_sigma, lever_arm=arm, out=out)
+    # bad trajectories are InputError (exit 2) wherever they surface; a full disk is a failure
+    result = evaluate(estimate, reference, align=align, max_dt_s=max_dt, rpe_delta_m=rpe_delta, origin=frame,
+                      gps_sigma_m=gps_sigma, lever_arm=arm, out=out)
     m = result.metrics
     at = "" if result.lever_arm_m is None else f", at the antenna {list(result.lever_arm_m)} m"
     table = Table(title=escape(f"{estimate.name} vs {reference.name} ({len(result.reference)} matched, "

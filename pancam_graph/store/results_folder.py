@@ -83,7 +83,11 @@ def _create_locked(staging: Path, out: Path) -> int:
         private.mkdir()
     except OSError as exc:
         raise ResultsError(f"{staging}: cannot create results folder: {exc.strerror}") from None
-    lock = _lock(private, out)
+    try:
+        lock = _lock(private, out, shown=staging)
+    except ResultsError:  # a full disk: nothing of this run stays behind
+        shutil.rmtree(private, ignore_errors=True)
+        raise
     try:
         os.rename(private, staging)
     except OSError:
@@ -93,8 +97,9 @@ def _create_locked(staging: Path, out: Path) -> int:
     return lock
 
 
-def _lock(staging: Path, out: Path) -> int:
-    """Lock the staging folder for this process (FolderInUse if a live run holds it)."""
+def _lock(staging: Path, out: Path, shown: Path | None = None) -> int:
+    """Lock the staging folder for this process (FolderInUse if a live run holds it); messages
+    name it `shown` (the name it is about to take)."""
     try:
         fd = os.open(staging / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
     except OSError as exc:
@@ -105,8 +110,13 @@ def _lock(staging: Path, out: Path) -> int:
         owner = os.read(fd, 32).decode("ascii", "replace").strip() or "?"
         os.close(fd)
         raise FolderInUse(f"{out}: in use by run {owner} ({staging}); choose another --out") from None
-    os.ftruncate(fd, 0)
-    os.write(fd, f"{os.getpid()}\n".encode())
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+    except OSError as exc:
+        os.close(fd)
+        lock_file = (shown or staging) / LOCK_FILE
+        raise ResultsError(f"{lock_file}: cannot write the run's lock file: {exc.strerror}") from None
     return fd
 
 

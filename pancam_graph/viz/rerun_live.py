@@ -11,6 +11,7 @@ from ..evaluation.gps_check import gps_enu
 from ..records import GroundTruth, Stop, Traverse
 from ..solve.localizer import Localizer, StepResult
 from . import rerun_scene as scene
+from .rerun_sink import OpenRecording
 
 # Every configuration is re-read, and what was logged sent, every this many stops (and at the
 # end). A browser's viewer takes in a few chunks per frame, and a software-rendered one draws a
@@ -63,8 +64,10 @@ class RerunRecorder:
     --rerun` measures what recording costs).
     """
 
-    def __init__(self, rec: rr.RecordingStream, refresh_every: int = REFRESH_EVERY_STOPS):
-        self.rec = rec
+    def __init__(self, recording: OpenRecording, refresh_every: int = REFRESH_EVERY_STOPS):
+        self.recording = recording
+        self.rec = recording.stream
+        self.stopped = False  # the recording failed (a full disk, a stalled viewer): the run goes on
         self.refresh_every = refresh_every
         self.series = scene.SeriesBuffer()
         self.pending = _PrimaryRows()
@@ -100,6 +103,8 @@ class RerunRecorder:
                          None if truth is None else truth.landmarks)
 
     def step(self, stop: Stop, motion, steps: dict[str, StepResult]) -> None:
+        if self.stopped:
+            return
         k = self.last_stop = stop.index
         if motion is not None:
             self.distance_m += float(np.linalg.norm(motion.prev_T_curr.translation()))
@@ -154,10 +159,12 @@ class RerunRecorder:
         self.rec.log("map/rover", rr.GeoPoints(lat_lon=scene.lat_lon(self.traverse.origin,
                                                                       self.positions[self.primary][-1]),
                                                radii=rr.Radius.ui_points(7.0), colors=scene.colour(self.primary)))
-        self.rec.flush()
+        self.stopped = not self.recording.flush()
 
     def finish(self, result) -> None:
         """The final estimates (after the closing relinearization or batch polish)."""
+        if self.stopped:
+            return
         self._send_pending()  # first: the final logs at the last stop must come after the live ones
         last = self.traverse.stops[-1]
         scene.set_stop_time(self.rec, last.index, last.time_s, self.distance_m)

@@ -77,7 +77,6 @@ def replay(run: SavedRun, rec: rr.RecordingStream) -> None:
         scene.set_stop_time(rec, stop, run.times_s[stop], distance[stop])
         rec.log("events", rr.TextLog(f"stop {stop}: VO failed ({failure}); bridged by {source}",
                                      level=rr.TextLogLevel.WARN))
-    rec.flush()
 
 
 def _series(rec: rr.RecordingStream, path: str, columns, values) -> None:

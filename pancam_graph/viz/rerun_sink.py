@@ -16,13 +16,14 @@ from urllib.parse import quote
 
 import rerun as rr
 
-from ..errors import ResultsError, ViewerUnavailable
+from ..errors import ViewerUnavailable
 from .rerun_scene import APP_ID
 
 DEFAULT_VIEWER_MEMORY = "25%"  # of system RAM; the viewer drops the oldest data beyond it
 GRPC_PORT, WEB_VIEWER_PORT = 9876, 9090  # rerun's own defaults: served there while they are free
 SERVER_START_S = 20.0
 CONNECT_TIMEOUT_S = 3.0
+FLUSH_TIMEOUT_S = 15.0  # a file or viewer that has not taken a send in this long has stopped taking them
 _DEFAULT_URL = f"rerun+http://127.0.0.1:{GRPC_PORT}/proxy"
 
 
@@ -42,12 +43,27 @@ class OpenRecording:
     served_url: str | None = None  # serve: where viewers connect (gRPC)
     viewer_url: str | None = None  # serve: the web viewer, opened on this recording
     server: subprocess.Popen | None = None  # serve: the process that holds the recording for viewers
+    failure: str | None = None  # why the recording stopped; the run goes on without it
+
+    def flush(self) -> bool:
+        """Send what was logged, waiting at most FLUSH_TIMEOUT_S; False once the recording has
+        failed (a full disk, a viewer that stopped reading), with the reason in `failure`. rerun
+        then holds the stream: its flush, its disconnect and the process's exit would wait for
+        ever, so nothing of it is touched again, and the process must end without rerun's exit
+        handler (the CLI does, once everything else is written)."""
+        if self.failure is not None:
+            return False
+        try:
+            self.stream.flush(timeout_sec=FLUSH_TIMEOUT_S)
+        except RuntimeError as exc:
+            what = f"write {self.target.path} (a full disk?)" if self.target.mode == "save" else "reach the viewer"
+            self.failure = f"rerun: the recording stopped: cannot {what}: {exc}"
+        return self.failure is None
 
     def close(self) -> None:
         """Flush everything; a saved file gets its footer. A served recording stays served (its
         server holds it) until `stop_serving`."""
-        self.stream.flush()
-        if self.target.mode == "save":
+        if self.flush() and self.target.mode == "save":
             self.stream.disconnect()
 
     @property
@@ -87,7 +103,7 @@ def open_recording(target: RerunTarget, name: str, on_viewer: Callable[[str], No
             stream.connect_grpc(target.url)
     except (OSError, RuntimeError) as exc:
         where = target.path or target.url or target.mode
-        raise ResultsError(f"rerun: cannot open the recording ({where}): {exc}") from None
+        raise ViewerUnavailable(f"rerun: cannot open the recording ({where}): {exc}") from None
     if viewer is not None and on_viewer is not None:
         on_viewer(viewer)
     return OpenRecording(stream, target, served, viewer, server)

@@ -88,6 +88,32 @@ def test_a_full_disk_is_one_line_exit_1_and_the_partial_folder_stays(tmp_path):
     assert (tmp_path / "res.partial").is_dir() and not (tmp_path / "res").exists()
 
 
+@pytest.mark.parametrize("args,says", [
+    (["run", "short_trail", "--out", "res", "--quiet", "--one-process"],
+     "res.partial/.lock: cannot write the run's lock file"),
+    (["run", "short_trail", "--out", "res", "--quiet"], "No usable temporary directory"),  # the process server's
+    (["simulate", "short_trail", "--out", "res"], "res: cannot write the observation folder"),
+    (["eval", "TRAJECTORY", "TRAJECTORY", "--out", "res"], "res: cannot write the evaluation"),
+])
+def test_a_disk_with_no_space_is_one_line_naming_the_path_and_leaves_nothing(tmp_path_factory, args, says):
+    """No file can grow past 0 bytes (RLIMIT_FSIZE 0: every write fails as on a full disk)."""
+    import resource
+
+    trajectory = tmp_path_factory.mktemp("input") / "line.tum"
+    trajectory.write_text("".join(f"{t} {t} 0 0 0 0 0 1\n" for t in range(20)))
+    work = tmp_path_factory.mktemp("full")
+
+    def no_space():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (0, 0))
+
+    result = subprocess.run([str(EXE), *(str(trajectory) if a == "TRAJECTORY" else a for a in args)], cwd=work,
+                            capture_output=True, text=True, timeout=120, preexec_fn=no_space)
+    assert result.returncode == 1, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and says in lines[0], result.stderr
+    assert list(work.iterdir()) == []  # no staging folder, no half-written output
+
+
 def test_ctrl_c_says_where_the_work_is_and_the_run_resumes_from_there(tmp_path):
     """SIGINT used to stop a run silently (typer turns it into a bare exit 130)."""
     interrupted = _start_until_first_checkpoint(tmp_path)

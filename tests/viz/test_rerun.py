@@ -25,7 +25,7 @@ REFRESH_TEST = 40
 def recorded(short_scenario, tmp_path_factory):
     path = tmp_path_factory.mktemp("rerun") / "run.rrd"
     recording = open_recording(RerunTarget("save", path=path), "test")
-    recorder = RerunRecorder(recording.stream, refresh_every=REFRESH_TEST)  # short_trail: 140 stops
+    recorder = RerunRecorder(recording, refresh_every=REFRESH_TEST)  # short_trail: 140 stops
     result = run(short_scenario, RunOptions(seed=0), listener=recorder)
     recording.close()
     return result, recorder, Recording(path)
@@ -136,7 +136,7 @@ KILLED_RUN = textwrap.dedent("""
     from pathlib import Path
     recording = open_recording(RerunTarget("save", path=Path(sys.argv[1])), "killed")
     run(load_scenario(resolve_scenario("short_trail")), RunOptions(seed=0),
-        listener=KilledAfterSecondSend(recording.stream, refresh_every=40))
+        listener=KilledAfterSecondSend(recording, refresh_every=40))
 """)
 
 
@@ -198,3 +198,43 @@ def test_serve_prints_a_web_viewer_url_that_opens_the_recording_before_the_run_i
     finally:
         run.kill()
         run.wait()
+
+
+FULL_DISK = textwrap.dedent("""
+    import os, resource, sys
+    from pathlib import Path
+    import numpy as np
+    import rerun as rr
+    from pancam_graph.viz.rerun_sink import RerunTarget, open_recording
+
+    resource.setrlimit(resource.RLIMIT_FSIZE, (100_000, 100_000))  # a write past 100 kB fails (EFBIG)
+    recording = open_recording(RerunTarget("save", path=Path(sys.argv[1])), "full disk")
+    recording.stream.log("points", rr.Points3D(np.random.default_rng(0).random((50_000, 3))))
+    print(recording.flush(), recording.failure, flush=True)
+    recording.close()
+    os._exit(0)  # as the CLI does: rerun's exit handler would wait for the stream for ever
+""")
+
+
+@pytest.mark.slow
+def test_a_recording_that_cannot_be_written_is_given_up_not_waited_on(tmp_path):
+    """rerun's file sink waited for ever on a full disk (flush, disconnect and exit): the
+    recording's flush gives up within its time limit and says why."""
+    path = tmp_path / "full.rrd"
+    proc = subprocess.run([sys.executable, "-c", FULL_DISK, str(path)], capture_output=True, text=True,
+                          timeout=60, env={**os.environ, "PYTHONPATH": str(TESTS.parent)})
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith(f"False rerun: the recording stopped: cannot write {path} (a full disk?)")
+
+
+@pytest.mark.slow
+def test_a_recording_file_that_cannot_be_written_is_a_warning_and_the_run_finishes(tmp_path):
+    (tmp_path / "full.rrd").symlink_to("/dev/full")  # every write: no space left on device
+    result = subprocess.run([str(Path(sys.executable).parent / "pancam-graph"), "run", "short_trail", "--out", "res",
+                             "--quiet", "--configs", "vo", "--rerun", "save:full.rrd"], cwd=tmp_path,
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    warnings = [line for line in result.stderr.splitlines() if line.startswith("warning:")]
+    assert warnings == ["warning: rerun: cannot open the recording (full.rrd): Failed to encode LogMsg: Failed to "
+                        "write: No space left on device (os error 28); running without it"], result.stderr
+    assert "Traceback" not in result.stderr and (tmp_path / "res" / "metrics.json").is_file()
