@@ -18,7 +18,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .errors import ConfigError, FrameError, RunInterrupted, ViewerUnavailable, writing
+from .errors import ConfigError, FrameError, GeodesyError, RunInterrupted, ViewerUnavailable, writing
 from .evaluation.evaluate import Evaluation
 from .processes import cores, start_process_server
 from .records import Traverse
@@ -274,7 +274,13 @@ def evaluate(estimate: Path | str, reference: Path | str, *, align: str = "none"
         raise ConfigError(f"--align {align!r}: expected none, se3 or yaw")
     if not rpe_delta_m > 0.0:
         raise ConfigError(f"--rpe-delta {rpe_delta_m:g}: the relative pose error's distance must be more than 0 m")
-    frame = LocalFrame(*origin) if origin is not None else read_local_frame(estimate.parent)
+    if origin is None:
+        frame = read_local_frame(estimate.parent)
+    else:
+        try:
+            frame = LocalFrame(*origin)
+        except GeodesyError as exc:
+            raise ConfigError(f"--origin {','.join(f'{v:g}' for v in origin)}: {exc}") from None
     est = read_trajectory(estimate, frame, gps_sigma_m)
     ref = read_trajectory(reference, frame, gps_sigma_m)
     if (est.geodetic is None) != (ref.geodetic is None) and frame is None:

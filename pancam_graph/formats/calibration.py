@@ -260,16 +260,19 @@ def read_camera_info_pair(left: Path, right: Path) -> RectifiedStereo:
     projection matrices (the right one carries Tx = -fx * baseline)."""
     p_left, size = _camera_info(left)
     p_right, _ = _camera_info(right)
-    return rectified_from_projections(p_left, p_right, size, str(right))
+    return rectified_from_projections(p_left, p_right, size, (str(left), str(right)))
 
 
 def rectified_from_projections(p_left: np.ndarray, p_right: np.ndarray, size: tuple[int, int],
-                               right_source: str) -> RectifiedStereo:
+                               sources: tuple[str, str]) -> RectifiedStereo:
     """The rectified model from the two 3x4 projection matrices of a rectified pair (ROS
-    camera_info P, KITTI P0/P1): the right one carries Tx = -fx * baseline."""
-    if not (np.all(np.isfinite(p_left)) and np.all(np.isfinite(p_right))):
-        raise InputError(f"{right_source}: a projection matrix has a value that is not a finite number")
-    _check_intrinsics(right_source, "left", p_left[0, 0], p_left[1, 1], p_left[0, 2], p_left[1, 2], *size)
+    camera_info P, KITTI P0/P1): the right one carries Tx = -fx * baseline. `sources` name
+    where the left and the right matrix came from, for messages."""
+    left_source, right_source = sources
+    for source, projection in zip(sources, (p_left, p_right), strict=True):
+        if not np.all(np.isfinite(projection)):
+            raise InputError(f"{source}: the projection matrix has a value that is not a finite number")
+    _check_intrinsics(left_source, "left", p_left[0, 0], p_left[1, 1], p_left[0, 2], p_left[1, 2], *size)
     _check_intrinsics(right_source, "right", p_right[0, 0], p_right[1, 1], p_right[0, 2], p_right[1, 2], *size)
     if p_right[0, 3] >= 0:
         raise InputError(f"{right_source}: projection matrix Tx = {p_right[0, 3]}: expected -fx * baseline < 0 "

@@ -125,7 +125,22 @@ def read_oxts(folder: Path) -> OxtsPackets:
             values[i] = [float(v) for v in fields]
         except ValueError as exc:
             raise InputError(f"{path}: line 1: {exc}") from None
+        _check_packet(path, values[i])
     return OxtsPackets(times, values)
+
+
+def _check_packet(path: Path, packet: np.ndarray) -> None:
+    """Every field finite, a place on Earth and an accuracy that is one."""
+    named = dict(zip(OXTS_FIELDS, packet, strict=True))
+    for name, value in named.items():
+        if not np.isfinite(value):
+            raise InputError(f"{path}: line 1: {name} {value}: expected a finite number")
+    for name, low, high in (("lat", -90.0, 90.0), ("lon", -180.0, 360.0)):
+        if not low <= named[name] <= high:
+            raise InputError(f"{path}: line 1: {name} {named[name]:g}: expected {low:g}..{high:g} degrees")
+    for name in ("pos_accuracy", "vel_accuracy"):
+        if named[name] < 0.0:
+            raise InputError(f"{path}: line 1: {name} {named[name]:g}: expected 0 or more")
 
 
 def _read_timestamps(path: Path) -> np.ndarray:
@@ -149,7 +164,7 @@ def read_cam_to_cam(path: Path) -> RectifiedStereo:
     width, height = calib.numbers("S_rect_02", 2)
     return rectified_from_projections(calib.numbers("P_rect_02", 12).reshape(3, 4),
                                       calib.numbers("P_rect_03", 12).reshape(3, 4), (int(width), int(height)),
-                                      f"{path}: P_rect_03")
+                                      (f"{path}: P_rect_02", f"{path}: P_rect_03"))
 
 
 @dataclass(frozen=True)
@@ -201,7 +216,8 @@ def read_kitti_odometry(sequence: Path, poses: Path | None = None, frame_period_
         raise InputError(f"{sequence / names[0]}: {len(left)} images but {len(times)} lines in times.txt")
     first = _grayscale(left[0])
     stereo = rectified_from_projections(calib.numbers("P0", 12).reshape(3, 4), calib.numbers("P1", 12).reshape(3, 4),
-                                        (first.shape[1], first.shape[0]), f"{sequence / 'calib.txt'}: P1")
+                                        (first.shape[1], first.shape[0]),
+                                        (f"{sequence / 'calib.txt'}: P0", f"{sequence / 'calib.txt'}: P1"))
     if poses is None:
         for candidate in (sequence / "poses.txt", sequence.parent.parent / "poses" / f"{sequence.name}.txt"):
             if candidate.is_file():

@@ -220,4 +220,4 @@ def read_stereo_camera_info(path: Path, left_topic: str, right_topic: str) -> Re
                              f"got {projection.tolist()}")
         infos.append((projection.reshape(3, 4), (int(m.width), int(m.height))))
     (p_left, size), (p_right, _) = infos
-    return rectified_from_projections(p_left, p_right, size, f"{path}: {right_topic}")
+    return rectified_from_projections(p_left, p_right, size, (f"{path}: {left_topic}", f"{path}: {right_topic}"))

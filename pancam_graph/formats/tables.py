@@ -40,13 +40,16 @@ class CsvTable:
             self.index = [header.index(c) for c in columns]
             self.optional_index = {c: header.index(c) for c in optional if c in header}
             self.columns = columns
+            self.header = header
             self.rows = [(line, row) for line, row in enumerate(reader, start=2) if row]
         except csv.Error as exc:  # e.g. a field over the csv module's 131,072 characters
             raise InputError(f"{path}: line {reader.line_num}: not a CSV row this reader takes ({exc})") from None
 
     def values(self, line: int, row: list[str]) -> list[str]:
         if len(row) < max(self.index) + 1:
-            raise InputError(f"{self.path}: line {line}: {len(row)} fields, expected {len(self.columns)}")
+            lacking = [c for c, i in zip(self.columns, self.index, strict=True) if i >= len(row)]
+            raise InputError(f"{self.path}: line {line}: {len(row)} fields, no {', '.join(lacking)} (the header "
+                             f"names {len(self.header)} columns: {','.join(self.header)})")
         return [row[i] for i in self.index]
 
     def number(self, line: int, column: str, text: str, integer: bool = False) -> float:

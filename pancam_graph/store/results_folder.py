@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import gtsam
 import numpy as np
 
-from ..errors import FolderInUse, InputError, ResultsError
+from ..errors import FolderInUse, GeodesyError, InputError, ResultsError
 from ..formats.export import write_trajectory_exports
 from ..formats.tables import write_csv, write_json
 from ..geodesy import LocalFrame
@@ -161,7 +161,7 @@ def read_local_frame(folder: Path) -> LocalFrame | None:
     path, d = found
     try:
         return LocalFrame(float(d["lat_deg"]), float(d["lon_deg"]), float(d["h_m"]))
-    except (ValueError, KeyError, TypeError) as exc:
+    except (ValueError, KeyError, TypeError, GeodesyError) as exc:
         raise ResultsError(f"{path}: expected lat_deg, lon_deg, h_m: {exc}") from None
 
 

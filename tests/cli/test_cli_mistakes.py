@@ -52,6 +52,8 @@ def _assert_usage_error(result: subprocess.CompletedProcess, *words: str) -> Non
     (["run", "short_trail", "--resume", "full_folder"], ["--resume goes on with the run's own source", "SOURCE"]),
     (["run", "--resume", "full_folder"], ["--resume full_folder", "<out>.partial"]),
     (["run", "--resume", "empty.partial"], ["empty.partial: has no checkpoint", "start the run again"]),
+    (["eval", "a_file", "a_file", "--origin", "95,10,0"], ["--origin 95,10,0: origin out of range: lat 95"]),
+    (["eval", "a_file", "a_file", "--origin", "north"], ["--origin 'north': expected LAT,LON,H"]),
 ])
 def test_mistake_exits_2_names_the_argument_and_writes_nothing(tmp_path, args, words):
     (tmp_path / "a_file").write_text("not a folder")

@@ -1,6 +1,7 @@
 """Calibration readers on KITTI's real calibration (drive 2011_09_26) written in each format:
 the rectified baseline agrees with KITTI's own rectification; bad files name the field."""
 
+import re
 from pathlib import Path
 
 import cv2
@@ -105,6 +106,14 @@ def test_camera_info_pair_gives_kittis_rectified_model(kitti, tmp_path):
     stereo = read_camera_info_pair(tmp_path / "left.yaml", tmp_path / "right.yaml")
     assert stereo.baseline_m == pytest.approx(kitti["rectified"].baseline_m, rel=1e-9)
     assert stereo.camera.fx == kitti["rectified"].camera.fx and stereo.camera.width == 1242
+    # a defect of one file is reported in that file's name
+    for name, p in (("left.yaml", left), ("right.yaml", right)):
+        bad = p.copy()
+        bad[0, 2] = 5000.0  # the principal point off the image
+        (tmp_path / name).write_text(yaml.safe_dump(_camera_info(bad, (1242, 375))))
+        with pytest.raises(InputError, match=rf"^{re.escape(str(tmp_path / name))}: .* principal point \(5000,"):
+            read_camera_info_pair(tmp_path / "left.yaml", tmp_path / "right.yaml")
+        (tmp_path / name).write_text(yaml.safe_dump(_camera_info(p, (1242, 375))))
 
 
 def test_missing_calibration_field_is_named(kitti, tmp_path):

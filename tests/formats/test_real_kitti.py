@@ -81,6 +81,26 @@ def test_reader_loads_images_of_a_generated_kitti_folder(tmp_path):
         read_kitti_raw(drive)
 
 
+@pytest.mark.parametrize("field,value,says", [
+    ("vf", "nan", "vf nan: expected a finite number"),
+    ("lat", "95.0", "lat 95: expected -90..90 degrees"),
+    ("lon", "-200", "lon -200: expected -180..360 degrees"),
+    ("pos_accuracy", "-0.5", "pos_accuracy -0.5: expected 0 or more"),
+])
+def test_an_impossible_oxts_packet_is_named_with_its_field(tmp_path, field, value, says):
+    from pancam_graph.formats.kitti import OXTS_FIELDS, read_oxts
+
+    oxts = tmp_path / "oxts"
+    shutil.copytree(DRIVE / "oxts", oxts)
+    packet = oxts / "data" / "0000000004.txt"
+    fields = packet.read_text().split()
+    fields[OXTS_FIELDS.index(field)] = value
+    packet.write_text(" ".join(fields) + "\n")
+    with pytest.raises(InputError) as refused:
+        read_oxts(oxts)
+    assert str(refused.value) == f"{packet}: line 1: {says}"
+
+
 # -- KITTI odometry ------------------------------------------------------------------------------
 
 PAIR = Path(__file__).parents[1] / "data" / "real" / "kitti00_stereo_pair"

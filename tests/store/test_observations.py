@@ -10,6 +10,7 @@ import yaml
 from typer.testing import CliRunner
 
 from pancam_graph.cli import app
+from pancam_graph.errors import InputError
 from pancam_graph.store.observation_folder import read_observations
 
 pytestmark = pytest.mark.slow
@@ -87,6 +88,19 @@ def test_bad_values_name_file_line_and_column(folders, tmp_path):
     (folder / "gps.csv").write_text("\n".join(lines) + "\n")
     with pytest.raises(Exception, match=r"gps.csv: line 4: time_s [\d.]+ does not increase \(previous fix [\d.]+\)"):
         read_observations(folder)
+
+
+def test_rows_shorter_than_the_header_say_what_they_lack(folders, tmp_path):
+    """Rows written without the newer dwell_s field under a header that has it."""
+    folder = _copy(folders, tmp_path)
+    header, *rows = (folder / "stereo.csv").read_text().splitlines()
+    assert header == "stop,time_s,dwell_s,track,u_left,u_right,v"
+    rows = [",".join(f for i, f in enumerate(row.split(",")) if i != 2) for row in rows]
+    (folder / "stereo.csv").write_text("\n".join([header, *rows]) + "\n")
+    with pytest.raises(InputError) as refused:
+        read_observations(folder)
+    assert str(refused.value) == (f"{folder / 'stereo.csv'}: line 2: 6 fields, no v (the header names 7 columns: "
+                                  "stop,time_s,dwell_s,track,u_left,u_right,v)")
 
 
 def test_rig_from_a_calibration_file(folders, tmp_path):
