@@ -57,6 +57,10 @@ class FolderInUse(ResultsError):
     """Another run owns the results folder (a usage error: choose another --out)."""
 
 
+class WriteFailed(ResultsError):
+    """A file could not be written (a full disk, a permission): never the input's fault."""
+
+
 class ViewerUnavailable(ResultsError):
     """The rerun recording cannot be made: no viewer answers, or its file cannot be written.
     A run goes on without it."""
@@ -86,4 +90,4 @@ def writing(where: Path, what: str, discard: bool = False) -> Iterator[None]:
             import shutil
 
             shutil.rmtree(where, ignore_errors=True)
-        raise ResultsError(f"{exc.filename or where}: cannot write {what}: {exc.strerror or exc}") from None
+        raise WriteFailed(f"{exc.filename or where}: cannot write {what}: {exc.strerror or exc}") from None

@@ -13,7 +13,7 @@ from rich.console import Console
 from rich.text import Text
 from typer.core import TyperGroup
 
-from ..errors import ConfigError, FolderInUse, InputError, PancamGraphError, RunInterrupted
+from ..errors import ConfigError, FolderInUse, InputError, PancamGraphError, RunInterrupted, WriteFailed
 
 console = Console(stderr=True)
 EXIT_USAGE = 2  # bad input: a file, a folder, an option
@@ -57,7 +57,7 @@ class _Commands(TyperGroup):
             raise typer.Exit(EXIT_INTERRUPTED) from None
         except PancamGraphError as exc:
             _error(str(exc))
-            bad_input = _reading_input.get() or isinstance(exc, _USAGE_ERRORS)
+            bad_input = (_reading_input.get() and not isinstance(exc, WriteFailed)) or isinstance(exc, _USAGE_ERRORS)
             raise typer.Exit(EXIT_USAGE if bad_input else EXIT_FAILURE) from None
 
 

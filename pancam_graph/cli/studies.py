@@ -74,9 +74,8 @@ def eval_command(
     with user_input():
         frame = _three_numbers("--origin", origin, "LAT,LON,H in degrees and metres")
         arm = _three_numbers("--lever-arm", lever_arm, "X,Y,Z in metres")
-    # bad trajectories are InputError (exit 2) wherever they surface; a full disk is a failure
-    result = evaluate(estimate, reference, align=align, max_dt_s=max_dt, rpe_delta_m=rpe_delta, origin=frame,
-                      gps_sigma_m=gps_sigma, lever_arm=arm, out=out)
+        result = evaluate(estimate, reference, align=align, max_dt_s=max_dt, rpe_delta_m=rpe_delta, origin=frame,
+                          gps_sigma_m=gps_sigma, lever_arm=arm, out=out)
     m = result.metrics
     at = "" if result.lever_arm_m is None else f", at the antenna {list(result.lever_arm_m)} m"
     table = Table(title=escape(f"{estimate.name} vs {reference.name} ({len(result.reference)} matched, "

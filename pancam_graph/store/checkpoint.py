@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..atomic import write_atomically
-from ..errors import ResultsError
+from ..errors import ResultsError, WriteFailed
 
 if TYPE_CHECKING:
     from ..solve.results import RunOptions, SourceData
@@ -192,4 +192,4 @@ def _write_atomically(path: Path, payload: bytes) -> None:
     try:
         write_atomically(path, lambda f: f.write(payload))
     except OSError as exc:
-        raise ResultsError(f"{path}: cannot write the checkpoint: {exc.strerror}") from None
+        raise WriteFailed(f"{path}: cannot write the checkpoint: {exc.strerror}") from None

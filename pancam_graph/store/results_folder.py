@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import gtsam
 import numpy as np
 
-from ..errors import FolderInUse, GeodesyError, InputError, ResultsError
+from ..errors import FolderInUse, GeodesyError, InputError, ResultsError, WriteFailed
 from ..formats.export import write_trajectory_exports
 from ..formats.tables import write_csv, write_json
 from ..geodesy import LocalFrame
@@ -116,7 +116,7 @@ def _lock(staging: Path, out: Path, shown: Path | None = None) -> int:
     except OSError as exc:
         os.close(fd)
         lock_file = (shown or staging) / LOCK_FILE
-        raise ResultsError(f"{lock_file}: cannot write the run's lock file: {exc.strerror}") from None
+        raise WriteFailed(f"{lock_file}: cannot write the run's lock file: {exc.strerror}") from None
     return fd
 
 

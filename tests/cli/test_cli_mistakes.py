@@ -32,7 +32,7 @@ def _assert_usage_error(result: subprocess.CompletedProcess, *words: str) -> Non
         assert word in result.stderr, (word, result.stderr)
 
 
-@pytest.mark.parametrize("args,words", [
+MISTAKES = [
     (["run", "short_trail", "--out", "a_file"], ["--out", "is a file"]),
     (["run", "short_trail", "--seed", "-1"], ["Invalid value for '--seed'", "greater than or equal to 0"]),
     (["run", str(DATE_FOLDER)], ["KITTI date folder", "2011_09_26_drive_0001_sync"]),
@@ -54,16 +54,40 @@ def _assert_usage_error(result: subprocess.CompletedProcess, *words: str) -> Non
     (["run", "--resume", "empty.partial"], ["empty.partial: has no checkpoint", "start the run again"]),
     (["eval", "a_file", "a_file", "--origin", "95,10,0"], ["--origin 95,10,0: origin out of range: lat 95"]),
     (["eval", "a_file", "a_file", "--origin", "north"], ["--origin 'north': expected LAT,LON,H"]),
-])
-def test_mistake_exits_2_names_the_argument_and_writes_nothing(tmp_path, args, words):
-    (tmp_path / "a_file").write_text("not a folder")
-    (tmp_path / "full_folder").mkdir()
-    (tmp_path / "full_folder" / "keep.txt").write_text("mine")
-    (tmp_path / "empty.partial").mkdir()
-    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
-    result = _cli(*args, cwd=tmp_path, env={"DISPLAY": ""})
-    _assert_usage_error(result, *words)
-    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
+]
+
+
+def _make_work_folder(folder: Path) -> list[Path]:
+    """What a mistake must leave untouched: a file, a folder with a file, an empty .partial."""
+    folder.mkdir()
+    (folder / "a_file").write_text("not a folder")
+    (folder / "full_folder").mkdir()
+    (folder / "full_folder" / "keep.txt").write_text("mine")
+    (folder / "empty.partial").mkdir()
+    return sorted(p.relative_to(folder) for p in folder.rglob("*"))
+
+
+@pytest.fixture(scope="module")
+def mistakes(tmp_path_factory):
+    """Every mistake run once, two at a time (each a process that mostly waits on its imports):
+    (result, files before, files after) per case."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    def attempt(case: int):
+        folder = tmp_path_factory.mktemp("mistakes") / f"case{case}"
+        before = _make_work_folder(folder)
+        result = _cli(*MISTAKES[case][0], cwd=folder, env={"DISPLAY": ""})
+        return result, before, sorted(p.relative_to(folder) for p in folder.rglob("*"))
+
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        return list(pool.map(attempt, range(len(MISTAKES))))
+
+
+@pytest.mark.parametrize("case", range(len(MISTAKES)), ids=[" ".join(args[:2]) for args, _ in MISTAKES])
+def test_mistake_exits_2_names_the_argument_and_writes_nothing(mistakes, case):
+    result, before, after = mistakes[case]
+    _assert_usage_error(result, *MISTAKES[case][1])
+    assert after == before
     assert len(result.stderr.strip().splitlines()) <= 4  # a short message (click adds usage lines), not a dump
 
 

@@ -3,12 +3,11 @@
 import gtsam
 import numpy as np
 import pytest
+from seeds import over_seeds
 
 from pancam_graph.evaluation.consistency import monte_carlo_summary
 from pancam_graph.graph.keys import S, X
 from pancam_graph.kinds.wheel_slip import slip_odometry_error, slip_odometry_factor
-from pancam_graph.solve.pipeline import run
-from pancam_graph.solve.results import RunOptions
 
 pytestmark = pytest.mark.slow
 
@@ -68,10 +67,9 @@ def test_dead_reckoning_is_consistent_only_with_the_shared_slip(short_scenario):
     estimator = short_scenario.estimator.model_copy(update={"configurations": configurations})
     scenario = short_scenario.model_copy(update={"estimator": estimator})
     runs = {name: [] for name in configurations}
-    for seed in range(20):
-        result = run(scenario, RunOptions(seed=seed))
+    for results in over_seeds(scenario, range(20)):
         for name in configurations:
-            runs[name].append(result.configurations[name].consistency)
+            runs[name].append(results[name].consistency)
     shared, independent = (monte_carlo_summary(runs[name]) for name in ("shared", "independent"))
     assert shared["anees_band"][0] <= shared["anees"] <= shared["anees_band"][1]
     assert shared["efficiency"] <= 1.2

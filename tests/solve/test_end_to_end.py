@@ -2,27 +2,13 @@
 
 import numpy as np
 import pytest
+from seeds import over_seeds
 
 from pancam_graph.config import load_scenario, resolve_scenario
 from pancam_graph.evaluation.consistency import monte_carlo_summary
-from pancam_graph.processes import cores, process_context
 from pancam_graph.solve.pipeline import RunOptions, run
 
 pytestmark = pytest.mark.slow
-
-
-def _configurations(scenario, seed, configs):
-    """One seed's configuration results (in a worker process)."""
-    return run(scenario, RunOptions(seed=seed, configs=configs)).configurations
-
-
-def _over_seeds(scenario, seeds, configs):
-    """Each seed's configuration results, the seeds run on every core (each its own run, as in
-    one process: the results do not depend on where they ran)."""
-    from concurrent.futures import ProcessPoolExecutor
-
-    with ProcessPoolExecutor(max_workers=cores(), mp_context=process_context()) as pool:
-        return list(pool.map(_configurations, [scenario] * len(seeds), seeds, [configs] * len(seeds)))
 
 
 def test_short_scenario_meets_thresholds(short_run):
@@ -41,7 +27,7 @@ def test_short_scenario_meets_thresholds(short_run):
 def test_twenty_seeds_sites_beat_vo_and_their_covariances_tell_the_truth(short_scenario):
     closures = {"vo": [], "vo_sites": [], "vo_sites_hrc": []}
     bounds = {"vo": [], "vo_sites": []}
-    for configurations in _over_seeds(short_scenario, range(20), ("vo", "vo_sites", "vo_sites_hrc")):
+    for configurations in over_seeds(short_scenario, range(20), ("vo", "vo_sites", "vo_sites_hrc")):
         for name, values in closures.items():
             values.append(configurations[name].metrics.relative_closure_pct)
         for name, values in bounds.items():
@@ -63,7 +49,7 @@ def test_at_sparse_sites_the_hrc_ties_what_the_wac_cannot():
     # ATE from 0.079 to 0.047 m and wins on every seed; on seeds 0-2 from 0.116 to 0.069 m.
     scenario = load_scenario(resolve_scenario("sparse_sites"))
     ate = {"vo_sites": [], "vo_sites_hrc": []}
-    for configurations in _over_seeds(scenario, range(3), tuple(ate)):
+    for configurations in over_seeds(scenario, range(3), tuple(ate)):
         for name, values in ate.items():
             values.append(configurations[name].metrics.ate_rmse_m)
         counters = configurations["vo_sites_hrc"].counters
