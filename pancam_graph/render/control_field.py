@@ -8,6 +8,7 @@ the sensor's noise: the images carry no geometry but the lens's."""
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +20,7 @@ from ..errors import ResultsError
 from ..formats.calibration import write_control_field, write_opencv_yaml
 from ..formats.calibration_images import FIELD_FILE, TRUTH_FILE
 from ..frontend.calibrate import ARUCO_DICTIONARY, ControlField
+from ..processes import cores
 from ..rig import Camera, rig_preset
 from .scenario_images import raw_stereo_pair
 
@@ -118,13 +120,15 @@ class FieldRenderer:
         self.rays = normalized.reshape(-1, 2).astype(np.float32)  # x/z, y/z: 1e-7 relative is 1e-4 px
 
     def render(self, field_T_camera: np.ndarray, rng: np.random.Generator, noise_dn: float) -> np.ndarray:
+        return expose(self.optical_image(field_T_camera), rng, noise_dn)
+
+    def optical_image(self, field_T_camera: np.ndarray) -> np.ndarray:
+        """The image the lens forms (DN, before the sensor's noise and quantization)."""
         value = np.concatenate([self._cast(field_T_camera, self.rays[i:i + 2 ** 19])
                                 for i in range(0, len(self.rays), 2 ** 19)])
         s = SUPERSAMPLES
         image = value.reshape(self.camera.height, s, self.camera.width, s).mean(axis=(1, 3))
-        image = cv2.GaussianBlur(image, (0, 0), OPTICS_BLUR_PX)
-        image = image + rng.normal(0.0, noise_dn, image.shape)
-        return np.clip(np.round(image), 0, 255).astype(np.uint8)
+        return cv2.GaussianBlur(image, (0, 0), OPTICS_BLUR_PX)
 
     def _cast(self, field_T_camera: np.ndarray, rays: np.ndarray) -> np.ndarray:
         """The intensity each ray sees: the nearest panel it hits, or the backdrop."""
@@ -145,6 +149,12 @@ class FieldRenderer:
             value[on] = panel.brightness * _target_intensity(a[on], b[on], panel, self.bits, first)
             first += panel.cols * panel.rows
         return value
+
+
+def expose(optical: np.ndarray, rng: np.random.Generator, noise_dn: float) -> np.ndarray:
+    """The sensor's 8-bit image of an optical image: noise, then quantization."""
+    image = optical + rng.normal(0.0, noise_dn, optical.shape)
+    return np.clip(np.round(image), 0, 255).astype(np.uint8)
 
 
 def _marker_bits(count: int) -> np.ndarray:
@@ -184,14 +194,19 @@ def render_control_field(scenario: Scenario, folder: Path, views: int = 8, seed:
     write_control_field(folder / FIELD_FILE, control_field(panels))
     write_opencv_yaml(folder / TRUTH_FILE, truth)
     rng = np.random.default_rng([seed, 8])
-    renderers = {"left": FieldRenderer(panels, left_camera), "right": FieldRenderer(panels, right_camera)}
     noise = scenario.render.sensor_noise_dn
-    for i, pose in enumerate(view_poses(views, seed)):
-        for side, renderer in renderers.items():
-            image = renderer.render(pose if side == "left" else pose @ left_T_right, rng, noise)
-            path = folder / "views" / f"{i:02d}_{side}.png"
-            if not cv2.imwrite(str(path), image):
+    # The ray casting is numpy and OpenCV, which let go of the GIL: the views are cast on every
+    # core, and exposed (the noise drawn) here in view order, so the images do not depend on it.
+    with ThreadPoolExecutor(max_workers=cores()) as pool:
+        left, right = pool.map(lambda camera: FieldRenderer(panels, camera), (left_camera, right_camera))
+        shots = [(f"{i:02d}_left.png", left, pose) for i, pose in enumerate(view_poses(views, seed))]
+        shots = [shot for name, renderer, pose in shots
+                 for shot in ((name, renderer, pose), (name.replace("left", "right"), right, pose @ left_T_right))]
+        optical = pool.map(lambda shot: shot[1].optical_image(shot[2]), shots)
+        for k, ((name, _, _), image) in enumerate(zip(shots, optical, strict=True)):
+            path = folder / "views" / name
+            if not cv2.imwrite(str(path), expose(image, rng, noise)):
                 raise ResultsError(f"{path}: cannot write the image (disk full or no permission?)")
-        if progress is not None:
-            progress("control field", i + 1, views)
+            if progress is not None and k % 2:
+                progress("control field", k // 2 + 1, views)
     return 2 * views

@@ -29,9 +29,10 @@ def _run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run([str(EXE), *args], cwd=cwd, capture_output=True, text=True, timeout=300, env=ENV)
 
 
-def _start_until_first_checkpoint(tmp_path: Path, past_stop: int = 0) -> subprocess.Popen:
+def _start_until_first_checkpoint(tmp_path: Path, past_stop: int = 0, *options: str) -> subprocess.Popen:
     """A run of short_trail saving at every checkpoint, once it has saved a state past `past_stop`."""
-    run = subprocess.Popen([str(EXE), "run", "short_trail", "--out", "res", "--quiet", "--checkpoint-every", "0"],
+    run = subprocess.Popen([str(EXE), "run", "short_trail", "--out", "res", "--quiet", "--checkpoint-every", "0",
+                            *options],
                            cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=ENV)
     state = tmp_path / "res.partial" / "checkpoint" / "state.pkl"
     deadline = time.time() + 120
@@ -65,7 +66,7 @@ def test_a_killed_run_resumes_to_the_same_estimate(tmp_path):
 
 
 def test_a_live_runs_folder_cannot_be_resumed(tmp_path):
-    live = _start_until_first_checkpoint(tmp_path)
+    live = _start_until_first_checkpoint(tmp_path, 0, "--configs", "vo")
     second = _run("run", "--resume", "res.partial", "--quiet", cwd=tmp_path)
     assert live.wait(timeout=300) == 0
     assert second.returncode == 2 and "in use by run" in second.stderr, second.stderr
@@ -116,7 +117,7 @@ def test_a_disk_with_no_space_is_one_line_naming_the_path_and_leaves_nothing(tmp
 
 def test_ctrl_c_says_where_the_work_is_and_the_run_resumes_from_there(tmp_path):
     """SIGINT used to stop a run silently (typer turns it into a bare exit 130)."""
-    interrupted = _start_until_first_checkpoint(tmp_path)
+    interrupted = _start_until_first_checkpoint(tmp_path, 0, "--configs", "vo,full")
     interrupted.send_signal(signal.SIGINT)
     _, err = interrupted.communicate(timeout=60)
     assert interrupted.returncode == 130

@@ -62,7 +62,6 @@ def test_the_printed_url_shows_the_traverse_live_in_a_headless_browser(tmp_path)
                     if target and live:
                         Path(target).write_bytes(png)
                     break
-            run.kill()  # seen live: the rest of the run would only slow the browser down
             # the control: the same page without the recording's address is rerun's welcome screen
             bare = browser.new_page(viewport=VIEWPORT)
             bare.goto(url.split("?", 1)[0])

@@ -205,8 +205,10 @@ FULL_DISK = textwrap.dedent("""
     from pathlib import Path
     import numpy as np
     import rerun as rr
+    from pancam_graph.viz import rerun_sink
     from pancam_graph.viz.rerun_sink import RerunTarget, open_recording
 
+    rerun_sink.FLUSH_TIMEOUT_S = 2.0  # the run's 15 s, shortened for the test
     resource.setrlimit(resource.RLIMIT_FSIZE, (100_000, 100_000))  # a write past 100 kB fails (EFBIG)
     recording = open_recording(RerunTarget("save", path=Path(sys.argv[1])), "full disk")
     recording.stream.log("points", rr.Points3D(np.random.default_rng(0).random((50_000, 3))))
