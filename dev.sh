@@ -32,7 +32,8 @@ case "$cmd" in
                 || { $sudo apt-get update -qq && $sudo apt-get install -y -qq --no-install-recommends chromium; }
             } >/dev/null 2>&1 || echo "dev.sh: chromium not installed; the browser test will skip" >&2
         fi
-        .venv/bin/lint-imports && exec .venv/bin/python -m pytest -q "$@" ;;
+        # two test processes (pytest-xdist), a test file each at a time: most tests use one core
+        .venv/bin/lint-imports && exec .venv/bin/python -m pytest -q -n 2 --dist loadfile "$@" ;;
     setup) exit 0 ;;
     *)    echo "usage: ./dev.sh run|test|setup [args]" >&2; exit 2 ;;
 esac
