@@ -18,7 +18,8 @@ from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .errors import ConfigError, FrameError, GeodesyError, RunInterrupted, ViewerUnavailable, writing
+from .atomic import writing
+from .errors import ConfigError, FrameError, GeodesyError, RunInterrupted, ViewerUnavailable
 from .evaluation.evaluate import Evaluation
 from .processes import cores, start_process_server
 from .records import Traverse

@@ -5,8 +5,6 @@ Library code raises these; only the CLI turns them into messages and exit codes.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 
@@ -77,17 +75,3 @@ class RunInterrupted(PancamGraphError):
         self.partial = partial
         self.resume_stop = resume_stop
 
-
-@contextmanager
-def writing(where: Path, what: str, discard: bool = False) -> Iterator[None]:
-    """Files written inside: an OSError (a full disk, a permission) becomes one ResultsError
-    naming the file, or `where` when the system does not say which file (a failed write()).
-    `discard`: `where` is a folder this write makes, removed again on failure (no half folder)."""
-    try:
-        yield
-    except OSError as exc:
-        if discard:
-            import shutil
-
-            shutil.rmtree(where, ignore_errors=True)
-        raise WriteFailed(f"{exc.filename or where}: cannot write {what}: {exc.strerror or exc}") from None

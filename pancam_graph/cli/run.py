@@ -68,7 +68,7 @@ def _print_outcome(outcome: RunOutcome, serve_for_s: float | None) -> None:
     recording = outcome.recording
     if recording is not None and recording.failure is not None:  # its warning is printed above
         leave_without_rerun()
-    if recording is not None and recording.target.mode == "save" and recording.failure is None:
+    elif recording is not None and recording.target.mode == "save":
         shown = recording.target.path
         console.print(f"rerun recording: {shown} (open with `rerun {shown}` or `pancam-graph view "
                       f"{outcome.folder}`)")

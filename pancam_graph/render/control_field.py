@@ -199,9 +199,8 @@ def render_control_field(scenario: Scenario, folder: Path, views: int = 8, seed:
     # core, and exposed (the noise drawn) here in view order, so the images do not depend on it.
     with ThreadPoolExecutor(max_workers=cores()) as pool:
         left, right = pool.map(lambda camera: FieldRenderer(panels, camera), (left_camera, right_camera))
-        shots = [(f"{i:02d}_left.png", left, pose) for i, pose in enumerate(view_poses(views, seed))]
-        shots = [shot for name, renderer, pose in shots
-                 for shot in ((name, renderer, pose), (name.replace("left", "right"), right, pose @ left_T_right))]
+        shots = [shot for i, pose in enumerate(view_poses(views, seed))
+                 for shot in ((f"{i:02d}_left.png", left, pose), (f"{i:02d}_right.png", right, pose @ left_T_right))]
         optical = pool.map(lambda shot: shot[1].optical_image(shot[2]), shots)
         for k, ((name, _, _), image) in enumerate(zip(shots, optical, strict=True)):
             path = folder / "views" / name
