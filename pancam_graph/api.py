@@ -85,14 +85,24 @@ def check_out(out: Path | None, option: str = "--out") -> None:
 
 
 def open_data(source: str | Path, options: SourceOptions = SourceOptions(), out: Path | None = None,
-              progress: ProgressCallback | None = None) -> SourceData:
+              progress: ProgressCallback | None = None, vo_error_model: str | None = None) -> SourceData:
     """Read a source (an image source runs the front-end over every frame). A bad frame that
     stops the front-end leaves what it tracked before as an observation folder in
-    <out>.partial/observations, and the FrameError says so."""
+    <out>.partial/observations, and the FrameError says so. `vo_error_model`: the VO error model
+    to use instead of the source's own (config.VO_ERROR_MODELS)."""
     try:
-        return open_source(str(source), options, progress)
+        data = open_source(str(source), options, progress)
     except FrameError as exc:
         raise _kept_frontend_work(exc, out) from None
+    return data if vo_error_model is None else _with_vo_error_model(data, vo_error_model)
+
+
+def _with_vo_error_model(data: SourceData, name: str) -> SourceData:
+    from .config import with_vo_error_model
+
+    estimator = with_vo_error_model(data.estimator, name)
+    scenario = None if data.scenario is None else data.scenario.model_copy(update={"estimator": estimator})
+    return dataclasses.replace(data, estimator=estimator, scenario=scenario)
 
 
 def _kept_frontend_work(exc: FrameError, out: Path | None) -> FrameError:
@@ -121,22 +131,27 @@ def run(source: str | Path = "denver_trail", *, out: Path | str | None = None, s
         configs: tuple[str, ...] | None = None, batch: bool = False, processes: int | None = None,
         source_options: SourceOptions | None = None, rerun: RerunTarget | None = None,
         checkpoint_every_s: float = 30.0, figures: bool = True, progress: ProgressCallback | None = None,
-        opened: SourceData | None = None, on_viewer: Callable[[str], None] | None = None) -> RunOutcome:
+        opened: SourceData | None = None, on_viewer: Callable[[str], None] | None = None,
+        vo_error_model: str | None = None) -> RunOutcome:
     """Run a source (a bundled scenario name, a scenario TOML, an observation or image folder, a
     ROS bag, a KITTI raw drive or odometry sequence) through every configuration it can feed (or
     `configs`), and write the results folder `out` (default results/<name>-<time>): the one
     metrics.json schema, steps.csv, trajectories, plots (`figures`) and report.md. `processes`:
     default every core. `opened`: the source already read (open_data). `on_viewer`: told the web
-    viewer's address as soon as a served recording (`rerun` mode serve) is up, before the run."""
+    viewer's address as soon as a served recording (`rerun` mode serve) is up, before the run.
+    `vo_error_model`: the VO error model instead of the source's own (config.VO_ERROR_MODELS)."""
     from .solve.pipeline import select_configurations
 
     out = Path(out) if out is not None else None
-    options = RunOptions(seed=seed, configs=configs, batch=batch, processes=processes or cores())
+    options = RunOptions(seed=seed, configs=configs, batch=batch, processes=processes or cores(),
+                         vo_error_model=vo_error_model)
     if options.processes > 1:
         start_process_server()  # it imports while the source loads
     check_out(out)
     source_options = source_options or SourceOptions(seed=seed)
     data = opened or open_data(source, source_options, out, progress)
+    if vo_error_model is not None:
+        data = _with_vo_error_model(data, vo_error_model)
     select_configurations(data.estimator, data.traverse, options.configs)  # before anything is written
     return _run_into_folder(data, options, out, rerun, checkpoint_every_s, figures, progress, on_viewer=on_viewer)
 

@@ -110,6 +110,9 @@ class SitesConfig(_Strict):
     def _check(self) -> SitesConfig:
         if self.spacing_m[0] <= 0.0:
             raise ValueError(f"spacing_m must be positive, got {list(self.spacing_m)}")
+        if self.enabled and not self.tilts_deg:
+            raise ValueError("tilts_deg is empty: a site panorama needs at least one tilt (enabled = false turns "
+                             "sites off)")
         lo, hi = self.pan_range_deg
         if not -360.0 <= lo <= hi <= 360.0:
             raise ValueError(f"pan_range_deg must lie within (-360, 360), got {list(self.pan_range_deg)}")
@@ -126,7 +129,8 @@ class GpsConfig(_Strict):
     enabled: bool = True
     sigma_horizontal_m: float = Field(2.0, gt=0.0, le=1000.0)
     sigma_vertical_m: float = Field(3.0, gt=0.0, le=1000.0)
-    every_n_stops: int = Field(1, ge=1, description="fixes at stops (ignored when rate_hz is set)")
+    every_n_stops: int = Field(1, ge=1, le=1000, description="fixes at stops (ignored when rate_hz is set); "
+                               "beyond 1000 stops (kilometres) a traverse has no GPS to speak of: enabled = false")
     rate_hz: float | None = Field(None, gt=0.0, le=20.0,
                                   description="fixes at this rate over the whole drive, between stops too")
     dropouts: list[Range] = Field(default_factory=list, description="path-distance ranges, m")
@@ -174,6 +178,19 @@ DEFAULT_CONFIGURATIONS: dict[str, list[str]] = {
 # (docs/frontend.md); it also makes the VO covariance hold on rendered images.
 REAL_IMAGE_ROTATION_FLOOR_DEG_PER_M = 0.03
 
+# The VO error models an estimator can name (`vo_error_model`) and the values each sets
+# (docs/frontend.md, "The VO error model on real images"). pixel_noise sets nothing: the two-stop
+# adjustment's covariance from white pixel noise alone, the truth in simulation. real_images is
+# what real pixel errors need besides, measured on real KITTI frames: features within 40 m,
+# per-step floors of 1.2 % of the step and 0.03 deg/m, and a scale error shared by every step
+# (the vo_scale kind, added to every configuration with vo).
+VO_ERROR_MODELS: dict[str, dict] = {
+    "pixel_noise": {},
+    "real_images": {"vo_max_range_m": 40.0, "vo_translation_floor": 0.012,
+                    "vo_rotation_floor_deg_per_m": REAL_IMAGE_ROTATION_FLOOR_DEG_PER_M},
+}
+SHARED_SCALE_MODELS = ("real_images",)  # the models that add vo_scale to configurations with vo
+
 
 # Estimator keys that moved into their kind's own section, [estimator.<kind>] (kinds/<kind>.py).
 MOVED_KEYS = {
@@ -199,6 +216,10 @@ class _EstimatorCore(_Strict):
     vo_pnp_confidence: float = Field(0.999, gt=0.0, lt=1.0)
     vo_max_range_m: float = Field(40.0, gt=0.0, description="VO uses features nearer than this: a far "
                                   "feature's range error (grows with range squared) biases the scale")
+    vo_error_model: Literal[tuple(VO_ERROR_MODELS)] = Field(
+        "pixel_noise", description="pixel_noise: white pixel noise alone (simulation); real_images: the model "
+        "measured on real images, which sets vo_max_range_m and the two floors below and adds vo_scale to every "
+        "configuration with vo (config.VO_ERROR_MODELS)")
     vo_translation_floor: float = Field(0.0, ge=0.0, lt=1.0, description="per-step translation error the pixel "
                                         "noise does not explain, as a fraction of the step (real images)")
     vo_rotation_floor_deg_per_m: float = Field(0.0, ge=0.0, lt=10.0, description="the same for rotation")
@@ -233,6 +254,20 @@ class _EstimatorCore(_Strict):
                             "it entered (bounded cost per stop on long traverses); inf: the whole traverse")
     configurations: dict[str, list[str]] = Field(default_factory=lambda: dict(DEFAULT_CONFIGURATIONS),
                                                  description="name -> measurement kinds (pancam_graph/kinds/)")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _vo_error_model(cls, data):
+        """A named VO error model sets its values (a file that sets them too is overruled: its
+        own values go with vo_error_model = "pixel_noise")."""
+        if isinstance(data, dict) and data.get("vo_error_model") in VO_ERROR_MODELS:
+            data = {**data, **VO_ERROR_MODELS[data["vo_error_model"]]}
+            if data["vo_error_model"] in SHARED_SCALE_MODELS:
+                configurations = data.get("configurations", DEFAULT_CONFIGURATIONS)
+                if isinstance(configurations, dict):  # else the field's own check names it
+                    data["configurations"] = {name: _with_shared_scale(kinds)
+                                              for name, kinds in configurations.items()}
+        return data
 
     @model_validator(mode="before")
     @classmethod
@@ -344,8 +379,37 @@ def _describe(err: dict) -> str:
     if err["type"] == "extra_forbidden":
         return f"field '{field}': unknown key"
     got = err.get("input")
-    got_text = f" (got {got!r})" if got is not None and not isinstance(got, dict) else ""
-    return f"field '{field}': {err['msg']}{got_text}"
+    got_text = f" (got {_shortened(repr(got))})" if got is not None and not isinstance(got, dict) else ""
+    return f"field '{field}': {err['msg'].removeprefix('Value error, ')}{got_text}"
+
+
+def _with_shared_scale(kinds):
+    return [*kinds, "vo_scale"] if isinstance(kinds, list | tuple) and "vo" in kinds and "vo_scale" not in kinds \
+        else kinds
+
+
+def with_vo_error_model(estimator: M, name: str) -> M:
+    """The estimator with another VO error model: what its own model set gives way to the new
+    model's (the defaults, for pixel_noise; the shared scale it added leaves the configurations)."""
+    if name not in VO_ERROR_MODELS:
+        raise ConfigError(f"vo_error_model {name!r}: expected {' or '.join(VO_ERROR_MODELS)}")
+    given = estimator.model_dump(exclude_unset=True)
+    for key in VO_ERROR_MODELS[estimator.vo_error_model]:
+        given.pop(key, None)
+    if estimator.vo_error_model in SHARED_SCALE_MODELS and "configurations" in given:
+        given["configurations"] = {n: [k for k in kinds if k != "vo_scale"]
+                                   for n, kinds in given["configurations"].items()}
+    return type(estimator).model_validate({**given, "vo_error_model": name})
+
+
+def _shortened(text: str, limit: int = 60) -> str:
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
+def validation_problems(exc: ValidationError) -> str:
+    """A model's validation errors on one line: each field named, with what was expected."""
+    problems = [_describe(e) for e in exc.errors()]
+    return problems[0] if len(problems) == 1 else f"{len(problems)} problems: " + "; ".join(problems)
 
 
 def load_toml_model(path: str | Path, model: type[M], what: str, error: type[PancamGraphError] = ConfigError) -> M:
@@ -360,8 +424,7 @@ def load_toml_model(path: str | Path, model: type[M], what: str, error: type[Pan
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        lines = "\n  ".join(_describe(e) for e in exc.errors())
-        raise error(f"{path}: invalid {what}:\n  {lines}") from None
+        raise error(f"{path}: invalid {what}: {validation_problems(exc)}") from None
 
 
 def load_scenario(path: str | Path) -> Scenario:

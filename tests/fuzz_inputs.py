@@ -23,16 +23,20 @@ from pancam_graph.errors import PancamGraphError
 HERE = Path(__file__).parent
 REAL = HERE / "data" / "real"
 NUMBER = re.compile(rb"-?\d+(\.\d+)?(e[-+]?\d+)?")
+TRANSFORMS = (b"start_world_T_body = [", b"body_T_left = [")  # 4x4s in a manifest, as tomli_w writes them
 REPLACEMENTS = [b"nan", b"inf", b"-inf", b"1e308", b"-1e308", b"-1", b"0", b"", b"abc", b"9223372036854775808",
                 b"1" * 400, b"1e-320", b"\xff\xfe", b"\x00", b'"', b"[", b"=", b","]
 
 
-def mutate(data: bytes, rng: random.Random) -> tuple[bytes, str]:
+MUTATIONS = ("truncate", "flip", "insert", "number", "number", "number", "drop_line", "dup_line", "swap_lines", "bom",
+             "crlf", "huge_field", "transform", "transform")
+
+
+def mutate(data: bytes, rng: random.Random, kinds: tuple[str, ...] = MUTATIONS) -> tuple[bytes, str]:
     """One or two mutations of a file's bytes, and their names."""
     names = []
     for _ in range(rng.choice((1, 1, 2))):
-        kind = rng.choice(("truncate", "flip", "insert", "number", "number", "number", "drop_line", "dup_line",
-                           "swap_lines", "bom", "crlf", "huge_field"))
+        kind = rng.choice(kinds)
         names.append(kind)
         if kind == "truncate" and data:
             data = data[:rng.randrange(len(data))]
@@ -49,6 +53,15 @@ def mutate(data: bytes, rng: random.Random) -> tuple[bytes, str]:
             if matches:
                 m = rng.choice(matches)
                 data = data[:m.start()] + rng.choice(REPLACEMENTS) + data[m.end():]
+        elif kind == "transform":  # one entry of a rigid transform scaled, negated, zeroed or replaced
+            starts = [data.find(key) + len(key) for key in TRANSFORMS if key in data]
+            spans = [(a, data.find(b"\n]", a) % (len(data) + 1)) for a in starts]  # to its end, or the file's
+            numbers = [m for a, b in spans for m in NUMBER.finditer(data, a, b)]
+            if numbers:
+                m = rng.choice(numbers)
+                value = float(m.group()) * rng.choice((0.0, -1.0, 2.0, 1.001, 1.0000001)) + rng.choice((0.0, 0.5))
+                text = rng.choice((repr(value).encode(), rng.choice(REPLACEMENTS)))
+                data = data[:m.start()] + text + data[m.end():]
         elif kind in ("drop_line", "dup_line", "swap_lines"):
             lines = data.split(b"\n")
             if len(lines) > 1:
@@ -70,6 +83,10 @@ def mutate(data: bytes, rng: random.Random) -> tuple[bytes, str]:
     return data, "+".join(names)
 
 
+NAMED_REFUSALS = {"duplicate track": ("a second time",),
+                  "non-rigid transform": ("not a rotation", "expected [0, 0, 0, 1]")}
+
+
 @dataclass
 class Target:
     """A reader and the files it reads: `read(folder)` reads `files` (names in a folder made from
@@ -79,17 +96,21 @@ class Target:
     seed_folder: Path
     files: list[str]
     read: Callable[[Path], object]
+    mutations: tuple[str, ...] = MUTATIONS
 
 
 @dataclass
 class Findings:
     trials: Counter = field(default_factory=Counter)
     refused: Counter = field(default_factory=Counter)  # the project's own errors
+    # refusals by what they name: a track twice at a stop or in a frame, a transform not rigid
+    named: Counter = field(default_factory=Counter)
     escaped: list[str] = field(default_factory=list)  # anything else: bugs
 
 
 def targets(work: Path) -> list[Target]:
     """Seed files for every reader, written into `work`."""
+    import dataclasses
     import datetime as dt
 
     import gpxpy.gpx
@@ -102,7 +123,7 @@ def targets(work: Path) -> list[Target]:
     from pancam_graph.formats.trajectories import read_trajectory
     from pancam_graph.render.scenario_images import raw_stereo_pair
     from pancam_graph.sim import simulate
-    from pancam_graph.store.observation_folder import read_observations, write_observations
+    from pancam_graph.store.observation_folder import PanoramaImage, read_observations, write_observations
 
     scenario_dir = work / "scenario"
     scenario_dir.mkdir()
@@ -114,6 +135,16 @@ def targets(work: Path) -> list[Target]:
     traverse, truth = simulate(scenario, 1)
     obs = work / "observations"
     write_observations(obs, traverse, scenario.estimator, 1, truth, scenario.rig)
+
+    images = work / "images"  # an image folder with a body-fixed pair: frames.csv, panorama_frames.csv
+    pan = [PanoramaImage(s.index, s.site_id, camera, f.pan_rad, f.tilt_rad, f"p/{s.index}_{i}_l.png",
+                         f"p/{s.index}_{i}_r.png" if camera == "wac" else None)
+           for s in traverse.stops if s.site_id is not None for i, f in enumerate(s.panorama)
+           for camera in ("wac", "hrc")]
+    mounted = traverse.rig.body_T_left(0.0, traverse.traverse_tilt_rad).matrix()
+    write_observations(images, dataclasses.replace(traverse, body_T_nav_left=mounted), scenario.estimator, 1,
+                       frames=[(f"l/{k:04d}.png", f"r/{k:04d}.png") for k in range(len(traverse.stops))],
+                       panorama_frames=pan)
 
     gps = work / "gps"
     gps.mkdir()
@@ -149,6 +180,8 @@ def targets(work: Path) -> list[Target]:
     return [
         Target("scenario", scenario_dir, ["s.toml"], lambda d: load_scenario(d / "s.toml")),
         Target("observations", obs, sorted(p.name for p in obs.iterdir()), read_observations),
+        Target("image folder", images, sorted(p.name for p in images.iterdir()), read_observations),
+        Target("transforms", images, ["traverse.toml"], read_observations, ("transform",)),
         Target("gps csv", gps, ["fixes.csv"], lambda d: read_gps_file(d / "fixes.csv", 1.0, 1.0)),
         Target("kf-gins", gps, ["fixes.txt"], lambda d: read_gps_file(d / "fixes.txt")),
         Target("gpx", gps, ["fixes.gpx"], lambda d: read_gpx(d / "fixes.gpx", 1.0, 1.0)),
@@ -189,7 +222,7 @@ def fuzz(trials: int, seed: int = 0, keep: Path | None = None) -> Findings:
             if folder.exists():
                 shutil.rmtree(folder)
             shutil.copytree(target.seed_folder, folder)
-            data, how = mutate((target.seed_folder / name).read_bytes(), rng)
+            data, how = mutate((target.seed_folder / name).read_bytes(), rng, target.mutations)
             (folder / name).write_bytes(data)
             if keep is not None:  # a native crash kills the process: the last file tells which
                 shutil.copy(folder / name, keep / f"last_{target.name.replace(' ', '_')}_{name}")
@@ -197,12 +230,17 @@ def fuzz(trials: int, seed: int = 0, keep: Path | None = None) -> Findings:
             findings.trials[target.name] += 1
             try:
                 target.read(folder)
-            except PancamGraphError:
+            except PancamGraphError as exc:
                 findings.refused[target.name] += 1
+                for what, words in NAMED_REFUSALS.items():
+                    if any(w in str(exc) for w in words):
+                        findings.named[what] += 1
             except Exception as exc:  # the finding: anything else escaping a reader
-                where = traceback.extract_tb(exc.__traceback__)[-1]
+                frames = traceback.extract_tb(exc.__traceback__)
+                ours = [f for f in frames if "pancam_graph" in f.filename] or frames
+                where = " < ".join(f"{Path(f.filename).name}:{f.lineno}" for f in (frames[-1], ours[-1]))
                 findings.escaped.append(f"{target.name} {name} ({how}): {type(exc).__name__}: {str(exc)[:160]} "
-                                        f"[{Path(where.filename).name}:{where.lineno}]")
+                                        f"[{where}]")
     return findings
 
 
@@ -212,6 +250,8 @@ if __name__ == "__main__":
     result = fuzz(n, seed=int(sys.argv[2]) if len(sys.argv) > 2 else 0, keep=keep)
     for name in sorted(result.trials):
         print(f"{name:14s} {result.trials[name]:6d} files, {result.refused[name]:6d} refused with a message")
+    for what in NAMED_REFUSALS:
+        print(f"refused naming a {what}: {result.named[what]}")
     print(f"{len(result.escaped)} escaped")
     for line in Counter(e.split(": ", 1)[1] for e in result.escaped).most_common(40):
         print(" ", line)

@@ -72,6 +72,11 @@ def _path(waypoints):
     (_set("name", "trail\x00x"), ["name", "should match pattern"]),
     (_set("name", "../elsewhere"), ["name", "should match pattern"]),
     (_set("seed", 2**64), ["seed", "less than 9223372036854775808"]),
+    (_set("sites", "tilts_deg", []), ["field 'sites': tilts_deg is empty: a site panorama needs at least one tilt"]),
+    (_set("gps", "every_n_stops", 10**9), ["gps.every_n_stops", "less than or equal to 1000"]),
+    (lambda d: (_set("camera", "vo_range_m", [25.0, 2.0])(d), _set("bogus", 1)(d)),
+     ["2 problems: field 'camera.vo_range_m': must be (min, max) with min <= max (got [25.0, 2.0]); "
+      "field 'bogus': unknown key"]),
 ])
 def test_a_bad_field_is_named(tmp_path, change, words):
     path = _scenario(tmp_path, change)
@@ -81,7 +86,7 @@ def test_a_bad_field_is_named(tmp_path, change, words):
     with pytest.raises(ConfigError) as error:
         load_scenario(path)
     message = str(error.value)
-    assert str(path) in message
+    assert str(path) in message and "\n" not in message  # one line, however many problems
     for word in words:
         assert word in message, (word, message)
 

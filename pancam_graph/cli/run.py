@@ -103,6 +103,10 @@ def run_command(
     checkpoint_every: float = typer.Option(30.0, "--checkpoint-every", min=0.0, help="seconds between the "
                                            "checkpoints saved for --resume (and at most 5 % of the run's time); "
                                            "0: at every site and every 25 stops"),
+    vo_error_model: str | None = typer.Option(
+        None, "--vo-error-model", help="the VO error model instead of the source's own ([estimator] "
+        "vo_error_model): pixel_noise (white pixel noise, simulation) or real_images (the model measured on real "
+        "images: docs/frontend.md)"),
     source_options: SourceOptions = SourceOptions(),
 ) -> None:
     """Solve a traverse with iSAM2 and evaluate it: every source goes through the same back-end.
@@ -118,7 +122,8 @@ def run_command(
 
     processes = 1 if one_process else None
     if resume is not None:
-        given = {"SOURCE": source, "--out": out, "--configs": configs, "--batch": batch or None}
+        given = {"SOURCE": source, "--out": out, "--configs": configs, "--batch": batch or None,
+                 "--vo-error-model": vo_error_model}
         with user_input():
             clash = [name for name, value in given.items() if value is not None]
             clash += [SourceOptions.flags()[name] for name in source_options.given()]
@@ -143,7 +148,8 @@ def run_command(
         names = parse_configs(configs)
         api.check_out(out)
         data = with_progress(Path(source).name or source, quiet,
-                              lambda report: api.open_data(source, source_options, out, report))
+                              lambda report: api.open_data(source, source_options, out, report,
+                                                           vo_error_model))
         from ..solve.pipeline import select_configurations
 
         select_configurations(data.estimator, data.traverse, names)  # before anything is written
@@ -154,5 +160,5 @@ def run_command(
     _print_outcome(with_progress(data.traverse.name, quiet, lambda report: api.run(
         source, out=out, seed=source_options.seed, configs=names, batch=batch, processes=processes, rerun=target,
         checkpoint_every_s=checkpoint_every, figures=not no_plots, progress=report, opened=data,
-        on_viewer=announce_viewer)), serve_for)
+        on_viewer=announce_viewer, vo_error_model=vo_error_model)), serve_for)
 

@@ -62,6 +62,15 @@ class CsvTable:
             raise InputError(f"{self.path}: line {line}: column '{column}' is not finite")
         return value
 
+    def pixel(self, line: int, column: str, text: str, extent: int) -> float:
+        """A pixel coordinate along an image side of `extent` px. Tracks run a little past the
+        edge; one further than an image size from it is no measurement of the image."""
+        value = self.number(line, column, text)
+        if not -extent <= value <= 2 * extent:
+            raise InputError(f"{self.path}: line {line}: column '{column}' = {value:g} px lies more than an image "
+                             f"size ({extent} px) outside the image")
+        return value
+
     def optional_number(self, line: int, row: list[str], column: str, default: float) -> float:
         i = self.optional_index.get(column)
         if i is None or i >= len(row) or row[i] == "":

@@ -19,6 +19,7 @@ from .base import Kind, RowError
 
 TIME_TOLERANCE_S = 1e-3  # a fix this close to a stop's time is taken at the stop
 _REASONS_KEPT = 20
+MAX_FIX_DISTANCE_M = 100e3  # beyond this, a fix is of another place (and the tangent plane bends away by 800 m)
 
 
 class GpsSettings(Section):
@@ -66,7 +67,18 @@ class Gps(Kind):
                 raise RowError(line, f"sigma_h_m {sigma_h:g}, sigma_v_m {sigma_v:g}: expected positive metres")
             if fixes and t <= fixes[-1].time_s:
                 raise RowError(line, f"time_s {t:g} does not increase (previous fix {fixes[-1].time_s:g})")
+            if lat == 0 and lon == 0:
+                raise RowError(line, "lat_deg = lon_deg = 0: a receiver's no-fix marker, not a position (leave the "
+                               "row out)")
             fixes.append(GpsFix(t, lat, lon, h, sigma_h, sigma_v))
+        if fixes:
+            enu = traverse.origin.to_enu([f.lat_deg for f in fixes], [f.lon_deg for f in fixes],
+                                         [f.h_m for f in fixes])
+            far = np.flatnonzero(np.linalg.norm(enu, axis=1) > MAX_FIX_DISTANCE_M)
+            if far.size:
+                (line, _), distance = rows[far[0]], np.linalg.norm(enu[far[0]])
+                raise RowError(line, f"the fix lies {distance / 1000:.0f} km from the traverse's origin (at most "
+                               f"{MAX_FIX_DISTANCE_M / 1000:.0f} km): not a fix of this traverse")
         return tuple(fixes)
 
     def __init__(self, localizer):

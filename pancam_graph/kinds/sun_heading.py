@@ -130,7 +130,8 @@ def _perturbed(direction: np.ndarray, sigma_rad: float, rng: np.random.Generator
 
 def _unit(line: int, name: str, xyz) -> np.ndarray:
     """A direction as written (Unit3 normalizes it; renormalizing here would change the last bits)."""
-    norm = float(np.linalg.norm(xyz))
+    with np.errstate(over="ignore"):  # a norm of 1e308s is inf, and refused below
+        norm = float(np.linalg.norm(xyz))
     if not 0.99 < norm < 1.01:
         raise RowError(line, f"{name}_x, {name}_y, {name}_z must be a unit vector, got length {norm:.3g}")
     return np.asarray(xyz, dtype=float)

@@ -33,6 +33,7 @@ class RunOptions:
     # CLI uses every core; a script that does must guard its main module (multiprocessing "spawn").
     processes: int = 1
     side_by_side_min_stops: int = 300  # below this, starting the processes costs more than they save
+    vo_error_model: str | None = None  # given for this run, instead of the source's own
 
 
 @dataclass(frozen=True)
@@ -286,6 +287,8 @@ def reproduce_command(result: RunResult) -> str:
                 continue
             text = ",".join(value) if isinstance(value, tuple | list) else str(value)
             parts += [flags[key]] if value is True else [flags[key], text]
+        if result.options.vo_error_model is not None:  # a scenario's is in its scenario.toml
+            parts += ["--vo-error-model", result.options.vo_error_model]
     parts += ["--configs", ",".join(result.configurations)]
     if result.options.batch:
         parts.append("--batch")

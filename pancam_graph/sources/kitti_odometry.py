@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import REAL_IMAGE_ROTATION_FLOOR_DEG_PER_M, EstimatorConfig, FrontendConfig
+from ..config import EstimatorConfig, FrontendConfig
 from ..errors import InputError
 from ..frontend.tracker import StereoTracker
 from ..geodesy import LocalFrame
@@ -24,19 +24,9 @@ from .registry import Source, frontend_for
 # Matching and localisation error of the front-end's features (1 sigma).
 PIXEL_SIGMA_PX = 0.5
 
-# The VO error model for real images, measured on the 51 real KITTI frames of
-# shared/data/real/kitti_odometry_51 (docs/frontend.md): per 1.2 m step the two-stop
-# adjustment's covariance explained a median NEES of 203 (6 dof); the errors per metre were
-# forward +0.76 % mean (a scale bias: the vo_scale kind), lateral 0.27 +- 0.44 %, vertical
-# -0.41 +- 0.19 % (biases of the motion's direction, covered here as white noise), rotation
-# 0.02-0.03 deg/m RMS per axis. Features beyond 40 m (disparity below 10 px) biased the scale.
-REAL_IMAGE_ESTIMATOR = EstimatorConfig(
-    vo_max_range_m=40.0,
-    vo_translation_floor=0.012,
-    vo_rotation_floor_deg_per_m=REAL_IMAGE_ROTATION_FLOOR_DEG_PER_M,
-    vo_scale={"sigma": 0.01},
-    configurations={"vo": ["vo", "vo_scale"]},
-)
+# The real KITTI frames' own VO error model (config.VO_ERROR_MODELS, docs/frontend.md, where it was
+# measured): with no sites or GPS, the one configuration is vo with its shared scale.
+REAL_IMAGE_ESTIMATOR = EstimatorConfig(vo_error_model="real_images", configurations={"vo": ["vo", "vo_scale"]})
 
 
 def matches(path: Path) -> bool:

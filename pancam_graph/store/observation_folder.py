@@ -49,7 +49,7 @@ from ..records import (
     Stop,
     Traverse,
 )
-from ..rig import Rig, rig_preset
+from ..rig import Camera, Rig, rig_preset
 from ..text_files import read_text
 
 if TYPE_CHECKING:
@@ -74,6 +74,7 @@ Matrix4 = tuple[tuple[float, float, float, float], tuple[float, float, float, fl
                 tuple[float, float, float, float], tuple[float, float, float, float]]
 Sigma = Annotated[float, Field(gt=0.0, le=1e4)]
 RIGID_TOLERANCE = 1e-6  # of R'R against identity (orthonormal axes have det +-1: its sign is checked)
+MAX_TRANSLATION_M = 1e6  # as every coordinate in metres of a scenario (config.Metres)
 
 
 def _rigid(matrix: Matrix4) -> Matrix4:
@@ -85,6 +86,11 @@ def _rigid(matrix: Matrix4) -> Matrix4:
     if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=RIGID_TOLERANCE):
         raise ValueError(f"last row is {m[3].tolist()}, expected [0, 0, 0, 1]")
     rotation = m[:3, :3]
+    if np.abs(m[:3, 3]).max() > MAX_TRANSLATION_M:
+        raise ValueError(f"its translation {m[:3, 3].tolist()} lies beyond {MAX_TRANSLATION_M:g} m")
+    if np.abs(rotation).max() > 1.0 + RIGID_TOLERANCE:  # and R'R would overflow on 1e308
+        raise ValueError(f"its 3x3 part is not a rotation (an entry of {np.abs(rotation).max():.3g}): expected "
+                         "orthonormal axes with det +1")
     off = float(np.max(np.abs(rotation.T @ rotation - np.eye(3))))
     if off > RIGID_TOLERANCE or np.linalg.det(rotation) < 0.0:
         raise ValueError(f"its 3x3 part is not a rotation (R'R differs from identity by {off:.3g}, det "
@@ -297,10 +303,10 @@ def read_observations(folder: Path) -> ObservationSet:
         stereo = [StereoObservations.empty()] * len(times)  # the image front-end fills them in
         panorama_frames = _read_panorama_frames(folder / PANORAMA_FRAMES, len(times))
     else:
-        times, dwells, stereo = _read_stereo(folder / "stereo.csv")
+        times, dwells, stereo = _read_stereo(folder / "stereo.csv", rig.wac)
     n = len(times)
-    panoramas, sites = _read_panorama(folder / "panorama.csv", n)
-    hrc = _read_hrc(folder / "hrc.csv", n)
+    panoramas, sites = _read_panorama(folder / "panorama.csv", n, rig.wac)
+    hrc = _read_hrc(folder / "hrc.csv", n, rig.hrc or rig.wac)
     odometry = _read_odometry(folder / "odometry.csv", n)
     stops = tuple(Stop(k, times[k], stereo[k], sites.get(k), panoramas.get(k, ()), hrc.get(k, ()), odometry.get(k),
                        dwells[k]) for k in range(n))
@@ -308,9 +314,7 @@ def read_observations(folder: Path) -> ObservationSet:
     start = np.array(manifest.start_world_T_body, dtype=float)  # 4x4: the manifest model checks shapes
     body_T_left = None
     if manifest.rig.body_T_left is not None:
-        body_T_left = np.array(manifest.rig.body_T_left, dtype=float)
-        if not np.allclose(body_T_left[:3, :3] @ body_T_left[:3, :3].T, np.eye(3), atol=1e-6):
-            raise InputError(f"{folder / MANIFEST}: [rig] body_T_left: expected a 4x4 rigid transform")
+        body_T_left = np.array(manifest.rig.body_T_left, dtype=float)  # rigid: the manifest model checks it
         body_T_left[:3, :3] = body_T_left[:3, :3] @ rig.rectification()  # body_T_left is the raw camera's
     traverse = Traverse(manifest.name, rig, LocalFrame(o.lat_deg, o.lon_deg, o.h_m), stops,
                         manifest.traverse_tilt_rad, manifest.image_noise_px,
@@ -384,7 +388,7 @@ def _rig(folder: Path, source: RigSource) -> tuple[Rig, StereoCalibration | None
                raw_R_rectified=rotation), raw
 
 
-def _read_stereo(path: Path) -> tuple[list[float], list[float], list[StereoObservations]]:
+def _read_stereo(path: Path, camera: Camera) -> tuple[list[float], list[float], list[StereoObservations]]:
     table = CsvTable(path, STEREO_COLUMNS, optional=["dwell_s"])
     times: dict[int, float] = {}
     dwells: dict[int, float] = {}
@@ -402,8 +406,8 @@ def _read_stereo(path: Path) -> tuple[list[float], list[float], list[StereoObser
             raise InputError(f"{path}: line {line}: stop {k}: dwell_s must be >= 0 and the same on every row")
         if track == "" and ul == "" and ur == "" and v == "":
             continue
-        rows[k].append((table.track(line, track), table.number(line, "u_left", ul), table.number(line, "u_right", ur),
-                        table.number(line, "v", v), line))
+        rows[k].append((table.track(line, track), table.pixel(line, "u_left", ul, camera.width),
+                        table.pixel(line, "u_right", ur, camera.width), table.pixel(line, "v", v, camera.height), line))
     n = len(times)
     missing = next((k for k in range(max(n, 1)) if k not in times), None)
     if missing is not None:
@@ -465,40 +469,51 @@ def _read_panorama_frames(path: Path, n: int) -> tuple[PanoramaImage, ...]:
     return tuple(images)
 
 
-def _read_frames(table: CsvTable, n: int, measured: list[str]) -> dict[int, dict[tuple[float, float], tuple]]:
+def _read_frames(table: CsvTable, n: int, measured: list[str], camera: Camera
+                 ) -> dict[int, dict[tuple[float, float], tuple]]:
     """Rows grouped by stop and frame (pan_rad, tilt_rad), in file order: per frame the track ids
-    and the `measured` columns as an (N, len(measured)) array."""
-    grouped: dict[int, dict[tuple[float, float], list]] = defaultdict(dict)
-    columns = ["stop", "pan_rad", "tilt_rad", "track", *measured]
+    and the `measured` pixel columns (u..., v) as an (N, len(measured)) array."""
+    grouped: dict[int, dict[tuple[float, float], dict[int, list]]] = defaultdict(dict)
+    lines: dict[tuple[int, float, float, int], int] = {}
     for line, row in table.rows:
         values = dict(zip(table.columns, table.values(line, row), strict=True))
         k = table.stop(line, values["stop"], n)
         key = (table.number(line, "pan_rad", values["pan_rad"]), table.number(line, "tilt_rad", values["tilt_rad"]))
-        grouped[k].setdefault(key, []).append(
-            [table.track(line, values["track"])]
-            + [table.number(line, c, values[c]) for c in columns[4:]])
-    return {k: {key: (np.array([r[0] for r in rows], dtype=np.int64),
-                      np.array([r[1:] for r in rows], dtype=float).reshape(-1, len(measured)))
+        track = table.track(line, values["track"])
+        first = lines.setdefault((k, *key, track), line)
+        if first != line:
+            raise InputError(f"{table.path}: line {line}: track {track} a second time in the frame at stop {k}, "
+                             f"pan {key[0]:g} rad, tilt {key[1]:g} rad (line {first}): one row per track and frame")
+        grouped[k].setdefault(key, {})[track] = [
+            table.pixel(line, c, values[c], camera.height if c == "v" else camera.width) for c in measured]
+    return {k: {key: (np.array(list(rows), dtype=np.int64),
+                      np.array(list(rows.values()), dtype=float).reshape(-1, len(measured)))
                 for key, rows in frames.items()}
             for k, frames in grouped.items()}
 
 
-def _read_panorama(path: Path, n: int) -> tuple[dict[int, tuple[PanoramaFrame, ...]], dict[int, int]]:
+def _read_panorama(path: Path, n: int, camera: Camera
+                   ) -> tuple[dict[int, tuple[PanoramaFrame, ...]], dict[int, int]]:
     if not path.is_file():
         return {}, {}
     table = CsvTable(path, PANORAMA_COLUMNS)
-    frames = _read_frames(table, n, ["u_left", "u_right", "v"])  # validates every row first
-    sites = {int(row[table.index[0]]): int(table.number(line, "site", row[table.index[1]], integer=True))
-             for line, row in table.rows}
+    frames = _read_frames(table, n, ["u_left", "u_right", "v"], camera)  # validates every row first
+    sites: dict[int, tuple[int, int]] = {}  # stop: (site, first line)
+    for line, row in table.rows:
+        k, site = int(row[table.index[0]]), int(table.number(line, "site", row[table.index[1]], integer=True))
+        first_site, first_line = sites.setdefault(k, (site, line))
+        if site != first_site:
+            raise InputError(f"{path}: line {line}: site {site}, but line {first_line} puts stop {k} at site "
+                             f"{first_site}: a stop's panorama is of one site")
     return {k: tuple(PanoramaFrame(pan, tilt, StereoObservations(tracks, uvv))
                      for (pan, tilt), (tracks, uvv) in by_frame.items())
-            for k, by_frame in frames.items()}, sites
+            for k, by_frame in frames.items()}, {k: site for k, (site, _) in sites.items()}
 
 
-def _read_hrc(path: Path, n: int) -> dict[int, tuple[HrcFrame, ...]]:
+def _read_hrc(path: Path, n: int, camera: Camera) -> dict[int, tuple[HrcFrame, ...]]:
     if not path.is_file():
         return {}
-    frames = _read_frames(CsvTable(path, HRC_COLUMNS), n, ["u", "v"])
+    frames = _read_frames(CsvTable(path, HRC_COLUMNS), n, ["u", "v"], camera)
     return {k: tuple(HrcFrame(pan, tilt, tracks, uv) for (pan, tilt), (tracks, uv) in by_frame.items())
             for k, by_frame in frames.items()}
 

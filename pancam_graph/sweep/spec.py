@@ -8,7 +8,15 @@ from typing import Any
 
 from pydantic import Field, ValidationError, model_validator
 
-from ..config import Scenario, _describe, _Strict, dump_scenario, load_scenario, load_toml_model, resolve_scenario
+from ..config import (
+    Scenario,
+    _Strict,
+    dump_scenario,
+    load_scenario,
+    load_toml_model,
+    resolve_scenario,
+    validation_problems,
+)
 from ..errors import ConfigError
 from ..kinds import configuration_problem
 
@@ -115,6 +123,6 @@ def _combined(base: Scenario, rig: str, variant: SweepVariant, name: str) -> Sce
     try:
         scenario = Scenario.model_validate(data)
     except ValidationError as exc:
-        problems = "; ".join(_describe(e) for e in exc.errors())
-        raise ConfigError(f"sweep: scenario {name} with rig {rig} and variant {variant.name}: {problems}") from None
+        raise ConfigError(f"sweep: scenario {name} with rig {rig} and variant {variant.name}: "
+                          f"{validation_problems(exc)}") from None
     return scenario

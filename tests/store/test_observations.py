@@ -230,3 +230,54 @@ def test_stop_and_track_numbers_out_of_range_are_named(folders, tmp_path, column
     (folder / "stereo.csv").write_text("\n".join(lines) + "\n")
     with pytest.raises(InputError, match="stereo.csv: line 6: " + re.escape(words)):
         read_observations(folder)
+
+
+def _edit_row(file, line, column, value):
+    def edit(folder):
+        lines = (folder / file).read_text().splitlines()
+        fields = lines[line - 1].split(",")
+        fields[lines[0].split(",").index(column)] = value
+        lines[line - 1] = ",".join(fields)
+        (folder / file).write_text("\n".join(lines) + "\n")
+    return edit
+
+
+def _no_fix(folder):
+    for column, value in (("lat_deg", "0"), ("lon_deg", "0"), ("h_m", "0")):
+        _edit_row("gps.csv", 3, column, value)(folder)
+
+
+def _repeat_row(file, line, at):
+    def edit(folder):
+        lines = (folder / file).read_text().splitlines()
+        lines.insert(at - 1, lines[line - 1])
+        (folder / file).write_text("\n".join(lines) + "\n")
+    return edit
+
+
+@pytest.mark.parametrize("edit,words", [
+    (_no_fix, "gps.csv: line 3: lat_deg = lon_deg = 0: a receiver's no-fix marker, not a position"),
+    (_edit_row("gps.csv", 4, "lat_deg", "45.0"), "gps.csv: line 4: the fix lies 584 km from the traverse's origin "
+                                                 "(at most 100 km): not a fix of this traverse"),
+    (_edit_row("stereo.csv", 6, "u_left", "1e308"), "stereo.csv: line 6: column 'u_left' = 1e+308 px lies more "
+                                                    "than an image size (1024 px) outside the image"),
+    (_edit_row("hrc.csv", 6, "v", "-1e308"), "hrc.csv: line 6: column 'v' = -1e+308 px lies more than an image "
+                                             "size"),
+    (_repeat_row("panorama.csv", 3, 4), "panorama.csv: line 4: track {track} a second time in the frame at stop 0, "
+                                        "pan -3.14159 rad, tilt -0.10472 rad (line 3): one row per track and frame"),
+    (_edit_row("panorama.csv", 4, "site", "7"), "panorama.csv: line 4: site 7, but line 2 puts stop 0 at site 0: "
+                                                "a stop's panorama is of one site"),
+])
+def test_rows_a_run_would_misuse_are_refused_in_one_line(folders, tmp_path, edit, words):
+    """No-fix markers (once GPS errors of 353 km), pixels of 1e308 (numpy overflow warnings), a
+    track twice in a panorama frame and a site that disagrees with its stop's were all accepted
+    (issue 35): each is refused with one line, and nothing is written."""
+    folder = _copy(folders, tmp_path)
+    edit(folder)
+    track = (folder / "panorama.csv").read_text().splitlines()[2].split(",")[4]
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["run", str(folder), "--out", str(out), "--quiet"])
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert result.exit_code == 2 and len(lines) == 1, result.output
+    assert words.format(track=track) in lines[0] and lines[0].startswith(f"error: {folder}")
+    assert not out.exists() and not out.with_name("out.partial").exists()
