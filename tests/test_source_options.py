@@ -47,7 +47,7 @@ def test_a_zero_on_the_command_line_is_given(monkeypatch):
 
     seen = {}
 
-    def open_data(source, options, out, progress):
+    def open_data(source, options, out, progress, **_):
         seen["options"] = options
         raise ConfigError("stop here")
 

@@ -77,6 +77,44 @@ def consistency(estimate: np.ndarray, truth: np.ndarray, estimator_cov: np.ndarr
                        anees_band(len(errors)))
 
 
+@dataclass(frozen=True)
+class NeesAlongRun:
+    """Each stop's position NEES against the reference (3 dof): where along a run the covariance
+    holds. A right covariance puts 1 % of the stops outside their 99 % ellipsoid."""
+
+    nees: np.ndarray  # (N,), e^T P^-1 e of each stop's position
+    vo_inliers: np.ndarray  # (N,) of the VO step into each stop; -1 where there was none
+
+    LARGEST = 5  # stops listed with the largest NEES
+
+    @property
+    def bound_99(self) -> float:
+        return float(chi2.quantile(0.99, POSITION_DOF))
+
+    @property
+    def outside_99_fraction(self) -> float:
+        return float(np.mean(self.nees > self.bound_99))
+
+    @property
+    def last(self) -> float:
+        return float(self.nees[-1])
+
+    def largest(self) -> list[int]:
+        """The stops whose NEES is largest, largest first."""
+        return [int(k) for k in np.argsort(-self.nees, kind="stable")[:self.LARGEST]]
+
+    def as_dict(self) -> dict:
+        return {"nees_last": self.last, "nees_outside_99_pct": 100.0 * self.outside_99_fraction,
+                "nees_largest": [{"stop": k, "nees": float(self.nees[k]), "vo_inliers": int(self.vo_inliers[k])}
+                                 for k in self.largest()]}
+
+
+def nees_along_run(estimate: np.ndarray, truth: np.ndarray, covariances: np.ndarray,
+                   vo_inliers: np.ndarray) -> NeesAlongRun:
+    """Positions (N, 3) against the reference's, with the estimator's own (N, 3, 3) covariances."""
+    return NeesAlongRun(nees(estimate - truth, covariances), vo_inliers)
+
+
 def monte_carlo_summary(runs: list[Consistency]) -> dict:
     """Efficiency and ANEES over independent runs (seeds) of one configuration. Each pose's mean
     NEES over N runs is chi-square(3N)/(3N) when the covariance is right; the mean over poses of

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import EstimatorConfig
-from ..evaluation.consistency import consistency, crlb_position_covariances
+from ..evaluation.consistency import consistency, crlb_position_covariances, nees_along_run
 from ..evaluation.gps_check import evaluate_against_gps, holdout_score
 from ..evaluation.metrics import compare
 from ..frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_between, motion_from
@@ -96,10 +96,13 @@ def run_group(job: GroupJob, state: RunState | None, known: VoMotions | None, sa
         if ahead is not None:
             ahead.close()
     results = {}
+    inliers = np.array([-1 if m is None else m.vo_inliers for m in state.motions] + [-1] * (n - len(state.motions)))
     for name in list(state.localizers):
         if progress is not None:
             progress(f"finishing {name}", 0, 1)
-        results[name] = _configuration_result(job, name, state.localizers[name], state.steps[name], progress)
+        localizer = state.localizers[name]
+        results[name] = _configuration_result(job, name, localizer, state.steps[name], progress,
+                                              inliers if localizer.uses_vo else np.full(n, -1))
         del state.localizers[name]  # its graphs are no more use: their memory goes to the next one's bounds
         release_memory()
     _sample_memory(state, n - 1)
@@ -153,18 +156,19 @@ def _step_through(traverse: Traverse, state: RunState, vo_motion: Callable[[int,
 
 
 def _configuration_result(job: GroupJob, name: str, localizer: Localizer, steps: list[StepResult],
-                          progress: ProgressCallback | None) -> ConfigurationResult:
+                          progress: ProgressCallback | None, vo_inliers: np.ndarray) -> ConfigurationResult:
     """A configuration's final estimate, its covariances, and its metrics against the
-    reference, the bound (CRLB) and GPS."""
+    reference (each stop's NEES too), the bound (CRLB) and GPS."""
     traverse, truth = job.traverse, job.truth
     localizer.finish()
     final = localizer.final(batch=job.options.batch)
     poses = final.world_T_body
     alignment = "none" if absolute(localizer.kind_names) else "se3"  # in the world frame as it stands
-    metrics = consistency_result = None
+    metrics = consistency_result = along = None
     covariance = localizer.position_covariances()
     if truth is not None:
         metrics = compare(poses[:, :3, 3], truth.positions, alignment, poses, truth.world_T_body)
+        along = nees_along_run(poses[:, :3, 3], truth.positions, covariance, vo_inliers)
         extra = localizer.true_values(truth)
         # the bound needs the truth of every variable (an observation folder may have poses only)
         if extra is not None and all(j < len(truth.landmarks) and np.all(np.isfinite(truth.landmarks[j]))
@@ -190,4 +194,5 @@ def _configuration_result(job: GroupJob, name: str, localizer: Localizer, steps:
         consistency=consistency_result,
         metrics_vs_gps=evaluate_against_gps(traverse, poses),
         holdout=holdout_score(traverse, poses, job.held_out),
+        nees=along,
     )

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..config import EstimatorConfig, Scenario
-from ..evaluation.consistency import Consistency
+from ..evaluation.consistency import Consistency, NeesAlongRun
 from ..evaluation.gps_check import HoldoutScore
 from ..evaluation.metrics import TrajectoryMetrics
 from ..frontend.motion import Motion, VoMotions
@@ -81,6 +81,7 @@ class ConfigurationResult:
     consistency: Consistency | None  # CRLB and NEES against truth; None without full truth
     metrics_vs_gps: TrajectoryMetrics | None  # against the fixes in the graph
     holdout: HoldoutScore | None = None  # against the held-out fixes
+    nees: NeesAlongRun | None = None  # each stop's NEES against the reference; None without one
 
     @property
     def update_ms(self) -> np.ndarray:
@@ -233,6 +234,8 @@ def metrics_document(result: RunResult) -> dict:
         entry.update(c.metrics.as_dict() if c.metrics is not None else {})
         if c.consistency is not None:
             entry.update(c.consistency.as_dict())
+        if c.nees is not None:
+            entry.update(c.nees.as_dict())
         entry.update(bridged_stops=c.bridged_stops, landmarks=c.landmarks)
         entry.update({name: c.counter(name) for name in COUNTER_DEFAULTS if name not in entry})
         entry.update(

@@ -19,13 +19,22 @@ FIGURES = (
     ("elevation_profile.png", plots.plot_elevation_profile,
      "Height against distance travelled (cf. seed Fig. 4.14)."),
 )
+NEES_FIGURE = ("nees_along_run.png", plots.plot_nees_along_run,
+               "Each stop's position NEES against the reference: a right covariance keeps it near 3 and puts 1 % "
+               "of the stops above the 99 % bound (dashed).")
+
+
+def _figures(result: RunResult) -> tuple:
+    """The figures a run has: the NEES one needs a reference."""
+    has_nees = any(c.nees is not None for c in result.configurations.values())
+    return FIGURES + ((NEES_FIGURE,) if has_nees else ())
 
 
 def write_report(result: RunResult, folder: Path, figures: bool = True) -> Path:
     """Write `report.md` and (unless `figures` is False) its PNG figures into `folder`; return
     the report's path."""
     if figures:
-        for filename, plot, _ in FIGURES:
+        for filename, plot, _ in _figures(result):
             plot(result, folder / filename)
     path = folder / "report.md"
     path.write_text(report_markdown(result, figures), encoding="utf-8")
@@ -79,9 +88,31 @@ def report_markdown(result: RunResult, figures: bool = True) -> str:
         "a GPS outlier is a fix failing the chi-square test at the estimate after its update; held-out fixes are "
         "never in any graph.",
         "",
+        *_covariance_section(result),
     ]
     if figures:
         lines += ["## Figures", ""]
-        for filename, _, caption in FIGURES:
+        for filename, _, caption in _figures(result):
             lines += [f"![{filename}]({filename})", "", caption, ""]
     return "\n".join(lines)
+
+
+def _covariance_section(result: RunResult) -> list[str]:
+    """Whether each configuration's covariance can be trusted, stop by stop (where a reference is)."""
+    rows = [(name, c) for name, c in result.configurations.items() if c.nees is not None]
+    if not rows:
+        return []
+    bound = rows[0][1].nees.bound_99
+    lines = ["## Covariance along the run", "",
+             f"| config | last stop's NEES (99 % bound {bound:.1f}) | stops outside their 99 % ellipsoid "
+             "| ANEES | largest NEES: stop (NEES, VO inliers) |", "|---|---|---|---|---|"]
+    for name, c in rows:
+        anees = "-" if c.consistency is None else f"{c.consistency.anees:.2f}"
+        largest = ", ".join(f"{k} ({c.nees.nees[k]:.1f}, {c.nees.vo_inliers[k] if c.nees.vo_inliers[k] >= 0 else '-'})"
+                            for k in c.nees.largest())
+        lines.append(f"| {name} | {c.nees.last:.2f} | {100 * c.nees.outside_99_fraction:.1f} % | {anees} "
+                     f"| {largest} |")
+    lines += ["", "A right covariance puts about 1 % of the stops outside their 99 % ellipsoid, with a mean NEES "
+              "of 3 (ANEES 1); stops along a run are correlated, so one run's figures scatter more than "
+              "independent samples would.", ""]
+    return lines

@@ -5,7 +5,13 @@ import gtsam
 import numpy as np
 import pytest
 
-from pancam_graph.evaluation.consistency import anees_band, consistency, crlb_position_covariances, monte_carlo_summary
+from pancam_graph.evaluation.consistency import (
+    anees_band,
+    consistency,
+    crlb_position_covariances,
+    monte_carlo_summary,
+    nees_along_run,
+)
 from pancam_graph.graph.keys import X
 from pancam_graph.graph.smoother import RelinearizeThresholds, Smoother
 from pancam_graph.solve.results import metrics_document
@@ -52,11 +58,32 @@ def test_anees_tells_right_from_overconfident_covariances():
     assert anees_band(30) == pytest.approx(wilson_hilferty, abs=1e-3)
 
 
+def test_nees_along_a_run_puts_one_percent_outside_the_99_percent_ellipsoid_when_the_covariance_is_right():
+    rng = np.random.default_rng(7)
+    n = 20000
+    covs = np.tile(np.diag([0.04, 0.01, 0.09]), (n, 1, 1))
+    errors = rng.multivariate_normal(np.zeros(3), covs[0], size=n)
+    inliers = rng.integers(20, 400, size=n)
+    right = nees_along_run(errors, np.zeros((n, 3)), covs, inliers)
+    assert right.bound_99 == pytest.approx(11.345, abs=1e-3)  # chi-square, 3 dof, 99 %
+    assert right.outside_99_fraction == pytest.approx(0.01, abs=0.002)  # 200 +- 14 stops
+    over = nees_along_run(errors, np.zeros((n, 3)), covs / 4, inliers)  # claims half the sigma it has
+    assert over.outside_99_fraction == pytest.approx(0.418, abs=0.01)  # P(chi2_3 > 11.345 / 4) = 0.4176
+    worst = over.largest()
+    assert over.nees[worst[0]] == over.nees.max() and list(over.nees[worst]) == sorted(over.nees[worst])[::-1]
+    listed = over.as_dict()["nees_largest"][0]
+    assert listed == {"stop": worst[0], "nees": over.nees.max(), "vo_inliers": int(inliers[worst[0]])}
+    assert over.as_dict()["nees_last"] == over.nees[-1] == pytest.approx(4 * right.nees[-1])
+
+
 @pytest.mark.slow
 def test_run_writes_crlb_efficiency_and_anees(short_run):
     doc = metrics_document(short_run)
     for name, entry in doc["configs"].items():
         assert entry["crlb_rms_m"] > 0 and np.isfinite(entry["anees"]), name
         assert entry["efficiency"] == pytest.approx(entry["rmse_m"] / entry["crlb_rms_m"])
+    for name, c in short_run.configurations.items():  # each stop's NEES, from the same covariances
+        assert c.nees.nees[-1] == pytest.approx(doc["configs"][name]["nees_last"])
+        assert np.mean(c.nees.nees[1:]) / 3 == pytest.approx(doc["configs"][name]["anees"], rel=0.05), name
     # sites constrain the chain: their bound is far below VO alone
     assert doc["configs"]["vo_sites"]["crlb_rms_m"] < 0.7 * doc["configs"]["vo"]["crlb_rms_m"]
