@@ -20,6 +20,7 @@ from .base import Kind, RowError
 TIME_TOLERANCE_S = 1e-3  # a fix this close to a stop's time is taken at the stop
 _REASONS_KEPT = 20
 MAX_FIX_DISTANCE_M = 100e3  # beyond this, a fix is of another place (and the tangent plane bends away by 800 m)
+MAX_HEIGHT_M = 100e3  # a receiver's height beyond this is no height on or over the ground
 
 
 class GpsSettings(Section):
@@ -63,6 +64,8 @@ class Gps(Kind):
                 raise RowError(line, f"lat_deg {lat:g}: expected -90..90 degrees")
             if not -180 <= lon <= 360:
                 raise RowError(line, f"lon_deg {lon:g}: expected -180..360 degrees")
+            if not -MAX_HEIGHT_M <= h <= MAX_HEIGHT_M:
+                raise RowError(line, f"h_m {h:g}: expected within {MAX_HEIGHT_M / 1000:.0f} km of the ellipsoid")
             if not (sigma_h > 0 and sigma_v > 0):
                 raise RowError(line, f"sigma_h_m {sigma_h:g}, sigma_v_m {sigma_v:g}: expected positive metres")
             if fixes and t <= fixes[-1].time_s:

@@ -92,9 +92,11 @@ def _rigid(matrix: Matrix4) -> Matrix4:
         raise ValueError(f"its 3x3 part is not a rotation (an entry of {np.abs(rotation).max():.3g}): expected "
                          "orthonormal axes with det +1")
     off = float(np.max(np.abs(rotation.T @ rotation - np.eye(3))))
-    if off > RIGID_TOLERANCE or np.linalg.det(rotation) < 0.0:
+    with np.errstate(all="ignore"):  # subnormal entries (1e-320) warn in the LU of det
+        det = float(np.linalg.det(rotation))
+    if off > RIGID_TOLERANCE or det < 0.0:
         raise ValueError(f"its 3x3 part is not a rotation (R'R differs from identity by {off:.3g}, det "
-                         f"{np.linalg.det(rotation):.3g}): expected orthonormal axes with det +1")
+                         f"{det:.3g}): expected orthonormal axes with det +1")
     return matrix
 
 

@@ -259,6 +259,7 @@ def _repeat_row(file, line, at):
     (_no_fix, "gps.csv: line 3: lat_deg = lon_deg = 0: a receiver's no-fix marker, not a position"),
     (_edit_row("gps.csv", 4, "lat_deg", "45.0"), "gps.csv: line 4: the fix lies 584 km from the traverse's origin "
                                                  "(at most 100 km): not a fix of this traverse"),
+    (_edit_row("gps.csv", 4, "h_m", "1e308"), "gps.csv: line 4: h_m 1e+308: expected within 100 km of the ellipsoid"),
     (_edit_row("stereo.csv", 6, "u_left", "1e308"), "stereo.csv: line 6: column 'u_left' = 1e+308 px lies more "
                                                     "than an image size (1024 px) outside the image"),
     (_edit_row("hrc.csv", 6, "v", "-1e308"), "hrc.csv: line 6: column 'v' = -1e+308 px lies more than an image "
