@@ -120,7 +120,8 @@ def sweep_command(
 ) -> None:
     """Run every combination of scenarios x rigs x estimator variants x seeds on Dask, one task
     per run, each writing its own results folder; then read their metrics into runs.csv and
-    summary.csv (efficiency and ANEES over the seeds, as `bench --monte-carlo`). A run that
+    summary.csv (efficiency and ANEES over the seeds, as `bench --monte-carlo`, and the last stop's
+    NEES against the exact band of independent runs). A run that
     fails or times out is recorded (runs_status.csv) and the others go on."""
     from ..api import plan_sweep, sweep
 
@@ -139,13 +140,15 @@ def sweep_command(
         outcome = sweep(planned, workers=workers, scheduler=scheduler, progress=report)
     runs, summary = planned.runs, outcome.summary
     table = Table(title=f"{escape(spec.stem)}: {len(runs)} runs", box=None, padding=(0, 1))
-    for column in ("scenario", "rig", "variant", "config", "runs", "closure %", "ATE m", "efficiency", "ANEES"):
+    for column in ("scenario", "rig", "variant", "config", "runs", "closure %", "ATE m", "efficiency", "ANEES",
+                   "last stop NEES/3"):
         table.add_column(column)
     for row in summary:
         table.add_row(escape(row.scenario), row.rig, escape(row.variant), escape(row.config), str(row.runs),
                       f"{row.closure_pct_mean:.3f}", f"{row.ate_m_mean:.2f}",
                       "-" if row.efficiency is None else f"{row.efficiency:.2f}",
-                      "-" if row.anees is None else f"{row.anees:.2f} ({row.covariance})")
+                      "-" if row.anees is None else f"{row.anees:.2f} ({row.covariance})",
+                      "-" if row.nees_last is None else f"{row.nees_last:.2f} ({row.last_stop_covariance})")
     Console(width=120).print(table)
     counts = {status: outcome.count(status) for status in ("done", "skipped", "failed", "timeout")}
     console.print(f"wall {time.perf_counter() - start:.1f} s; " + ", ".join(f"{n} {k}" for k, n in counts.items())

@@ -123,8 +123,23 @@ def monte_carlo_summary(runs: list[Consistency]) -> dict:
     efficiency = float(np.sqrt(np.mean([r.rmse_m**2 for r in runs]) / np.mean([r.crlb_rms_m**2 for r in runs])))
     anees = float(np.mean([r.anees for r in runs]))
     band = anees_band(n)
-    verdict = "consistent" if band[0] <= anees <= band[1] else ("over-confident" if anees > band[1]
-                                                                 else "under-confident")
+    verdict = covariance_verdict(anees, band)
     return {"runs": n, "efficiency": efficiency, "rmse_m": float(np.sqrt(np.mean([r.rmse_m**2 for r in runs]))),
             "crlb_rms_m": float(np.sqrt(np.mean([r.crlb_rms_m**2 for r in runs]))), "anees": anees,
             "anees_band": list(band), "covariance": verdict}
+
+
+def covariance_verdict(normalized_nees: float, band: tuple[float, float]) -> str:
+    if normalized_nees > band[1]:
+        return "over-confident"
+    return "consistent" if normalized_nees >= band[0] else "under-confident"
+
+
+def last_stop_summary(nees_last: list[float]) -> dict:
+    """The last stop's NEES over independent runs (seeds) of one configuration: each is
+    chi-square(3) when the covariance is right and the runs are independent, so their mean / 3
+    is chi-square(3N)/(3N) exactly; no correlation along a run widens or narrows the band."""
+    n = len(nees_last)
+    value = float(np.mean(nees_last)) / POSITION_DOF
+    band = anees_band(n)
+    return {"runs": n, "nees_last": value, "band": list(band), "covariance": covariance_verdict(value, band)}

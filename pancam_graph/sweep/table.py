@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ResultsError
-from ..evaluation.consistency import Consistency, monte_carlo_summary
+from ..evaluation.consistency import Consistency, last_stop_summary, monte_carlo_summary
 from .runner import RunRecord
 
 RUN_COLUMNS = ("scenario", "rig", "variant", "seed", "config", "relative_closure_pct", "ate_rmse_m",
-               "drift_translation_pct", "rmse_m", "crlb_rms_m", "efficiency", "anees", "wall_s")
+               "drift_translation_pct", "rmse_m", "crlb_rms_m", "efficiency", "anees", "nees_last", "wall_s")
 
 
 @dataclass(frozen=True)
@@ -34,6 +34,9 @@ class ConfigSummary:
     anees: float | None
     anees_band: tuple[float, float] | None
     covariance: str  # consistent / over-confident / under-confident / "" without truth
+    # the last stop's NEES / 3, mean over the runs, against the exact band of independent runs
+    nees_last: float | None = None
+    last_stop_covariance: str = ""
 
 
 def run_rows(records: list[RunRecord]) -> list[dict]:
@@ -64,12 +67,15 @@ def summarize(rows: list[dict]) -> list[ConfigSummary]:
         closure = [r["relative_closure_pct"] for r in group if r.get("relative_closure_pct") is not None]
         ate = [r["ate_rmse_m"] for r in group if r.get("ate_rmse_m") is not None]
         mc = monte_carlo(group)
+        last = [r["nees_last"] for r in group if r.get("nees_last") is not None]
+        at_end = last_stop_summary(last) if last and len(last) == len(group) else None
         out.append(ConfigSummary(
             scenario, rig, variant, config, len(group),
             float(np.mean(closure)) if closure else float("nan"), float(np.max(closure)) if closure else float("nan"),
             float(np.mean(ate)) if ate else float("nan"),
             mc["efficiency"] if mc else None, mc["anees"] if mc else None,
-            tuple(mc["anees_band"]) if mc else None, mc["covariance"] if mc else ""))
+            tuple(mc["anees_band"]) if mc else None, mc["covariance"] if mc else "",
+            at_end["nees_last"] if at_end else None, at_end["covariance"] if at_end else ""))
     return out
 
 

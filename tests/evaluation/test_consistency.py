@@ -9,6 +9,7 @@ from pancam_graph.evaluation.consistency import (
     anees_band,
     consistency,
     crlb_position_covariances,
+    last_stop_summary,
     monte_carlo_summary,
     nees_along_run,
 )
@@ -74,6 +75,18 @@ def test_nees_along_a_run_puts_one_percent_outside_the_99_percent_ellipsoid_when
     listed = over.as_dict()["nees_largest"][0]
     assert listed == {"stop": worst[0], "nees": over.nees.max(), "vo_inliers": int(inliers[worst[0]])}
     assert over.as_dict()["nees_last"] == over.nees[-1] == pytest.approx(4 * right.nees[-1])
+
+
+def test_the_last_stops_nees_over_independent_runs_has_an_exact_band():
+    rng = np.random.default_rng(3)
+    cov = np.diag([0.04, 0.01, 0.09])
+    runs = 30
+    last = [nees_along_run(rng.multivariate_normal(np.zeros(3), cov, size=(1, )), np.zeros((1, 3)), cov[None],
+                           np.array([-1])).last for _ in range(runs)]
+    right = last_stop_summary(last)
+    assert right["band"] == pytest.approx(anees_band(runs)) and right["covariance"] == "consistent"
+    assert last_stop_summary([4 * v for v in last])["covariance"] == "over-confident"  # claims half its sigma
+    assert last_stop_summary([v / 4 for v in last])["covariance"] == "under-confident"
 
 
 @pytest.mark.slow

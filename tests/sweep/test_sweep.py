@@ -13,7 +13,7 @@ import pytest
 
 from pancam_graph.config import resolve_scenario
 from pancam_graph.errors import ConfigError
-from pancam_graph.evaluation.consistency import monte_carlo_summary
+from pancam_graph.evaluation.consistency import last_stop_summary, monte_carlo_summary
 from pancam_graph.solve.pipeline import RunOptions, run
 from pancam_graph.sweep.spec import SweepSpec, plan
 
@@ -63,9 +63,12 @@ def test_a_failing_run_is_recorded_and_the_others_finish(swept):
 
 @pytest.fixture(scope="module")
 def serial(short_scenario):
-    """vo_sites over seeds 0 and 1, run one after another in this process."""
-    return monte_carlo_summary([run(short_scenario, RunOptions(seed=s, configs=("vo_sites",)))
-                                .configurations["vo_sites"].consistency for s in (0, 1)])
+    """vo_sites over seeds 0 and 1, run one after another in this process, and their last
+    stops' NEES."""
+    results = [run(short_scenario, RunOptions(seed=s, configs=("vo_sites",))).configurations["vo_sites"]
+               for s in (0, 1)]
+    return monte_carlo_summary([c.consistency for c in results]) | {
+        "nees_last": last_stop_summary([c.nees.last for c in results])["nees_last"]}
 
 
 def test_the_summary_is_bench_monte_carlos(swept, serial):
@@ -74,6 +77,8 @@ def test_the_summary_is_bench_monte_carlos(swept, serial):
     assert (summary["scenario"], summary["config"], summary["runs"]) == ("short_trail", "vo_sites", "2")
     assert float(summary["efficiency"]) == pytest.approx(serial["efficiency"], rel=1e-9)
     assert float(summary["anees"]) == pytest.approx(serial["anees"], rel=1e-9)
+    assert float(summary["nees_last"]) == pytest.approx(serial["nees_last"], rel=1e-9)
+    assert summary["last_stop_covariance"] in ("consistent", "under-confident", "over-confident")
 
 
 def test_bench_monte_carlo_runs_as_a_sweep_with_workers(tmp_path, serial):
