@@ -67,8 +67,7 @@ def summarize(rows: list[dict]) -> list[ConfigSummary]:
         closure = [r["relative_closure_pct"] for r in group if r.get("relative_closure_pct") is not None]
         ate = [r["ate_rmse_m"] for r in group if r.get("ate_rmse_m") is not None]
         mc = monte_carlo(group)
-        last = [r["nees_last"] for r in group if r.get("nees_last") is not None]
-        at_end = last_stop_summary(last) if last and len(last) == len(group) else None
+        at_end = mc["last_stop"] if mc else None
         out.append(ConfigSummary(
             scenario, rig, variant, config, len(group),
             float(np.mean(closure)) if closure else float("nan"), float(np.max(closure)) if closure else float("nan"),
@@ -80,11 +79,13 @@ def summarize(rows: list[dict]) -> list[ConfigSummary]:
 
 
 def monte_carlo(rows: list[dict]) -> dict | None:
-    """bench --monte-carlo's summary of one configuration's runs; None unless every run has
-    truth (efficiency and ANEES need it)."""
+    """bench --monte-carlo's summary of one configuration's runs, the last stop's NEES over them
+    too; None unless every run has truth (efficiency and ANEES need it)."""
     consistency = [Consistency(r["rmse_m"], r["crlb_rms_m"], r["efficiency"], r["anees"], (0.0, 0.0))
                    for r in rows if r.get("anees") is not None and r.get("crlb_rms_m") is not None]
-    return monte_carlo_summary(consistency) if rows and len(consistency) == len(rows) else None
+    if not rows or len(consistency) != len(rows) or any(r.get("nees_last") is None for r in rows):
+        return None
+    return monte_carlo_summary(consistency) | {"last_stop": last_stop_summary([r["nees_last"] for r in rows])}
 
 
 def write_tables(out: Path, records: list[RunRecord], rows: list[dict], summary: list[ConfigSummary]) -> None:

@@ -89,6 +89,7 @@ def test_bench_monte_carlo_runs_as_a_sweep_with_workers(tmp_path, serial):
     assert report["seeds"] == [0, 1] and report["workers"] == 2
     assert report["monte_carlo"]["vo_sites"]["efficiency"] == pytest.approx(serial["efficiency"], rel=1e-9)
     assert report["monte_carlo"]["vo_sites"]["anees"] == pytest.approx(serial["anees"], rel=1e-9)
+    assert report["monte_carlo"]["vo_sites"]["last_stop"]["nees_last"] == pytest.approx(serial["nees_last"], rel=1e-9)
 
 
 def test_a_second_invocation_skips_the_runs_done(swept):
