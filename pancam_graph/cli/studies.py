@@ -149,7 +149,7 @@ def sweep_command(
                       "-" if row.efficiency is None else f"{row.efficiency:.2f}",
                       "-" if row.anees is None else f"{row.anees:.2f} ({row.covariance})",
                       "-" if row.nees_last is None else f"{row.nees_last:.2f} ({row.last_stop_covariance})")
-    Console(width=120).print(table)
+    Console(width=160).print(table)  # every column on one line: a summary is read side by side
     counts = {status: outcome.count(status) for status in ("done", "skipped", "failed", "timeout")}
     console.print(f"wall {time.perf_counter() - start:.1f} s; " + ", ".join(f"{n} {k}" for k, n in counts.items())
                   + f"; tables in {out} (runs.csv, summary.csv, runs_status.csv)")
