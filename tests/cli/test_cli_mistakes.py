@@ -73,8 +73,11 @@ def mistakes(tmp_path_factory):
     (result, files before, files after) per case."""
     from concurrent.futures import ThreadPoolExecutor
 
+    # the folders made here, not in the threads: pytest's tmp_path_factory is not made for threads
+    folders = [tmp_path_factory.mktemp("mistakes") / f"case{case}" for case in range(len(MISTAKES))]
+
     def attempt(case: int):
-        folder = tmp_path_factory.mktemp("mistakes") / f"case{case}"
+        folder = folders[case]
         before = _make_work_folder(folder)
         result = _cli(*MISTAKES[case][0], cwd=folder, env={"DISPLAY": ""})
         return result, before, sorted(p.relative_to(folder) for p in folder.rglob("*"))
