@@ -94,10 +94,13 @@ def open_data(source: str | Path, options: SourceOptions = SourceOptions(), out:
         data = open_source(str(source), options, progress)
     except FrameError as exc:
         raise _kept_frontend_work(exc, out) from None
-    return data if vo_error_model is None else _with_vo_error_model(data, vo_error_model)
+    return _with_vo_error_model(data, vo_error_model)
 
 
-def _with_vo_error_model(data: SourceData, name: str) -> SourceData:
+def _with_vo_error_model(data: SourceData, name: str | None) -> SourceData:
+    """The source with the VO error model `name` in effect (as it is: None, or its own)."""
+    if name is None or name == data.estimator.vo_error_model:
+        return data
     from .config import with_vo_error_model
 
     estimator = with_vo_error_model(data.estimator, name)
@@ -149,9 +152,8 @@ def run(source: str | Path = "denver_trail", *, out: Path | str | None = None, s
         start_process_server()  # it imports while the source loads
     check_out(out)
     source_options = source_options or SourceOptions(seed=seed)
-    data = opened or open_data(source, source_options, out, progress)
-    if vo_error_model is not None:
-        data = _with_vo_error_model(data, vo_error_model)
+    data = _with_vo_error_model(opened, vo_error_model) if opened else open_data(source, source_options, out,
+                                                                                   progress, vo_error_model)
     select_configurations(data.estimator, data.traverse, options.configs)  # before anything is written
     return _run_into_folder(data, options, out, rerun, checkpoint_every_s, figures, progress, on_viewer=on_viewer)
 

@@ -107,10 +107,10 @@ def bench_runs(scenario: str, seed: int | None = None, seeds: int = 1, rerun: bo
             for n in results[0].configurations
         }
     if monte_carlo:
-        from .evaluation.consistency import last_stop_summary, monte_carlo_summary
+        from .evaluation.consistency import monte_carlo_summary
 
-        report["monte_carlo"] = {n: monte_carlo_summary([r.configurations[n].consistency for r in results])
-                                 | {"last_stop": last_stop_summary([r.configurations[n].nees.last for r in results])}
+        report["monte_carlo"] = {n: monte_carlo_summary([r.configurations[n].consistency for r in results],
+                                                        [r.configurations[n].nees.last for r in results])
                                  for n in results[0].configurations
                                  if all(r.configurations[n].consistency is not None for r in results)}
     return report

@@ -21,6 +21,7 @@ from ..graph.keys import L, X
 from ..graph.smoother import Smoother
 
 POSITION_DOF = 3
+NEES_BOUND_99 = float(chi2.quantile(0.99, POSITION_DOF))  # a position's 99 % ellipsoid
 
 
 def crlb_position_covariances(smoother: Smoother, stops: list[int], world_T_body: np.ndarray,
@@ -88,12 +89,8 @@ class NeesAlongRun:
     LARGEST = 5  # stops listed with the largest NEES
 
     @property
-    def bound_99(self) -> float:
-        return float(chi2.quantile(0.99, POSITION_DOF))
-
-    @property
     def outside_99_fraction(self) -> float:
-        return float(np.mean(self.nees > self.bound_99))
+        return float(np.mean(self.nees > NEES_BOUND_99))
 
     @property
     def last(self) -> float:
@@ -115,10 +112,11 @@ def nees_along_run(estimate: np.ndarray, truth: np.ndarray, covariances: np.ndar
     return NeesAlongRun(nees(estimate - truth, covariances), vo_inliers)
 
 
-def monte_carlo_summary(runs: list[Consistency]) -> dict:
+def monte_carlo_summary(runs: list[Consistency], nees_last: list[float] | None = None) -> dict:
     """Efficiency and ANEES over independent runs (seeds) of one configuration. Each pose's mean
     NEES over N runs is chi-square(3N)/(3N) when the covariance is right; the mean over poses of
-    correlated such values has at most that spread, so that band is the (conservative) test."""
+    correlated such values has at most that spread, so that band is the (conservative) test.
+    With the runs' last-stop NEES, also their exact test (`last_stop`, last_stop_summary)."""
     n = len(runs)
     efficiency = float(np.sqrt(np.mean([r.rmse_m**2 for r in runs]) / np.mean([r.crlb_rms_m**2 for r in runs])))
     anees = float(np.mean([r.anees for r in runs]))
@@ -126,7 +124,8 @@ def monte_carlo_summary(runs: list[Consistency]) -> dict:
     verdict = covariance_verdict(anees, band)
     return {"runs": n, "efficiency": efficiency, "rmse_m": float(np.sqrt(np.mean([r.rmse_m**2 for r in runs]))),
             "crlb_rms_m": float(np.sqrt(np.mean([r.crlb_rms_m**2 for r in runs]))), "anees": anees,
-            "anees_band": list(band), "covariance": verdict}
+            "anees_band": list(band), "covariance": verdict} | (
+        {} if nees_last is None else {"last_stop": last_stop_summary(nees_last)})
 
 
 def covariance_verdict(normalized_nees: float, band: tuple[float, float]) -> str:

@@ -96,7 +96,7 @@ def run_group(job: GroupJob, state: RunState | None, known: VoMotions | None, sa
         if ahead is not None:
             ahead.close()
     results = {}
-    inliers = np.array([-1 if m is None else m.vo_inliers for m in state.motions] + [-1] * (n - len(state.motions)))
+    inliers = np.array([-1 if m is None else m.vo_inliers for m in state.motions])  # one motion per stop
     for name in list(state.localizers):
         if progress is not None:
             progress(f"finishing {name}", 0, 1)

@@ -394,7 +394,8 @@ def _read_stereo(path: Path, camera: Camera) -> tuple[list[float], list[float], 
     table = CsvTable(path, STEREO_COLUMNS, optional=["dwell_s"])
     times: dict[int, float] = {}
     dwells: dict[int, float] = {}
-    rows: dict[int, list] = defaultdict(list)
+    rows: dict[int, dict[int, list[float]]] = defaultdict(dict)  # stop: track: (u_left, u_right, v)
+    lines: dict[tuple[int, int], int] = {}  # (stop, track): its line
     for line, row in table.rows:
         stop, time_s, track, ul, ur, v = table.values(line, row)
         k = int(table.number(line, "stop", stop, integer=True))
@@ -408,22 +409,18 @@ def _read_stereo(path: Path, camera: Camera) -> tuple[list[float], list[float], 
             raise InputError(f"{path}: line {line}: stop {k}: dwell_s must be >= 0 and the same on every row")
         if track == "" and ul == "" and ur == "" and v == "":
             continue
-        rows[k].append((table.track(line, track), table.pixel(line, "u_left", ul, camera.width),
-                        table.pixel(line, "u_right", ur, camera.width), table.pixel(line, "v", v, camera.height), line))
+        track = table.track(line, track)
+        if lines.setdefault((k, track), line) != line:
+            raise InputError(f"{path}: line {line}: stop {k} lists track {track} a second time")
+        rows[k][track] = [table.pixel(line, "u_left", ul, camera.width), table.pixel(line, "u_right", ur, camera.width),
+                          table.pixel(line, "v", v, camera.height)]
     n = len(times)
     missing = next((k for k in range(max(n, 1)) if k not in times), None)
     if missing is not None:
         raise InputError(f"{path}: stops must be numbered 0..N-1 with a row each; no row for stop {missing}")
-    observations = []
-    for k in range(n):
-        tracks = np.array([r[0] for r in rows[k]], dtype=np.int64)
-        seen: set[int] = set()
-        for track, *_, line in rows[k]:
-            if track in seen:
-                raise InputError(f"{path}: line {line}: stop {k} lists track {track} a second time")
-            seen.add(track)
-        uvv = np.array([r[1:4] for r in rows[k]], dtype=float).reshape(-1, 3)
-        observations.append(StereoObservations(tracks, uvv))
+    observations = [StereoObservations(np.array(list(rows[k]), dtype=np.int64),
+                                       np.array(list(rows[k].values()), dtype=float).reshape(-1, 3))
+                    for k in range(n)]
     ordered = [times[k] for k in range(n)]
     if any(b < a + dwells[k] for k, (a, b) in enumerate(zip(ordered[:-1], ordered[1:], strict=True))):
         k = next(k for k in range(n - 1) if ordered[k + 1] < ordered[k] + dwells[k])
@@ -475,8 +472,8 @@ def _read_frames(table: CsvTable, n: int, measured: list[str], camera: Camera
                  ) -> dict[int, dict[tuple[float, float], tuple]]:
     """Rows grouped by stop and frame (pan_rad, tilt_rad), in file order: per frame the track ids
     and the `measured` pixel columns (u..., v) as an (N, len(measured)) array."""
-    grouped: dict[int, dict[tuple[float, float], dict[int, list]]] = defaultdict(dict)
-    lines: dict[tuple[int, float, float, int], int] = {}
+    grouped: dict[int, dict[tuple[float, float], dict[int, list]]] = defaultdict(dict)  # stop: frame: track: uv
+    lines: dict[tuple[int, float, float, int], int] = {}  # (stop, pan, tilt, track): its line (as _read_stereo)
     for line, row in table.rows:
         values = dict(zip(table.columns, table.values(line, row), strict=True))
         k = table.stop(line, values["stop"], n)

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ResultsError
-from ..evaluation.consistency import Consistency, last_stop_summary, monte_carlo_summary
+from ..evaluation.consistency import Consistency, monte_carlo_summary
 from .runner import RunRecord
 
 RUN_COLUMNS = ("scenario", "rig", "variant", "seed", "config", "relative_closure_pct", "ate_rmse_m",
@@ -85,7 +85,7 @@ def monte_carlo(rows: list[dict]) -> dict | None:
                    for r in rows if r.get("anees") is not None and r.get("crlb_rms_m") is not None]
     if not rows or len(consistency) != len(rows) or any(r.get("nees_last") is None for r in rows):
         return None
-    return monte_carlo_summary(consistency) | {"last_stop": last_stop_summary([r["nees_last"] for r in rows])}
+    return monte_carlo_summary(consistency, [r["nees_last"] for r in rows])
 
 
 def write_tables(out: Path, records: list[RunRecord], rows: list[dict], summary: list[ConfigSummary]) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..evaluation.consistency import NEES_BOUND_99
 from ..solve.results import RunResult, reproduce_command
 from . import plots
 
@@ -102,9 +103,8 @@ def _covariance_section(result: RunResult) -> list[str]:
     rows = [(name, c) for name, c in result.configurations.items() if c.nees is not None]
     if not rows:
         return []
-    bound = rows[0][1].nees.bound_99
     lines = ["## Covariance along the run", "",
-             f"| config | last stop's NEES (99 % bound {bound:.1f}) | stops outside their 99 % ellipsoid "
+             f"| config | last stop's NEES (99 % bound {NEES_BOUND_99:.1f}) | stops outside their 99 % ellipsoid "
              "| ANEES | largest NEES: stop (NEES, VO inliers) |", "|---|---|---|---|---|"]
     for name, c in rows:
         anees = "-" if c.consistency is None else f"{c.consistency.anees:.2f}"

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from pancam_graph.evaluation.consistency import (
+    NEES_BOUND_99,
     anees_band,
     consistency,
     crlb_position_covariances,
@@ -66,7 +67,7 @@ def test_nees_along_a_run_puts_one_percent_outside_the_99_percent_ellipsoid_when
     errors = rng.multivariate_normal(np.zeros(3), covs[0], size=n)
     inliers = rng.integers(20, 400, size=n)
     right = nees_along_run(errors, np.zeros((n, 3)), covs, inliers)
-    assert right.bound_99 == pytest.approx(11.345, abs=1e-3)  # chi-square, 3 dof, 99 %
+    assert NEES_BOUND_99 == pytest.approx(11.345, abs=1e-3)  # chi-square, 3 dof, 99 %
     assert right.outside_99_fraction == pytest.approx(0.01, abs=0.002)  # 200 +- 14 stops
     over = nees_along_run(errors, np.zeros((n, 3)), covs / 4, inliers)  # claims half the sigma it has
     assert over.outside_99_fraction == pytest.approx(0.418, abs=0.01)  # P(chi2_3 > 11.345 / 4) = 0.4176
