@@ -81,12 +81,20 @@ def consistency(estimate: np.ndarray, truth: np.ndarray, estimator_cov: np.ndarr
 @dataclass(frozen=True)
 class NeesAlongRun:
     """Each stop's position NEES against the reference (3 dof): where along a run the covariance
-    holds. A right covariance puts 1 % of the stops outside their 99 % ellipsoid."""
+    holds. A right covariance puts 1 % of the samples outside their 99 % ellipsoid. Against the
+    truth there is a sample per stop; against GPS fixes (no truth) one per fix, at the stop
+    nearest it in time, with the fix's own covariance added."""
 
-    nees: np.ndarray  # (N,), e^T P^-1 e of each stop's position
-    vo_inliers: np.ndarray  # (N,) of the VO step into each stop; -1 where there was none
+    nees: np.ndarray  # (M,), e^T P^-1 e of each sample's position
+    vo_inliers: np.ndarray  # (M,) of the VO step into the sample's stop; -1 where there was none
+    stop_indices: np.ndarray | None = None  # (M,) the stop of each sample; None: sample k is stop k
+    against: str = "truth"  # or "gps"
 
-    LARGEST = 5  # stops listed with the largest NEES
+    LARGEST = 5  # samples listed with the largest NEES
+
+    @property
+    def stops(self) -> np.ndarray:
+        return np.arange(len(self.nees)) if self.stop_indices is None else self.stop_indices
 
     @property
     def outside_99_fraction(self) -> float:
@@ -96,14 +104,21 @@ class NeesAlongRun:
     def last(self) -> float:
         return float(self.nees[-1])
 
+    @property
+    def anees(self) -> float:
+        return float(np.mean(self.nees)) / POSITION_DOF
+
     def largest(self) -> list[int]:
-        """The stops whose NEES is largest, largest first."""
+        """The samples whose NEES is largest, largest first."""
         return [int(k) for k in np.argsort(-self.nees, kind="stable")[:self.LARGEST]]
 
     def as_dict(self) -> dict:
-        return {"nees_last": self.last, "nees_outside_99_pct": 100.0 * self.outside_99_fraction,
-                "nees_largest": [{"stop": k, "nees": float(self.nees[k]), "vo_inliers": int(self.vo_inliers[k])}
-                                 for k in self.largest()]}
+        entry = {"nees_last": self.last, "nees_outside_99_pct": 100.0 * self.outside_99_fraction,
+                 "nees_largest": [{"stop": int(self.stops[k]), "nees": float(self.nees[k]),
+                                   "vo_inliers": int(self.vo_inliers[k])} for k in self.largest()]}
+        if self.against != "truth":  # against the truth, `Consistency` holds the ANEES
+            entry |= {"nees_against": self.against, "nees_samples": len(self.nees), "anees": self.anees}
+        return entry
 
 
 def nees_along_run(estimate: np.ndarray, truth: np.ndarray, covariances: np.ndarray,

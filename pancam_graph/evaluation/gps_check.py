@@ -1,5 +1,6 @@
 """An estimate against GPS fixes: the antenna (the lever arm from the body) interpolated to each
-fix's time, compared with the fixes in ENU (pyproj), and the score on fixes held out of the graph."""
+fix's time, compared with the fixes in ENU (pyproj); whether the estimate's covariance holds
+against them; and the score on fixes held out of the graph."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..records import GpsFix, Traverse
+from .consistency import NeesAlongRun, nees
 from .metrics import GPS_REFERENCE_STEP_M, TrajectoryMetrics, compare, decimated_length
 from .timed import poses_at_times
 
@@ -65,3 +67,22 @@ def holdout_score(traverse: Traverse, world_T_body: np.ndarray, held_out: tuple[
     rms = float(np.sqrt(np.mean(np.sum((antenna[:, :2] - enu[:, :2]) ** 2, axis=1))))
     drms = float(np.sqrt(np.mean([2.0 * f.sigma_horizontal_m**2 for f in held_out])))
     return HoldoutScore(len(held_out), rms, drms)
+
+
+def nees_against_gps(traverse: Traverse, world_T_body: np.ndarray, covariances: np.ndarray,
+                     vo_inliers: np.ndarray) -> NeesAlongRun | None:
+    """Each fix's NEES against the antenna at its time, with the covariance of the stop nearest
+    in time plus the fix's own (its stated sigmas): where there is no truth, whether the
+    covariance holds against GPS. None without fixes in the stops' span."""
+    times, enu = gps_enu(traverse)
+    stop_times = np.array([s.time_s for s in traverse.stops])
+    during = (times >= stop_times[0]) & (times <= stop_times[-1] + traverse.stops[-1].dwell_s)
+    if not during.any():
+        return None
+    fixes = [f for f, inside in zip(traverse.gps_fixes, during, strict=True) if inside]
+    times, enu = times[during], enu[during]
+    nearest = np.abs(times[:, None] - stop_times[None, :]).argmin(axis=1)
+    own = np.stack([np.diag([f.sigma_horizontal_m**2, f.sigma_horizontal_m**2, f.sigma_vertical_m**2])
+                    for f in fixes])
+    errors = antenna_at_times(traverse, world_T_body, times) - enu
+    return NeesAlongRun(nees(errors, covariances[nearest] + own), vo_inliers[nearest], nearest, "gps")

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..config import EstimatorConfig
 from ..evaluation.consistency import consistency, crlb_position_covariances, nees_along_run
-from ..evaluation.gps_check import evaluate_against_gps, holdout_score
+from ..evaluation.gps_check import evaluate_against_gps, holdout_score, nees_against_gps
 from ..evaluation.metrics import compare
 from ..frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_between, motion_from
 from ..frontend.stereo_vo import StereoVO
@@ -178,6 +178,8 @@ def _configuration_result(job: GroupJob, name: str, localizer: Localizer, steps:
             crlb = crlb_position_covariances(localizer.smoother, localizer.stops, truth.world_T_body,
                                              {j: truth.landmarks[j] for j in localizer.landmarks}, extra)
             consistency_result = consistency(poses[:, :3, 3], truth.positions, covariance, crlb)
+    elif traverse.gps_fixes:  # no truth: the fixes are the reference
+        along = nees_against_gps(traverse, poses, covariance, vo_inliers)
     return ConfigurationResult(
         name=name,
         kinds=tuple(localizer.kind_names),

@@ -81,7 +81,7 @@ class ConfigurationResult:
     consistency: Consistency | None  # CRLB and NEES against truth; None without full truth
     metrics_vs_gps: TrajectoryMetrics | None  # against the fixes in the graph
     holdout: HoldoutScore | None = None  # against the held-out fixes
-    nees: NeesAlongRun | None = None  # each stop's NEES against the reference; None without one
+    nees: NeesAlongRun | None = None  # NEES against the truth (each stop) or GPS (each fix); None without either
 
     @property
     def update_ms(self) -> np.ndarray:

@@ -89,8 +89,10 @@ def plot_nees_along_run(result: RunResult, path: Path) -> None:
     for name, c in result.configurations.items():
         if c.nees is not None:
             # NEES 0 at the start pose (the prior fixes it): kept visible on the log axis
-            ax.plot(dist, np.maximum(c.nees.nees, 1e-3), color=_COLOURS.get(name), lw=1.0,
-                    label=f"{name} ({100 * c.nees.outside_99_fraction:.0f} % of stops above)")
+            ax.plot(dist[c.nees.stops], np.maximum(c.nees.nees, 1e-3), color=_COLOURS.get(name), lw=1.0,
+                    marker="o" if c.nees.against == "gps" else None, ms=3,
+                    label=f"{name} ({100 * c.nees.outside_99_fraction:.0f} % "
+                          f"{'of GPS fixes' if c.nees.against == 'gps' else 'of stops'} above)")
     ax.axhline(NEES_BOUND_99, color="k", lw=1.0, ls="--", label=f"99 % bound ({NEES_BOUND_99:.1f})")
     ax.axhline(3.0, color="0.5", lw=0.8, ls=":", label="mean of a right covariance (3)")
     ax.set_yscale("log")

@@ -1,0 +1,225 @@
+"""KITTI odometry sequence 00 as GTSAM's Python wheel ships it (`gtsam.findExampleDataFile`):
+real stereo tracks of its first 154 frames, their rectified calibration, the drive's real GPS
+in a local metric frame, and the example's own VO poses.
+
+    VO_stereo_factors00.txt   frame track u_left u_right v X Y Z      (one row per observation)
+    VO_calibration00.txt      fx fy skew cx cy baseline_m
+    VO_camera_poses00.txt     frame, then the left camera's 4x4 pose row by row (first = identity)
+    KittiGps_converted.txt    Time,X,Y,Z   (header; s of day, local metres, Z up)
+
+Frames 93-131 come every other frame (the example left the rest out); the GPS covers the whole
+drive (4541 frames, 470.9 s) at 1 Hz. The files carry no frame times and no antenna offset: the
+frame times are the GPS span cut into 4540 equal steps plus a clock offset, and the antenna is
+KITTI's OXTS unit at its calibrated place on the car (`OXTS_IN_CAMERA_BODY_M`). Where the car
+started, facing where, and the clock offset are fitted to the GPS on the example's VO poses
+(`fit_start`), never on an estimate this project makes, so a run of these tracks is judged on
+GPS it was not fitted to in any way that favours it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..geodesy import LocalFrame
+from ..records import GpsFix, SlipPrior, StereoObservations, Stop, Traverse
+from ..rig import BODY_T_FORWARD_CAMERA, Camera, Rig
+from ..text_files import read_text
+
+FILES = ("VO_stereo_factors00.txt", "VO_calibration00.txt", "VO_camera_poses00.txt", "KittiGps_converted.txt")
+IMAGE_SIZE = (1241, 376)  # KITTI sequence 00, rectified grayscale (width, height)
+SEQUENCE_FRAMES = 4541  # sequence 00 = raw drive 2011_10_03_0027, which the GPS file covers
+# The OXTS unit (whose position the GPS file holds) from the left grey camera, body axes (x forward,
+# y left, z up), from KITTI's calib_imu_to_velo and calib_velo_to_cam: 1.08 m behind the camera,
+# 0.32 m left, 0.73 m below (the 2011_09_26 calibration in ../shared/data/real/kitti_raw; the car's
+# later calibrations move it by about 2 cm).
+OXTS_IN_CAMERA_BODY_M = (-1.082, 0.322, -0.727)
+# The GPS file's local frame has no published origin; only differences matter. A nominal one
+# where the drive was (Karlsruhe), so the WGS84 exports land near it.
+NOMINAL_ORIGIN = LocalFrame(49.0, 8.4, 110.0)
+# The fixes' 1-sigma per horizontal axis and vertically: OXTS RTK as the drive logged it, about
+# 0.35 m 2-D against the sequence's ground truth once the clock and the antenna are right.
+GPS_SIGMA_HORIZONTAL_M = 0.25
+GPS_SIGMA_VERTICAL_M = 0.5
+# Matching and localisation error of the example's features (1 sigma), as for the KITTI frames
+# the image front-end tracks.
+PIXEL_SIGMA_PX = 0.5
+
+
+@dataclass(frozen=True)
+class Kitti00Example:
+    """The four files, read."""
+
+    frames: np.ndarray  # (N,) KITTI frame numbers with tracks, increasing
+    observations: tuple[StereoObservations, ...]  # per frame
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    baseline_m: float
+    example_world_T_camera: np.ndarray  # (N, 4, 4) the example's VO poses of the left camera
+    gps_times_s: np.ndarray  # (M,)
+    gps_xyz_m: np.ndarray  # (M, 3) local metres, z up
+
+    @property
+    def frame_step_s(self) -> float:
+        """Time between frames: the GPS span over the sequence's frames."""
+        return float(self.gps_times_s[-1] - self.gps_times_s[0]) / (SEQUENCE_FRAMES - 1)
+
+    def frame_times_s(self, clock_offset_s: float = 0.0) -> np.ndarray:
+        """Each frame's time on the GPS clock."""
+        return self.gps_times_s[0] + clock_offset_s + self.frames * self.frame_step_s
+
+
+def example_data_folder() -> Path:
+    """Where the installed gtsam wheel keeps its example data."""
+    import gtsam
+
+    try:
+        return Path(gtsam.findExampleDataFile(FILES[0])).parent
+    except (RuntimeError, ValueError) as exc:
+        raise InputError(f"gtsam's example data: {FILES[0]} not found ({exc}); is gtsam installed "
+                         "from the wheel?") from None
+
+
+def read_kitti00_example(folder: Path | None = None) -> Kitti00Example:
+    """The example's files from `folder` (default: the installed wheel's data folder)."""
+    folder = example_data_folder() if folder is None else Path(folder)
+    tracks_path, calibration_path, poses_path, gps_path = (folder / name for name in FILES)
+    rows = _numbers(tracks_path, 8)
+    frames = np.unique(rows[:, 0].astype(np.int64))
+    observations = []
+    for f in frames:
+        mine = rows[rows[:, 0] == f]
+        tracks = mine[:, 1].astype(np.int64)
+        if len(np.unique(tracks)) != len(tracks):
+            raise InputError(f"{tracks_path}: frame {f} lists a track twice")
+        observations.append(StereoObservations(tracks, mine[:, 2:5].copy()))
+    calibration = _numbers(calibration_path, 6)
+    if len(calibration) != 1:
+        raise InputError(f"{calibration_path}: expected one row (fx fy skew cx cy baseline), got {len(calibration)}")
+    fx, fy, _, cx, cy, baseline = calibration[0]
+    poses = _numbers(poses_path, 17)
+    if not np.array_equal(poses[:, 0].astype(np.int64), frames):
+        raise InputError(f"{poses_path}: its frames are not those of {tracks_path.name}")
+    gps = _gps(gps_path)
+    return Kitti00Example(frames, tuple(observations), float(fx), float(fy), float(cx), float(cy), float(baseline),
+                          poses[:, 1:].reshape(-1, 4, 4), gps[:, 0], gps[:, 1:])
+
+
+def _numbers(path: Path, columns: int) -> np.ndarray:
+    """Whitespace-separated numbers, `columns` per line."""
+    rows = []
+    for line, text in enumerate(read_text(path).splitlines(), start=1):
+        fields = text.split()
+        if not fields:
+            continue
+        if len(fields) != columns:
+            raise InputError(f"{path}: line {line}: expected {columns} numbers, got {len(fields)}")
+        try:
+            rows.append([float(v) for v in fields])
+        except ValueError:
+            raise InputError(f"{path}: line {line}: expected numbers, got {text.strip()[:60]!r}") from None
+    if not rows:
+        raise InputError(f"{path}: no rows")
+    array = np.array(rows)
+    if not np.all(np.isfinite(array)):
+        raise InputError(f"{path}: line {int(np.flatnonzero(~np.isfinite(array).all(axis=1))[0]) + 1}: "
+                         "non-finite number")
+    return array
+
+
+def _gps(path: Path) -> np.ndarray:
+    lines = read_text(path).splitlines()
+    if not lines or [c.strip() for c in lines[0].split(",")] != ["Time", "X", "Y", "Z"]:
+        raise InputError(f"{path}: line 1: expected the header Time,X,Y,Z")
+    rows = []
+    for line, text in enumerate(lines[1:], start=2):
+        if not text.strip():
+            continue
+        try:
+            row = [float(v) for v in text.split(",")]
+        except ValueError:
+            raise InputError(f"{path}: line {line}: expected four numbers, got {text.strip()[:60]!r}") from None
+        if len(row) != 4 or not np.all(np.isfinite(row)):
+            raise InputError(f"{path}: line {line}: expected four finite numbers")
+        if rows and row[0] <= rows[-1][0]:
+            raise InputError(f"{path}: line {line}: time {row[0]} does not increase")
+        rows.append(row)
+    if len(rows) < 2:
+        raise InputError(f"{path}: fewer than two fixes")
+    return np.array(rows)
+
+
+@dataclass(frozen=True)
+class StartFit:
+    """Where the car started on the GPS's local frame, fitted on the example's VO poses: the
+    similarity (yaw, translation, scale) and clock offset that best lay the OXTS unit of those
+    poses onto the fixes of the frames' span. Only the start pose and the clock offset are kept:
+    the scale and the residuals describe the example's VO, not the drive."""
+
+    world_T_body: np.ndarray  # 4x4, the first frame's body (x forward, y left, z up) in the local frame
+    clock_offset_s: float
+    scale: float  # of the example's VO against the GPS
+    sigmas: np.ndarray  # (6,) 1-sigma [roll, pitch, yaw rad, x, y, z m] of the start pose
+    rms_m: float  # horizontal RMS of the fit's residuals
+    fixes: int
+
+
+def fit_start(example: Kitti00Example) -> StartFit:
+    """The start pose and clock offset from the example's VO poses and the GPS (least squares)."""
+    from scipy.optimize import least_squares
+
+    body = BODY_T_FORWARD_CAMERA @ example.example_world_T_camera @ np.linalg.inv(BODY_T_FORWARD_CAMERA)
+    antenna = body[:, :3, 3] + body[:, :3, :3] @ np.asarray(OXTS_IN_CAMERA_BODY_M)
+    times = example.frame_times_s()
+    inside = (example.gps_times_s >= times[0] - 0.5) & (example.gps_times_s <= times[-1])
+    fix_t, fix_xyz = example.gps_times_s[inside], example.gps_xyz_m[inside]
+
+    def predicted(x: np.ndarray) -> np.ndarray:
+        offset, yaw, log_scale = x[0], x[1], x[5]
+        at = np.column_stack([np.interp(fix_t - offset, times, antenna[:, i]) for i in range(3)])
+        return np.exp(log_scale) * at @ _yaw(yaw).T + x[2:5]
+
+    start_yaw = np.arctan2(*(fix_xyz[-1, 1::-1] - fix_xyz[0, 1::-1]))  # roughly along the drive
+    fit = least_squares(lambda x: (predicted(x) - fix_xyz).ravel(), np.r_[0.0, start_yaw, fix_xyz[0], 0.0])
+    residual = (predicted(fit.x) - fix_xyz).reshape(-1, 3)
+    dof = max(residual.size - len(fit.x), 1)
+    covariance = np.linalg.pinv(fit.jac.T @ fit.jac) * float(np.sum(residual**2)) / dof
+    world_T_body = np.eye(4)
+    world_T_body[:3, :3] = _yaw(fit.x[1])
+    world_T_body[:3, 3] = fit.x[2:5]
+    std = np.sqrt(np.diag(covariance))
+    horizontal = max(std[2], std[3])
+    level = np.deg2rad(1.0)  # the car's roll and pitch at the start: level to a degree
+    return StartFit(world_T_body, float(fit.x[0]), float(np.exp(fit.x[5])),
+                    np.array([level, level, std[1], horizontal, horizontal, std[4]]),
+                    float(np.sqrt(np.mean(np.sum(residual[:, :2] ** 2, axis=1)))), int(inside.sum()))
+
+
+def _yaw(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def kitti00_traverse(example: Kitti00Example, start: StartFit) -> Traverse:
+    """The example's frames as the stops of a traverse (numbered 0..N-1 in frame order, at their
+    times on the GPS clock) with the fixes of their span, the car's stereo pair fixed to its body
+    and the start pose of `start`."""
+    times = example.frame_times_s(start.clock_offset_s)
+    stops = tuple(Stop(k, float(t), obs) for k, (t, obs) in enumerate(zip(times, example.observations, strict=True)))
+    during = (example.gps_times_s >= times[0]) & (example.gps_times_s <= times[-1])
+    geodetic = NOMINAL_ORIGIN.to_geodetic(example.gps_xyz_m[during])
+    fixes = tuple(GpsFix(float(t), float(lat), float(lon), float(h), GPS_SIGMA_HORIZONTAL_M, GPS_SIGMA_VERTICAL_M)
+                  for t, (lat, lon, h) in zip(example.gps_times_s[during], geodetic, strict=True))
+    camera = Camera(example.fx, example.fy, example.cx, example.cy, *IMAGE_SIZE)
+    return Traverse(
+        name="kitti00_gtsam", rig=Rig("kitti 00", camera, example.baseline_m, mast_height_m=1.65),
+        origin=NOMINAL_ORIGIN, stops=stops, traverse_tilt_rad=0.0, image_noise_px=PIXEL_SIGMA_PX,
+        gps_lever_arm_m=np.array(OXTS_IN_CAMERA_BODY_M), start_world_T_body=start.world_T_body,
+        start_sigmas=start.sigmas, wheel_slip=SlipPrior(), body_T_nav_left=BODY_T_FORWARD_CAMERA,
+        measurements={"gps": fixes},
+    )
