@@ -174,10 +174,6 @@ DEFAULT_CONFIGURATIONS: dict[str, list[str]] = {
 }
 
 
-# The VO's per-step rotation error beyond white pixel noise, measured on the real KITTI frames
-# (docs/frontend.md); it also makes the VO covariance hold on rendered images.
-REAL_IMAGE_ROTATION_FLOOR_DEG_PER_M = 0.03
-
 # The VO error models an estimator can name (`vo_error_model`) and the values each sets
 # (docs/frontend.md, "The VO error model on real images"). pixel_noise sets nothing: the two-stop
 # adjustment's covariance from white pixel noise alone, the truth in simulation. real_images is
@@ -187,7 +183,7 @@ REAL_IMAGE_ROTATION_FLOOR_DEG_PER_M = 0.03
 VO_ERROR_MODELS: dict[str, dict] = {
     "pixel_noise": {},
     "real_images": {"vo_max_range_m": 40.0, "vo_translation_floor": 0.012,
-                    "vo_rotation_floor_deg_per_m": REAL_IMAGE_ROTATION_FLOOR_DEG_PER_M},
+                    "vo_rotation_floor_deg_per_m": 0.03},
 }
 SHARED_SCALE_MODELS = ("real_images",)  # the models that add vo_scale to configurations with vo
 

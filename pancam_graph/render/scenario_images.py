@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..config import REAL_IMAGE_ROTATION_FLOOR_DEG_PER_M, RenderConfig, Scenario
+from ..config import RenderConfig, Scenario
 from ..errors import ResultsError
 from ..records import Traverse
 from ..rig import Camera
@@ -86,11 +86,10 @@ def render_scenario(scenario: Scenario, folder: Path, seed: int | None = None,
                 done += 1
         if progress is not None:
             progress("rendering", done, total)
-    # The VO's steps from these pixels err beyond white pixel noise, as on real images: the
-    # rotation floor measured on KITTI makes their covariance hold (docs/frontend.md).
-    estimator = scenario.estimator.model_copy(update={"vo_rotation_floor_deg_per_m": max(
-        scenario.estimator.vo_rotation_floor_deg_per_m, REAL_IMAGE_ROTATION_FLOOR_DEG_PER_M)})
-    write_observations(folder, traverse, estimator, seed, truth, scenario.rig, frames=frames,
+    # The scenario's own VO error model: on these renders white pixel noise holds over the run
+    # and KITTI's rotation floor made the covariance ten times too wide (docs/frontend.md,
+    # "Leave one out").
+    write_observations(folder, traverse, scenario.estimator, seed, truth, scenario.rig, frames=frames,
                        panorama_frames=panorama, calibration=calibration)
     return 2 * len(frames) + sum(2 if p.camera == "wac" else 1 for p in panorama)
 

@@ -236,6 +236,7 @@ def metrics_document(result: RunResult) -> dict:
             entry.update(c.consistency.as_dict())
         if c.nees is not None:
             entry.update(c.nees.as_dict())
+            entry.setdefault("anees", c.nees.anees)  # without a bound (CRLB), or against GPS fixes
         entry.update(bridged_stops=c.bridged_stops, landmarks=c.landmarks)
         entry.update({name: c.counter(name) for name in COUNTER_DEFAULTS if name not in entry})
         entry.update(

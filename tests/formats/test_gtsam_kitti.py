@@ -17,6 +17,7 @@ from pancam_graph.formats.gtsam_kitti import (
     kitti00_traverse,
     read_kitti00_example,
 )
+from pancam_graph.solve.results import metrics_document
 from pancam_graph.store.observation_folder import write_observations
 
 
@@ -90,6 +91,8 @@ def test_vo_on_the_real_tracks_follows_the_real_gps_and_its_covariance_holds(run
     assert vo.nees.against == "gps" and len(vo.nees.nees) == 14
     assert vo.nees.outside_99_fraction <= 0.05
     assert 0.3 < vo.nees.anees < 3.0
+    entry = metrics_document(result)["configs"]["vo"]  # no truth, no CRLB: the ANEES is the fixes'
+    assert entry["nees_against"] == "gps" and entry["nees_samples"] == 14 and entry["anees"] == vo.nees.anees
 
 
 @pytest.mark.slow
