@@ -89,7 +89,9 @@ def read_kitti00_example(folder: Path | None = None) -> Kitti00Example:
     """The example's files from `folder` (default: the installed wheel's data folder)."""
     folder = example_data_folder() if folder is None else Path(folder)
     tracks_path, calibration_path, poses_path, gps_path = (folder / name for name in FILES)
-    rows = _numbers(tracks_path, 8)
+    rows, lines = _numbers(tracks_path, 8)
+    rows[:, 0] = _ids(tracks_path, lines, rows[:, 0], "frame")
+    rows[:, 1] = _ids(tracks_path, lines, rows[:, 1], "track")
     frames = np.unique(rows[:, 0].astype(np.int64))
     observations = []
     for f in frames:
@@ -98,21 +100,21 @@ def read_kitti00_example(folder: Path | None = None) -> Kitti00Example:
         if len(np.unique(tracks)) != len(tracks):
             raise InputError(f"{tracks_path}: frame {f} lists a track twice")
         observations.append(StereoObservations(tracks, mine[:, 2:5].copy()))
-    calibration = _numbers(calibration_path, 6)
+    calibration, _ = _numbers(calibration_path, 6)
     if len(calibration) != 1:
         raise InputError(f"{calibration_path}: expected one row (fx fy skew cx cy baseline), got {len(calibration)}")
     fx, fy, _, cx, cy, baseline = calibration[0]
-    poses = _numbers(poses_path, 17)
-    if not np.array_equal(poses[:, 0].astype(np.int64), frames):
+    poses, lines = _numbers(poses_path, 17)
+    if not np.array_equal(_ids(poses_path, lines, poses[:, 0], "frame"), frames):
         raise InputError(f"{poses_path}: its frames are not those of {tracks_path.name}")
     gps = _gps(gps_path)
     return Kitti00Example(frames, tuple(observations), float(fx), float(fy), float(cx), float(cy), float(baseline),
                           poses[:, 1:].reshape(-1, 4, 4), gps[:, 0], gps[:, 1:])
 
 
-def _numbers(path: Path, columns: int) -> np.ndarray:
-    """Whitespace-separated numbers, `columns` per line."""
-    rows = []
+def _numbers(path: Path, columns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Whitespace-separated numbers, `columns` per line, and each row's line number."""
+    rows, lines = [], []
     for line, text in enumerate(read_text(path).splitlines(), start=1):
         fields = text.split()
         if not fields:
@@ -123,13 +125,23 @@ def _numbers(path: Path, columns: int) -> np.ndarray:
             rows.append([float(v) for v in fields])
         except ValueError:
             raise InputError(f"{path}: line {line}: expected numbers, got {text.strip()[:60]!r}") from None
+        lines.append(line)
     if not rows:
         raise InputError(f"{path}: no rows")
     array = np.array(rows)
-    if not np.all(np.isfinite(array)):
-        raise InputError(f"{path}: line {int(np.flatnonzero(~np.isfinite(array).all(axis=1))[0]) + 1}: "
-                         "non-finite number")
-    return array
+    finite = np.isfinite(array).all(axis=1)
+    if not finite.all():
+        raise InputError(f"{path}: line {lines[int(np.flatnonzero(~finite)[0])]}: non-finite number")
+    return array, np.array(lines)
+
+
+def _ids(path: Path, lines: np.ndarray, values: np.ndarray, what: str) -> np.ndarray:
+    """A column of frame or track numbers: whole numbers in 0..2^53."""
+    good = (values >= 0) & (values < 2.0**53) & (values == np.floor(values))
+    if not good.all():
+        bad = int(np.flatnonzero(~good)[0])
+        raise InputError(f"{path}: line {lines[bad]}: {what} {float(values[bad])!r}: expected a whole number from 0")
+    return values.astype(np.int64)
 
 
 def _gps(path: Path) -> np.ndarray:

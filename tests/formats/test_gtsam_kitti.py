@@ -99,3 +99,13 @@ def test_vo_on_the_real_tracks_follows_the_real_gps_and_its_covariance_holds(run
 def test_white_pixel_noise_is_over_confident_on_the_same_tracks(runs):
     vo = runs["pixel_noise"].configurations["vo"]
     assert vo.nees.anees > 3.0 and vo.nees.outside_99_fraction > 0.3
+
+
+def test_a_frame_number_that_is_not_a_whole_number_is_named(tmp_path):
+    for name in FILES:
+        (tmp_path / name).write_bytes((example_data_folder() / name).read_bytes())
+    lines = (tmp_path / FILES[2]).read_text().splitlines()
+    lines[2] = "1e308" + lines[2][1:]
+    (tmp_path / FILES[2]).write_text("\n".join(lines))
+    with pytest.raises(InputError, match=r"VO_camera_poses00.txt: line 3: frame 1e\+308: expected a whole number"):
+        read_kitti00_example(tmp_path)
