@@ -81,7 +81,9 @@ def nees_against_gps(traverse: Traverse, world_T_body: np.ndarray, covariances: 
         return None
     fixes = [f for f, inside in zip(traverse.gps_fixes, during, strict=True) if inside]
     times, enu = times[during], enu[during]
-    nearest = np.abs(times[:, None] - stop_times[None, :]).argmin(axis=1)
+    after = np.minimum(np.searchsorted(stop_times, times), len(stop_times) - 1)  # stop times increase
+    before = np.maximum(after - 1, 0)
+    nearest = np.where(np.abs(times - stop_times[before]) <= np.abs(stop_times[after] - times), before, after)
     own = np.stack([np.diag([f.sigma_horizontal_m**2, f.sigma_horizontal_m**2, f.sigma_vertical_m**2])
                     for f in fixes])
     errors = antenna_at_times(traverse, world_T_body, times) - enu

@@ -30,6 +30,10 @@ from ..text_files import read_text
 from .calibration import rectified_from_projections
 from .trajectories import read_kitti_poses
 
+# Matching and localisation error (1 sigma) of features tracked on KITTI's rectified grey images:
+# the image front-end's on the odometry frames, and the tracks GTSAM's wheel ships.
+FEATURE_SIGMA_PX = 0.5
+
 OXTS_FIELDS = (
     "lat", "lon", "alt", "roll", "pitch", "yaw", "vn", "ve", "vf", "vl", "vu", "ax", "ay", "az", "af", "al", "au",
     "wx", "wy", "wz", "wf", "wl", "wu", "pos_accuracy", "vel_accuracy", "navstat", "numsats", "posmode",

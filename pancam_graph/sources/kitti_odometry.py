@@ -21,9 +21,6 @@ from ..source_options import SourceOptions
 from .frames import median_frame_ms, track_frames
 from .registry import Source, frontend_for
 
-# Matching and localisation error of the front-end's features (1 sigma).
-PIXEL_SIGMA_PX = 0.5
-
 # The real KITTI frames' own VO error model (config.VO_ERROR_MODELS, docs/frontend.md, where it was
 # measured): with no sites or GPS, the one configuration is vo with its shared scale.
 REAL_IMAGE_ESTIMATOR = EstimatorConfig(vo_error_model="real_images", configurations={"vo": ["vo", "vo_scale"]})
@@ -61,6 +58,8 @@ def load(folder: Path, frontend: FrontendConfig | None = None,
 def traverse_from_sequence(sequence, stops: list[Stop], tracker: StereoTracker, frontend: FrontendConfig,
                            notes: list[str] = ()) -> SourceData:
     """The traverse of the stops tracked (the first len(stops) frames of the sequence)."""
+    from ..formats.kitti import FEATURE_SIGMA_PX
+
     cam = sequence.stereo.camera
     rig = Rig(f"kitti {sequence.folder.name}", cam, sequence.stereo.baseline_m, mast_height_m=1.65)
     truth = None
@@ -71,7 +70,7 @@ def traverse_from_sequence(sequence, stops: list[Stop], tracker: StereoTracker, 
     start = np.eye(4) if truth is None else truth.world_T_body[0]
     traverse = Traverse(
         name=sequence.folder.name, rig=rig, origin=LocalFrame(0.0, 0.0, 0.0), stops=tuple(stops),
-        traverse_tilt_rad=0.0, image_noise_px=PIXEL_SIGMA_PX, gps_lever_arm_m=np.zeros(3),
+        traverse_tilt_rad=0.0, image_noise_px=FEATURE_SIGMA_PX, gps_lever_arm_m=np.zeros(3),
         start_world_T_body=start, start_sigmas=np.array([1e-4] * 3 + [1e-3] * 3),
         wheel_slip=SlipPrior(), body_T_nav_left=BODY_T_FORWARD_CAMERA,
     )

@@ -82,8 +82,9 @@ def plot_error_vs_distance(result: RunResult, path: Path) -> None:
 
 
 def plot_nees_along_run(result: RunResult, path: Path) -> None:
-    """Each stop's position NEES against the distance travelled, with its mean (3) and 99 % bound
-    when the covariance is right: above the bound the estimate claims more than it knows."""
+    """Each stop's position NEES (or each GPS fix's, without truth) against the distance
+    travelled, with its mean (3) and 99 % bound when the covariance is right: above the bound the
+    estimate claims more than it knows."""
     dist = result.reference_distance()
     fig, ax = plt.subplots(figsize=(9, 4.5), dpi=110)
     for name, c in result.configurations.items():
