@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import math
+
 import gtsam
 import numpy as np
 
+from .. import chi2
 from ..errors import GraphError
 
 _KERNELS = {
@@ -15,12 +18,22 @@ _KERNELS = {
 
 def robust(kind: str, base: gtsam.noiseModel.Base, k: float | None) -> gtsam.noiseModel.Base:
     """Wrap `base` in an M-estimator ('huber', 'cauchy') with threshold `k` sigmas (the estimator's
-    huber_k or cauchy_k), or return it ('none')."""
+    huber_k or cauchy_k) of one dimension, or return it ('none')."""
     if kind == "none":
         return base
     if k is None:
         raise GraphError(f"a {kind} kernel needs its threshold k")
-    return gtsam.noiseModel.Robust.Create(_KERNELS[kind](k), base)
+    return gtsam.noiseModel.Robust.Create(_KERNELS[kind](norm_threshold(k, base.dim())), base)
+
+
+def norm_threshold(k: float, dim: int) -> float:
+    """The threshold on a `dim`-dof whitened residual's norm that a Gaussian inlier passes as often
+    as it passes `k` in one dimension. GTSAM's Robust model applies its kernel to the whole
+    residual's norm, and a 3-dof inlier's norm exceeds 1.345 61 % of the time (docs/design.md,
+    section 5): k itself would down-weight most good stereo ties, GPS fixes and projections."""
+    if dim == 1:
+        return k
+    return float(np.sqrt(chi2.quantile(math.erf(k / math.sqrt(2.0)), dim)))
 
 
 def stereo_pixels(sigma_px: float) -> gtsam.noiseModel.Base:
