@@ -178,12 +178,13 @@ DEFAULT_CONFIGURATIONS: dict[str, list[str]] = {
 # (docs/frontend.md, "The VO error model on real images"). pixel_noise sets nothing: the two-stop
 # adjustment's covariance from white pixel noise alone, the truth in simulation. real_images is
 # what real pixel errors need besides, measured on real KITTI frames: features within 40 m,
-# per-step floors of 1.2 % of the step and 0.03 deg/m, and a scale error shared by every step
-# (the vo_scale kind, added to every configuration with vo).
+# per-step floors of 0.5 % of the step and 0.03 deg/m (the RMS of what white noise leaves), and
+# a scale and a direction bias shared by every step (the vo_scale kind, added to every
+# configuration with vo; a dict sets keys of a kind's section).
 VO_ERROR_MODELS: dict[str, dict] = {
     "pixel_noise": {},
-    "real_images": {"vo_max_range_m": 40.0, "vo_translation_floor": 0.012,
-                    "vo_rotation_floor_deg_per_m": 0.03},
+    "real_images": {"vo_max_range_m": 40.0, "vo_translation_floor": 0.005,
+                    "vo_rotation_floor_deg_per_m": 0.03, "vo_scale": {"direction_sigma": 0.005}},
 }
 SHARED_SCALE_MODELS = ("real_images",)  # the models that add vo_scale to configurations with vo
 
@@ -219,8 +220,10 @@ class _EstimatorCore(_Strict):
     vo_translation_floor: float = Field(0.0, ge=0.0, lt=1.0, description="per-step translation error the pixel "
                                         "noise does not explain, as a fraction of the step (real images)")
     vo_rotation_floor_deg_per_m: float = Field(0.0, ge=0.0, lt=10.0, description="the same for rotation")
-    huber_k: float = Field(1.345, gt=0.0, description="Huber threshold in sigmas (95 % efficiency)")
-    cauchy_k: float = Field(1.0, gt=0.0)
+    huber_k: float = Field(1.345, gt=0.0, description="Huber threshold in sigmas of one dimension (95 % "
+                           "efficiency); a factor of d dimensions gets the norm threshold its inliers pass as often "
+                           "(graph/noise.norm_threshold: 1.86 for 2, 2.22 for 3)")
+    cauchy_k: float = Field(1.0, gt=0.0, description="Cauchy threshold, the same way")
     start_sigma_deg: float = Field(0.05, gt=0.0)
     start_sigma_m: float = Field(0.02, gt=0.0)
     relinearize_rotation_rad: float = Field(0.02, gt=0.0, description="iSAM2 relinearizes a pose whose "
@@ -257,7 +260,12 @@ class _EstimatorCore(_Strict):
         """A named VO error model sets its values (a file that sets them too is overruled: its
         own values go with vo_error_model = "pixel_noise")."""
         if isinstance(data, dict) and data.get("vo_error_model") in VO_ERROR_MODELS:
-            data = {**data, **VO_ERROR_MODELS[data["vo_error_model"]]}
+            data = dict(data)
+            for key, value in VO_ERROR_MODELS[data["vo_error_model"]].items():
+                section = data.get(key)
+                if isinstance(value, dict) and isinstance(section, BaseModel):
+                    section = section.model_dump(exclude_unset=True)
+                data[key] = {**section, **value} if isinstance(value, dict) and isinstance(section, dict) else value
             if data["vo_error_model"] in SHARED_SCALE_MODELS:
                 configurations = data.get("configurations", DEFAULT_CONFIGURATIONS)
                 if isinstance(configurations, dict):  # else the field's own check names it
@@ -390,8 +398,11 @@ def with_vo_error_model(estimator: M, name: str) -> M:
     if name not in VO_ERROR_MODELS:
         raise ConfigError(f"vo_error_model {name!r}: expected {' or '.join(VO_ERROR_MODELS)}")
     given = estimator.model_dump(exclude_unset=True)
-    for key in VO_ERROR_MODELS[estimator.vo_error_model]:
-        given.pop(key, None)
+    for key, value in VO_ERROR_MODELS[estimator.vo_error_model].items():
+        if isinstance(value, dict) and isinstance(given.get(key), dict):
+            given[key] = {k: v for k, v in given[key].items() if k not in value}
+        else:
+            given.pop(key, None)
     if estimator.vo_error_model in SHARED_SCALE_MODELS and "configurations" in given:
         given["configurations"] = {n: [k for k in kinds if k != "vo_scale"]
                                    for n, kinds in given["configurations"].items()}

@@ -21,21 +21,27 @@ from pancam_graph.errors import ConfigError
 from pancam_graph.store.observation_folder import read_observations
 
 runner = CliRunner()
-REAL = {"vo_max_range_m": 40.0, "vo_translation_floor": 0.012, "vo_rotation_floor_deg_per_m": 0.03}
+REAL = {"vo_max_range_m": 40.0, "vo_translation_floor": 0.005, "vo_rotation_floor_deg_per_m": 0.03,
+        "direction_sigma": 0.005}
 
 
 def _values(estimator) -> dict:
-    return {key: getattr(estimator, key) for key in REAL}
+    """What the preset sets: the estimator's keys and the shared VO direction bias (its vo_scale section)."""
+    values = estimator if isinstance(estimator, dict) else estimator.model_dump()
+    return {key: values["vo_scale"][key] if key == "direction_sigma" else values[key] for key in REAL}
 
 
 def test_the_preset_sets_the_measured_model_and_overrules_and_undoes_its_own_keys():
-    real = EstimatorConfig(vo_error_model="real_images", vo_translation_floor=0.5)
-    assert _values(real) == REAL  # the preset's keys are its own: a file's values go with pixel_noise
+    real = EstimatorConfig(vo_error_model="real_images", vo_translation_floor=0.5,
+                           vo_scale={"direction_sigma": 0.05, "sigma": 0.02})
+    # the preset's keys are its own (a file's values go with pixel_noise); the section's other keys stay
+    assert _values(real) == REAL and real.vo_scale.sigma == 0.02
     assert real.configurations["full"] == ["vo", "sites", "hrc", "gps", "vo_scale"]
     assert real.configurations["dead_reckoning"] == DEFAULT_CONFIGURATIONS["dead_reckoning"]  # no VO, no scale
     assert EstimatorConfig.model_validate(real.model_dump(mode="json")) == real  # run.toml reads back the same
     back = with_vo_error_model(real, "pixel_noise")
-    assert back == EstimatorConfig() and back.vo_translation_floor == 0.0
+    assert back == EstimatorConfig(vo_scale={"sigma": 0.02}) and back.vo_translation_floor == 0.0
+    assert back.vo_scale.direction_sigma == 0.0
     dumped = EstimatorConfig.model_validate(EstimatorConfig().model_dump(mode="json"))  # every key set, as files are
     assert with_vo_error_model(dumped, "real_images") == EstimatorConfig(vo_error_model="real_images")
     with pytest.raises(ConfigError, match="vo_error_model 'kitti': expected pixel_noise or real_images"):
@@ -49,7 +55,7 @@ def test_a_scenario_names_the_preset_and_show_config_prints_what_it_set(tmp_path
     result = runner.invoke(app, ["show-config", str(path)])
     assert result.exit_code == 0, result.output
     shown = tomllib.loads(result.output)["estimator"]
-    assert shown["vo_error_model"] == "real_images" and {k: shown[k] for k in REAL} == REAL
+    assert shown["vo_error_model"] == "real_images" and _values(shown) == REAL
     assert shown["configurations"]["vo"] == ["vo", "vo_scale"]
 
 
@@ -86,4 +92,4 @@ def test_the_command_line_sets_the_preset_on_a_scenario_and_its_scenario_toml_ke
     assert result.exit_code == 0, result.output
     saved = load_scenario(out / "scenario.toml").estimator  # what reproduce.sh runs
     assert saved.vo_error_model == "real_images" and _values(saved) == REAL
-    assert tomllib.loads((out / "run.toml").read_text())["estimator"]["vo_translation_floor"] == 0.012
+    assert tomllib.loads((out / "run.toml").read_text())["estimator"]["vo_translation_floor"] == 0.005

@@ -112,10 +112,10 @@ def test_vo_from_real_pixels_beats_viso2_and_its_covariance_holds(kitti_run):
     assert np.linalg.norm(error) <= 0.6
     # the last stop's error inside its 99 % ellipsoid, and the whole run's ANEES
     assert nees(error[None], vo.position_covariance[-1:])[0] <= 11.3
-    assert vo.consistency.anees <= 3.0
+    assert 0.3 <= vo.consistency.anees <= 3.0  # 1.2 with the shared direction bias, 2.4 without
     # each stop's NEES, in the report: the same last stop, and the stops outside their ellipsoid
     assert vo.nees.last == pytest.approx(nees(error[None], vo.position_covariance[-1:])[0])
-    assert 0.0 < vo.nees.outside_99_fraction < 0.2
+    assert vo.nees.outside_99_fraction <= 0.05
     from pancam_graph.viz.report import report_markdown
 
     assert f"| vo | {vo.nees.last:.2f} | {100 * vo.nees.outside_99_fraction:.1f} % |" in report_markdown(result, False)
