@@ -4,10 +4,12 @@ timeout can stop it), writing its own results folder. Runs already done are skip
 
 from __future__ import annotations
 
+import logging
 import subprocess
 import sys
 import time
 from collections.abc import Callable
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Literal
 
@@ -50,8 +52,6 @@ def run_sweep(runs: list[SweepRun], timeout_s: float, workers: int = 2, schedule
               progress: Callable[[RunRecord, int, int], None] | None = None) -> list[RunRecord]:
     """Every run not done yet, on a local Dask cluster of `workers` (or the cluster at
     `scheduler`); a run that fails, crashes or times out is recorded and the others go on."""
-    from dask.distributed import Client, LocalCluster, as_completed
-
     records = [RunRecord(r, "skipped", 0.0, "done by an earlier invocation") for r in runs if r.done]
     todo = [r for r in runs if not r.done]
     if progress is not None:
@@ -59,6 +59,28 @@ def run_sweep(runs: list[SweepRun], timeout_s: float, workers: int = 2, schedule
             progress(record, len(records), len(runs))
     if not todo:
         return records
+    with _dask_errors_only():
+        return records + _run_on_dask(todo, timeout_s, workers, scheduler, len(records), len(runs), progress)
+
+
+@contextmanager
+def _dask_errors_only():
+    """Dask logs its own shutdown races (a comm closed while the cluster closes) at INFO with a
+    traceback; a run that failed is in the records, so only Dask's errors reach the terminal."""
+    dask_log = logging.getLogger("distributed")
+    level = dask_log.level
+    dask_log.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        dask_log.setLevel(level)
+
+
+def _run_on_dask(todo: list[SweepRun], timeout_s: float, workers: int, scheduler: str | None, done: int,
+                 total: int, progress: Callable[[RunRecord, int, int], None] | None) -> list[RunRecord]:
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    records: list[RunRecord] = []
     if scheduler is None:
         # The tasks are processes of their own, so threads are enough to drive them.
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=False, dashboard_address=None)
@@ -78,7 +100,7 @@ def run_sweep(runs: list[SweepRun], timeout_s: float, workers: int = 2, schedule
                 record = RunRecord(run, "failed", 0.0, f"{type(exc).__name__}: {exc}")
             records.append(record)
             if progress is not None:
-                progress(record, len(records), len(runs))
+                progress(record, done + len(records), total)
     finally:
         client.close()
         if cluster is not None:
