@@ -184,7 +184,7 @@ class StartFit:
 
     world_T_body: np.ndarray  # 4x4, the first frame's body (x forward, y left, z up) in the local frame
     clock_offset_s: float
-    scale: float  # of the example's VO against the GPS
+    scale: float  # of the example's VO against the GPS (1 when fitted on the truth)
     sigmas: np.ndarray  # (6,) 1-sigma [roll, pitch, yaw rad, x, y, z m] of the start pose
     rms_m: float  # horizontal RMS of the fit's residuals
     fixes: int
@@ -255,8 +255,8 @@ def read_kitti00_truth(folder: Path) -> Kitti00Truth:
 def fit_start_on_truth(example: Kitti00Example, truth: Kitti00Truth) -> StartFit:
     """The start pose and clock offset from KITTI's ground truth: the rigid motion and clock
     offset that best lay the truth's OXTS track onto every fix of the drive (robust least
-    squares; 470 fixes over 4541 frames). The example's frames then get the truth's own times and
-    poses, carried into the GPS's frame."""
+    squares; 469 fixes over 4541 frames). The example's frames then get the truth's own times and
+    poses, carried into the GPS's frame; `scale` is 1 (the truth is metric)."""
     from scipy.optimize import least_squares
     from scipy.spatial.transform import Rotation
 
@@ -270,7 +270,8 @@ def fit_start_on_truth(example: Kitti00Example, truth: Kitti00Truth) -> StartFit
         at = np.column_stack([np.interp(fix_t - x[0], times, antenna[:, i]) for i in range(3)])
         return at @ Rotation.from_rotvec(x[1:4]).as_matrix().T + x[4:7]
 
-    start_yaw = np.arctan2(*(fix_xyz[10, 1::-1] - fix_xyz[0, 1::-1]))  # roughly along the first 10 s
+    ahead = min(10, len(fix_xyz) - 1)
+    start_yaw = np.arctan2(*(fix_xyz[ahead, 1::-1] - fix_xyz[0, 1::-1]))  # roughly along the first 10 s
     fit = least_squares(lambda x: (predicted(x) - fix_xyz).ravel(), np.r_[0.0, 0.0, 0.0, start_yaw, fix_xyz[0]],
                         loss="soft_l1", f_scale=1.0)
     residual = (predicted(fit.x) - fix_xyz).reshape(-1, 3)
