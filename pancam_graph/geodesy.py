@@ -1,28 +1,44 @@
-"""WGS84 geodetic coordinates <-> local ENU at a geodetic origin, through pyproj."""
+"""Geodetic coordinates <-> local ENU at a geodetic origin, on Earth (WGS84) or Mars (the IAU 2015
+sphere), and into the map projection an orbital or survey map of the site would use; all through
+pyproj."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
-from pyproj import Transformer
+from pyproj import CRS, Transformer
+from pyproj.aoi import AreaOfInterest
+from pyproj.database import query_utm_crs_info
 from pyproj.enums import TransformDirection
 from pyproj.exceptions import ProjError
 
 from .errors import GeodesyError
 
+Body = Literal["earth", "mars"]
+MARS_RADIUS_M = 3_396_190.0  # the IAU 2015 Mars sphere (IAU_2015:49900), HiRISE's and CTX's datum
+# Each body's geographic CRS, and the map projection of a site's orbital products on Mars:
+# equirectangular on the sphere, centre longitude 0 (IAU_2015:49910, metres), as HiRISE DTMs use.
+_GEOGRAPHIC = {"earth": "EPSG:4326", "mars": "IAU_2015:49900"}
+_MARS_MAP = "IAU_2015:49910"
+_SHAPE = {"earth": "+ellps=WGS84", "mars": f"+R={MARS_RADIUS_M!r}"}
+
 
 @dataclass(frozen=True)
 class LocalFrame:
-    """Local east-north-up frame tangent to the WGS84 ellipsoid at (lat0, lon0, h0).
+    """Local east-north-up frame tangent to the body's reference surface at (lat0, lon0, h0): the
+    WGS84 ellipsoid on Earth, the IAU 2015 sphere on Mars (planetocentric latitude, east
+    longitude).
 
-    Heights are ellipsoidal. Uses `+proj=cart` then `+proj=topocentric`: exact, no
+    Heights are above that surface. Uses `+proj=cart` then `+proj=topocentric`: exact, no
     flat-earth shortcut.
     """
 
     lat0_deg: float
     lon0_deg: float
     h0_m: float
+    body: Body = "earth"
     _transformer: Transformer = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -32,12 +48,48 @@ class LocalFrame:
             object.__setattr__(self, name, float(getattr(self, name)))
         if not (-90.0 <= self.lat0_deg <= 90.0) or not (-180.0 <= self.lon0_deg <= 360.0):
             raise GeodesyError(f"origin out of range: lat {self.lat0_deg}, lon {self.lon0_deg}")
+        if self.body not in _SHAPE:
+            raise GeodesyError(f"body {self.body!r}: expected {' or '.join(_SHAPE)}")
+        shape = _SHAPE[self.body]
         pipeline = (
-            "+proj=pipeline +step +proj=cart +ellps=WGS84 "
-            f"+step +proj=topocentric +ellps=WGS84 +lat_0={self.lat0_deg!r} "
+            f"+proj=pipeline +step +proj=cart {shape} "
+            f"+step +proj=topocentric {shape} +lat_0={self.lat0_deg!r} "
             f"+lon_0={self.lon0_deg!r} +h_0={self.h0_m!r}"
         )
         object.__setattr__(self, "_transformer", Transformer.from_pipeline(pipeline))
+
+    def map_crs(self) -> CRS:
+        """The projected CRS of a map of this site: on Earth the UTM zone of the origin, on Mars
+        the equirectangular projection of the IAU 2015 sphere (metres)."""
+        if self.body == "mars":
+            return CRS.from_user_input(_MARS_MAP)
+        lon = (self.lon0_deg + 180.0) % 360.0 - 180.0
+        zones = query_utm_crs_info(datum_name="WGS 84", area_of_interest=AreaOfInterest(lon, self.lat0_deg, lon,
+                                                                                         self.lat0_deg))
+        if not zones:
+            raise GeodesyError(f"no UTM zone at lat {self.lat0_deg}, lon {self.lon0_deg}")
+        return CRS.from_epsg(int(zones[0].code))
+
+    def to_map(self, enu: np.ndarray, crs: CRS | None = None) -> np.ndarray:
+        """(N, 2) map coordinates (easting, northing in metres of `crs`, default `map_crs()`) of
+        ENU points (N, 3)."""
+        geodetic = self.to_geodetic(enu)
+        try:
+            to_map = Transformer.from_crs(_GEOGRAPHIC[self.body], crs or self.map_crs(), always_xy=True)
+            x, y = to_map.transform(geodetic[:, 1], geodetic[:, 0], errcheck=True)
+        except ProjError as exc:
+            raise GeodesyError(f"ENU -> map coordinates failed: {exc}") from exc
+        return np.column_stack([x, y])
+
+    def from_map(self, xy: np.ndarray, h_m: np.ndarray | float = 0.0, crs: CRS | None = None) -> np.ndarray:
+        """ENU points (N, 3) of map coordinates (N, 2) at heights `h_m` above the body's surface."""
+        xy = np.atleast_2d(np.asarray(xy, dtype=float))
+        try:
+            from_map = Transformer.from_crs(crs or self.map_crs(), _GEOGRAPHIC[self.body], always_xy=True)
+            lon, lat = from_map.transform(xy[:, 0], xy[:, 1], errcheck=True)
+        except ProjError as exc:
+            raise GeodesyError(f"map coordinates -> ENU failed: {exc}") from exc
+        return self.to_enu(lat, lon, np.broadcast_to(np.asarray(h_m, dtype=float), lat.shape))
 
     def to_enu(self, lat_deg, lon_deg, h_m) -> np.ndarray:
         """ENU (N, 3) in metres of geodetic points (degrees, ellipsoidal metres)."""

@@ -60,3 +60,56 @@ def test_numpy_scalar_origin_is_the_same_frame():
     np.testing.assert_allclose(frame.to_enu(lat, lon, h), [[0.0, 0.0, 0.0]], atol=1e-6)
     np.testing.assert_allclose(frame.to_enu(lat + 1e-3, lon, h), LocalFrame(float(lat), float(lon), float(h))
                                .to_enu(lat + 1e-3, lon, h), atol=1e-9)
+
+
+def test_a_mars_frame_is_tangent_to_the_iau_sphere():
+    """One degree north of the origin on the sphere: R sin(1 deg) north and R (1 - cos(1 deg)) below
+    the tangent plane, the closed form on a sphere of Mars' radius (3,396,190 m)."""
+    from pancam_graph.geodesy import MARS_RADIUS_M
+
+    frame = LocalFrame(-4.59, 137.44, 0.0, body="mars")  # Gale crater
+    one = np.deg2rad(1.0)
+    enu = frame.to_enu(-3.59, 137.44, 0.0)[0]
+    np.testing.assert_allclose(enu, [0.0, MARS_RADIUS_M * np.sin(one), -MARS_RADIUS_M * (1 - np.cos(one))], atol=1e-3)
+    np.testing.assert_allclose(frame.to_geodetic(enu[None])[0], [-3.59, 137.44, 0.0], atol=1e-9)
+    # the same degree on Earth's ellipsoid is 111 km, not Mars' 59 km
+    assert LocalFrame(-4.59, 137.44, 0.0).to_enu(-3.59, 137.44, 0.0)[0, 1] > 110_000.0
+
+
+def test_a_site_map_is_in_the_body_s_map_projection():
+    from pancam_graph.geodesy import MARS_RADIUS_M
+
+    mars = LocalFrame(-4.59, 137.44, 0.0, body="mars")
+    crs = mars.map_crs()
+    assert crs.is_projected and "Mars" in crs.name and "Equirectangular" in crs.name
+    # equirectangular on the sphere, centre longitude 0: x = R lon, y = R lat (radians)
+    np.testing.assert_allclose(mars.to_map(np.zeros((1, 3)))[0],
+                               MARS_RADIUS_M * np.deg2rad([137.44, -4.59]), atol=1e-3)
+    enu = np.array([[120.0, -80.0, 0.0], [-3.0, 40.0, 0.0]])
+    np.testing.assert_allclose(mars.from_map(mars.to_map(enu))[:, :2], enu[:, :2], atol=1e-6)
+    earth = LocalFrame(49.0, 8.4, 110.0)
+    assert earth.map_crs().to_epsg() == 32632  # UTM 32 N
+    steps = np.diff(earth.to_map(np.array([[0.0, 0.0, 0.0], [100.0, 0.0, 0.0]])), axis=0)[0]
+    assert np.hypot(*steps) == pytest.approx(100.0 * 0.99962, rel=2e-4)  # UTM's scale near its meridian
+
+
+def test_an_unknown_body_is_named():
+    with pytest.raises(GeodesyError, match="body 'moon': expected earth or mars"):
+        LocalFrame(0.0, 0.0, 0.0, body="moon")
+
+
+def test_a_results_folder_keeps_its_frame_s_body(tmp_path):
+    import json
+
+    from pancam_graph.errors import ResultsError
+    from pancam_graph.store.results_folder import LOCAL_FRAME_FILE, local_frame_dict, read_local_frame
+
+    mars = LocalFrame(-4.59, 137.44, -4500.0, body="mars")
+    (tmp_path / LOCAL_FRAME_FILE).write_text(json.dumps(local_frame_dict(mars)))
+    assert read_local_frame(tmp_path) == mars
+    earth = LocalFrame(49.0, 8.4, 110.0)
+    (tmp_path / LOCAL_FRAME_FILE).write_text(json.dumps(local_frame_dict(earth)))
+    assert read_local_frame(tmp_path) == earth and "body" not in local_frame_dict(earth)  # as before
+    (tmp_path / LOCAL_FRAME_FILE).write_text(json.dumps({**local_frame_dict(mars), "body": "venus"}))
+    with pytest.raises(ResultsError, match=r"local_frame.json: expected .*body 'venus': expected earth or mars"):
+        read_local_frame(tmp_path)

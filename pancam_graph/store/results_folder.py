@@ -138,6 +138,10 @@ LOCAL_FRAME_FILE = "local_frame.json"  # the ENU origin of every trajectory in a
 def local_frame_dict(origin: LocalFrame, gps_lever_arm_m: np.ndarray | None = None) -> dict:
     frame = {"lat_deg": origin.lat0_deg, "lon_deg": origin.lon0_deg, "h_m": origin.h0_m,
              "frame": "local ENU (east, north, up) tangent at this WGS84 point, ellipsoidal height"}
+    if origin.body != "earth":
+        frame["body"] = origin.body
+        frame["frame"] = (f"local ENU (east, north, up) tangent at this point of the IAU 2015 {origin.body} sphere "
+                          "(planetocentric latitude, east longitude), height above the sphere")
     if gps_lever_arm_m is not None:  # where a GPS log's positions are on the body (eval uses it)
         frame["gps_lever_arm_m"] = [float(v) for v in gps_lever_arm_m]
     return frame
@@ -160,9 +164,9 @@ def read_local_frame(folder: Path) -> LocalFrame | None:
         return None
     path, d = found
     try:
-        return LocalFrame(float(d["lat_deg"]), float(d["lon_deg"]), float(d["h_m"]))
+        return LocalFrame(float(d["lat_deg"]), float(d["lon_deg"]), float(d["h_m"]), d.get("body", "earth"))
     except (ValueError, KeyError, TypeError, GeodesyError) as exc:
-        raise ResultsError(f"{path}: expected lat_deg, lon_deg, h_m: {exc}") from None
+        raise ResultsError(f"{path}: expected lat_deg, lon_deg, h_m (and body: earth or mars): {exc}") from None
 
 
 def read_gps_lever_arm(folder: Path) -> np.ndarray | None:
