@@ -19,9 +19,11 @@ from .errors import GeodesyError
 Body = Literal["earth", "mars"]
 MARS_RADIUS_M = 3_396_190.0  # the IAU 2015 Mars sphere (IAU_2015:49900), HiRISE's and CTX's datum
 # Each body's geographic CRS, and the map projection of a site's orbital products on Mars:
-# equirectangular on the sphere, centre longitude 0 (IAU_2015:49910, metres), as HiRISE DTMs use.
+# equirectangular on the sphere (IAU_2015:49910) with its standard parallel at the site, as HiRISE
+# DTMs are, so that a map's pixels are square on the ground.
 _GEOGRAPHIC = {"earth": "EPSG:4326", "mars": "IAU_2015:49900"}
 _MARS_MAP = "IAU_2015:49910"
+_STANDARD_PARALLEL = "8823"  # EPSG's parameter code: latitude of the 1st standard parallel
 _SHAPE = {"earth": "+ellps=WGS84", "mars": f"+R={MARS_RADIUS_M!r}"}
 
 
@@ -60,9 +62,17 @@ class LocalFrame:
 
     def map_crs(self) -> CRS:
         """The projected CRS of a map of this site: on Earth the UTM zone of the origin, on Mars
-        the equirectangular projection of the IAU 2015 sphere (metres)."""
+        the equirectangular projection of the IAU 2015 sphere (metres) with its standard parallel
+        at the origin's latitude."""
         if self.body == "mars":
-            return CRS.from_user_input(_MARS_MAP)
+            definition = CRS.from_user_input(_MARS_MAP).to_json_dict()
+            for parameter in definition["conversion"]["parameters"]:
+                if str(parameter["id"]["code"]) == _STANDARD_PARALLEL:
+                    parameter["value"] = self.lat0_deg
+            definition.pop("id")
+            definition["name"] = f"Mars (2015) - Sphere / Ocentric / Equirectangular, clat = {self.lat0_deg:g}"
+            definition["conversion"]["name"] = f"Equirectangular, clat = {self.lat0_deg:g}"
+            return CRS.from_json_dict(definition)
         lon = (self.lon0_deg + 180.0) % 360.0 - 180.0
         zones = query_utm_crs_info(datum_name="WGS 84", area_of_interest=AreaOfInterest(lon, self.lat0_deg, lon,
                                                                                          self.lat0_deg))

@@ -191,3 +191,32 @@ class Trajectory:
         pick = lambda a: None if a is None else a[index]  # noqa: E731
         return Trajectory(self.source, self.positions[index], pick(self.times_s), pick(self.world_T_body),
                           pick(self.geodetic))
+
+
+@dataclass(frozen=True)
+class MapRaster:
+    """A north-up raster of a site's map (an orbital DTM or orthoimage) in a projected CRS: pixel
+    (row, col) covers map x from x0 + col * post to x0 + (col + 1) * post and y from
+    y0 - (row + 1) * post to y0 - row * post (x east, y north, metres)."""
+
+    values: np.ndarray  # (H, W): heights above the body's surface in m (NaN: no data), or grey levels
+    x0_m: float  # the upper-left corner's map coordinates
+    y0_m: float
+    post_m: float
+    crs_wkt: str
+
+    def centres(self) -> tuple[np.ndarray, np.ndarray]:
+        """Map x (W,) and y (H,) of the pixel centres."""
+        rows, cols = self.values.shape
+        return (self.x0_m + (np.arange(cols) + 0.5) * self.post_m,
+                self.y0_m - (np.arange(rows) + 0.5) * self.post_m)
+
+    def at(self, xy: np.ndarray) -> np.ndarray:
+        """Bilinear interpolation at map points (N, 2); NaN outside the raster or next to no data."""
+        from scipy.interpolate import RegularGridInterpolator
+
+        x, y = self.centres()
+        grid = RegularGridInterpolator((y[::-1], x), self.values[::-1].astype(float), bounds_error=False,
+                                       fill_value=np.nan)
+        xy = np.atleast_2d(np.asarray(xy, dtype=float))
+        return grid(np.column_stack([xy[:, 1], xy[:, 0]]))

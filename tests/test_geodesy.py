@@ -1,5 +1,6 @@
 import numpy as np
 import pytest
+from pyproj import CRS
 
 from pancam_graph.errors import GeodesyError
 from pancam_graph.geodesy import LocalFrame
@@ -82,9 +83,13 @@ def test_a_site_map_is_in_the_body_s_map_projection():
     mars = LocalFrame(-4.59, 137.44, 0.0, body="mars")
     crs = mars.map_crs()
     assert crs.is_projected and "Mars" in crs.name and "Equirectangular" in crs.name
-    # equirectangular on the sphere, centre longitude 0: x = R lon, y = R lat (radians)
+    assert crs.geodetic_crs == CRS.from_user_input("IAU_2015:49900")  # the IAU 2015 sphere
+    # equirectangular on the sphere, centre longitude 0, true scale at the site's latitude:
+    # x = R cos(lat0) lon, y = R lat (radians)
     np.testing.assert_allclose(mars.to_map(np.zeros((1, 3)))[0],
-                               MARS_RADIUS_M * np.deg2rad([137.44, -4.59]), atol=1e-3)
+                               MARS_RADIUS_M * np.deg2rad([137.44 * np.cos(np.deg2rad(-4.59)), -4.59]), atol=1e-3)
+    steps = np.diff(mars.to_map(np.array([[0.0, 0.0, 0.0], [100.0, 0.0, 0.0], [100.0, 100.0, 0.0]])), axis=0)
+    np.testing.assert_allclose(steps, [[100.0, 0.0], [0.0, 100.0]], atol=2e-3)  # square on the ground
     enu = np.array([[120.0, -80.0, 0.0], [-3.0, 40.0, 0.0]])
     np.testing.assert_allclose(mars.from_map(mars.to_map(enu))[:, :2], enu[:, :2], atol=1e-6)
     earth = LocalFrame(49.0, 8.4, 110.0)
