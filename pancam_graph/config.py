@@ -40,11 +40,14 @@ _Strict = Section
 
 
 class OriginConfig(_Strict):
-    """Geodetic origin of the local ENU frame (WGS84, ellipsoidal height)."""
+    """Geodetic origin of the local ENU frame: on Earth WGS84 with ellipsoidal height, on Mars the
+    IAU 2015 sphere (planetocentric latitude, east longitude, height above the sphere)."""
 
     lat_deg: float = Field(ge=-90.0, le=90.0)
     lon_deg: float = Field(ge=-180.0, le=180.0)
-    h_m: float = Field(0.0, ge=-1000.0, le=10000.0, description="ellipsoidal height")
+    h_m: float = Field(0.0, ge=-10000.0, le=22000.0, description="height above the body's reference surface "
+                       "(Earth: ellipsoidal; Mars reaches -8 km in Hellas and 22 km on Olympus Mons)")
+    body: Literal["earth", "mars"] = "earth"
 
 
 class PathConfig(_Strict):
@@ -373,6 +376,15 @@ class _ScenarioCore(_Strict):
     dead_reckoning: DeadReckoningConfig = DeadReckoningConfig()
     estimator: EstimatorConfig = EstimatorConfig()
     render: RenderConfig = RenderConfig()
+
+    @model_validator(mode="after")
+    def _on_its_body(self) -> _ScenarioCore:
+        if self.origin.body == "mars" and self.gps.enabled:
+            raise ValueError("origin on mars: there is no GPS on Mars; set [gps] enabled = false")
+        sun = getattr(self, "sun_heading", None)
+        if sun is not None and sun.enabled and sun.planet != self.origin.body:
+            raise ValueError(f"[sun_heading] planet = {sun.planet!r} but the origin is on {self.origin.body}")
+        return self
 
 
 Scenario = create_model("Scenario", __base__=_ScenarioCore, __module__=__name__, **_kind_sections("Sensor"))

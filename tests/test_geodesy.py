@@ -118,3 +118,25 @@ def test_a_results_folder_keeps_its_frame_s_body(tmp_path):
     (tmp_path / LOCAL_FRAME_FILE).write_text(json.dumps({**local_frame_dict(mars), "body": "venus"}))
     with pytest.raises(ResultsError, match=r"local_frame.json: expected .*body 'venus': expected earth or mars"):
         read_local_frame(tmp_path)
+
+
+def test_a_scenario_on_mars_keeps_its_body_through_the_observation_folder(tmp_path):
+    from pancam_graph import api
+    from pancam_graph.config import bundled_scenarios
+    from pancam_graph.errors import ConfigError
+    from pancam_graph.store.observation_folder import read_observations
+
+    text = bundled_scenarios()["short_trail"].read_text()
+    mars = tmp_path / "mars.toml"
+    mars.write_text(text.replace("[origin]\n", '[origin]\nbody = "mars"\n', 1))
+    with pytest.raises(ConfigError, match="there is no GPS on Mars"):
+        api.simulate(mars, tmp_path / "refused")
+    mars.write_text(mars.read_text() + "\n[gps]\nenabled = false\n\n[sun_heading]\nenabled = false\n")
+    traverse = api.simulate(mars, tmp_path / "observations")
+    assert traverse.origin.body == "mars" and not traverse.gps_fixes
+    back = read_observations(tmp_path / "observations").traverse
+    assert back.origin == traverse.origin
+    # the same east-north-up offsets are other geodetic points on a sphere of Mars' size
+    assert not np.allclose(back.origin.to_geodetic(np.array([[1000.0, 0.0, 0.0]])),
+                           LocalFrame(back.origin.lat0_deg, back.origin.lon0_deg, back.origin.h0_m).to_geodetic(
+                               np.array([[1000.0, 0.0, 0.0]])))

@@ -26,7 +26,7 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
     seed = scenario.seed if seed is None else seed
     rng = np.random.default_rng(seed)
     rig = rig_preset(scenario.rig)
-    frame = LocalFrame(scenario.origin.lat_deg, scenario.origin.lon_deg, scenario.origin.h_m)
+    frame = LocalFrame(scenario.origin.lat_deg, scenario.origin.lon_deg, scenario.origin.h_m, scenario.origin.body)
     cam_cfg = scenario.camera
 
     path = dense_path(scenario.path)

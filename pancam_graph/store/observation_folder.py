@@ -204,7 +204,7 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
     manifest = Manifest(
         name=traverse.name, seed=seed,
         origin=OriginConfig(lat_deg=traverse.origin.lat0_deg, lon_deg=traverse.origin.lon0_deg,
-                            h_m=traverse.origin.h0_m),
+                            h_m=traverse.origin.h0_m, body=traverse.origin.body),
         rig=rig_source,
         image_noise_px=traverse.image_noise_px, traverse_tilt_rad=traverse.traverse_tilt_rad,
         gps_lever_arm_m=tuple(float(v) for v in traverse.gps_lever_arm_m),
@@ -318,7 +318,7 @@ def read_observations(folder: Path) -> ObservationSet:
     if manifest.rig.body_T_left is not None:
         body_T_left = np.array(manifest.rig.body_T_left, dtype=float)  # rigid: the manifest model checks it
         body_T_left[:3, :3] = body_T_left[:3, :3] @ rig.rectification()  # body_T_left is the raw camera's
-    traverse = Traverse(manifest.name, rig, LocalFrame(o.lat_deg, o.lon_deg, o.h_m), stops,
+    traverse = Traverse(manifest.name, rig, LocalFrame(o.lat_deg, o.lon_deg, o.h_m, o.body), stops,
                         manifest.traverse_tilt_rad, manifest.image_noise_px,
                         np.array(manifest.gps_lever_arm_m, dtype=float), start, np.array(manifest.start_sigmas),
                         wheel_slip=SlipPrior(manifest.wheel_slip_mean, manifest.wheel_slip_sigma),
