@@ -32,7 +32,8 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
     path = dense_path(scenario.path)
     stop_s = stop_distances(path, scenario.path, rng)
     poses = rover_poses(path, stop_s)
-    field = LandmarkField(landmark_field(path, scenario.terrain, rng))
+    landmarks, _ = landmark_field(path, scenario.terrain, rng)
+    field = LandmarkField(landmarks)
     sites = set(site_stops(stop_s, scenario.sites, rng)) if scenario.sites.enabled else set()
 
     tilt = np.deg2rad(cam_cfg.traverse_tilt_deg)

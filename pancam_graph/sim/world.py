@@ -96,9 +96,29 @@ def rover_poses(path: DensePath, stop_s: np.ndarray) -> np.ndarray:
     return poses
 
 
-def landmark_field(path: DensePath, cfg: TerrainConfig, rng: np.random.Generator) -> np.ndarray:
-    """Landmarks (M, 3) uniformly in a corridor around the path, on undulating terrain;
-    thinned to nearly nothing along the featureless stretches."""
+@dataclass(frozen=True)
+class LandmarkTerrain:
+    """The ground the simulated landmarks lie on: the path's own elevation at its nearest point plus
+    smooth undulation at 11-31 m wavelengths. Each landmark adds the terrain's roughness on top
+    (rocks and the like), which an orbital DTM at 1 m posts does not resolve."""
+
+    path: DensePath
+    undulation_m: float
+    phase: np.ndarray  # (4,) rad
+
+    def height(self, xy: np.ndarray) -> np.ndarray:
+        """Elevation (m, up of the local frame) at (N, 2) east-north positions."""
+        xy = np.atleast_2d(xy)
+        _, nearest = cKDTree(self.path.points[:, :2]).query(xy)
+        return self.path.points[nearest, 2] + self.undulation_m * 0.5 * (
+            np.sin(xy[:, 0] / 23.0 + self.phase[0]) * np.cos(xy[:, 1] / 31.0 + self.phase[1])
+            + np.sin(xy[:, 0] / 11.0 + self.phase[2]) * np.sin(xy[:, 1] / 13.0 + self.phase[3])
+        )
+
+
+def landmark_field(path: DensePath, cfg: TerrainConfig, rng: np.random.Generator) -> tuple[np.ndarray, LandmarkTerrain]:
+    """Landmarks (M, 3) uniformly in a corridor around the path, on undulating terrain (returned
+    too) with the terrain's roughness; thinned to nearly nothing along the featureless stretches."""
     w = cfg.corridor_half_width_m
     lo = path.points[:, :2].min(axis=0) - w
     hi = path.points[:, :2].max(axis=0) + w
@@ -111,11 +131,7 @@ def landmark_field(path: DensePath, cfg: TerrainConfig, rng: np.random.Generator
     for a, b in cfg.featureless:
         in_gap = (s_near >= a) & (s_near <= b)
         keep &= ~in_gap | (rng.random(len(xy)) < cfg.featureless_density_factor)
-    xy, nearest = xy[keep], nearest[keep]
-    phase = rng.uniform(0, 2 * np.pi, size=4)
-    undulation = cfg.undulation_m * 0.5 * (
-        np.sin(xy[:, 0] / 23.0 + phase[0]) * np.cos(xy[:, 1] / 31.0 + phase[1])
-        + np.sin(xy[:, 0] / 11.0 + phase[2]) * np.sin(xy[:, 1] / 13.0 + phase[3])
-    )
-    z = path.points[nearest, 2] + undulation + rng.normal(0.0, cfg.roughness_m, len(xy))
-    return np.column_stack([xy, z])
+    xy = xy[keep]
+    terrain = LandmarkTerrain(path, cfg.undulation_m, rng.uniform(0, 2 * np.pi, size=4))
+    z = terrain.height(xy) + rng.normal(0.0, cfg.roughness_m, len(xy))
+    return np.column_stack([xy, z]), terrain

@@ -1,4 +1,4 @@
-"""Site maps as GeoTIFF (formats/geotiff.py, render/orbital.py; issue 34): a DTM of a scenario's
+"""Site maps as GeoTIFF (formats/geotiff.py, sim/orbital.py; issue 34): a DTM of a scenario's
 terrain written at 1 m posts opens in rasterio with the map projection's CRS and transform and
 gives back the terrain's heights; a map that cannot be used is refused with its file named."""
 
@@ -13,9 +13,9 @@ from pancam_graph.errors import InputError
 from pancam_graph.formats.geotiff import read_map_raster, write_map_raster
 from pancam_graph.geodesy import LocalFrame
 from pancam_graph.records import MapRaster
-from pancam_graph.render.orbital import terrain_dtm
 from pancam_graph.render.terrain import Ground
-from pancam_graph.sim.world import dense_path
+from pancam_graph.sim.orbital import terrain_dtm
+from pancam_graph.sim.world import dense_path, landmark_field
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +30,7 @@ def test_a_written_dtm_opens_with_its_crs_and_transform_and_gives_the_terrain_ba
     scenario, path, ground = terrain
     frame = LocalFrame(scenario.origin.lat_deg, scenario.origin.lon_deg, 250.0, body=body)
     centre = path.points[len(path.points) // 2, :2]
-    dtm = terrain_dtm(ground, frame, centre, size_m=120.0, post_m=1.0)
+    dtm = terrain_dtm(lambda xy: ground.at(xy)[0], frame, centre, size_m=120.0, post_m=1.0)
     write_map_raster(tmp_path / "dtm.tif", dtm)
     with rasterio.open(tmp_path / "dtm.tif") as written:
         assert CRS.from_wkt(written.crs.to_wkt()) == frame.map_crs()
@@ -49,6 +49,20 @@ def test_a_written_dtm_opens_with_its_crs_and_transform_and_gives_the_terrain_ba
 
 def from_origin(west: float, north: float, x_size: float, y_size: float) -> Affine:
     return Affine(x_size, 0.0, west, 0.0, -y_size, north)
+
+
+def test_at_measurement_level_the_dtm_is_the_ground_the_landmarks_lie_on(terrain):
+    """The landmarks scatter about the DTM by the terrain's roughness (rocks a 1 m DTM cannot see)."""
+    scenario, path, _ = terrain
+    landmarks, ground = landmark_field(path, scenario.terrain, np.random.default_rng(8))
+    frame = LocalFrame(scenario.origin.lat_deg, scenario.origin.lon_deg, 0.0, body="mars")
+    centre = path.points[len(path.points) // 3, :2]
+    dtm = terrain_dtm(ground.height, frame, centre, size_m=100.0)
+    near = np.all(np.abs(landmarks[:, :2] - centre) < 45.0, axis=1)
+    assert near.sum() > 1000
+    residual = landmarks[near, 2] - dtm.at(frame.to_map(landmarks[near]))
+    assert abs(np.mean(residual)) < 0.02
+    assert np.std(residual) == pytest.approx(scenario.terrain.roughness_m, rel=0.1)
 
 
 def _write(path, values, crs="EPSG:32632", transform=None, count=1):
