@@ -125,6 +125,7 @@ def test_a_scenario_on_mars_keeps_its_body_through_the_observation_folder(tmp_pa
     from pancam_graph.config import bundled_scenarios
     from pancam_graph.errors import ConfigError
     from pancam_graph.store.observation_folder import read_observations
+    from pancam_graph.store.results_folder import read_local_frame
 
     text = bundled_scenarios()["short_trail"].read_text()
     mars = tmp_path / "mars.toml"
@@ -136,6 +137,12 @@ def test_a_scenario_on_mars_keeps_its_body_through_the_observation_folder(tmp_pa
     assert traverse.origin.body == "mars" and not traverse.gps_fixes
     back = read_observations(tmp_path / "observations").traverse
     assert back.origin == traverse.origin
+    # a run's exports: no WGS84 formats for a Mars trajectory, its own geodetic CSV instead
+    api.run(tmp_path / "observations", out=tmp_path / "run", configs=("vo",), figures=False, processes=1)
+    names = {p.name for p in (tmp_path / "run").iterdir()}
+    assert "trajectory_vo_mars_iau2015.csv" in names and "trajectory_vo.tum" in names
+    assert not names & {"trajectory_vo_wgs84.csv", "trajectory_vo.geojson", "trajectory_vo.kml"}
+    assert read_local_frame(tmp_path / "run") == traverse.origin
     # the same east-north-up offsets are other geodetic points on a sphere of Mars' size
     assert not np.allclose(back.origin.to_geodetic(np.array([[1000.0, 0.0, 0.0]])),
                            LocalFrame(back.origin.lat0_deg, back.origin.lon0_deg, back.origin.h0_m).to_geodetic(

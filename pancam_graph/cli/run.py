@@ -114,8 +114,8 @@ def run_command(
     A scenario is simulated and compared with truth; an observation folder runs external
     observations; a ROS bag or a KITTI raw drive becomes a traverse with a stop at each GPS fix,
     scored on held-out fixes. Writes metrics.json, run.toml, trajectories (TUM, KITTI, WGS84 CSV,
-    GeoJSON, KML), plots and report.md into the results folder; a failed run leaves
-    <out>.partial with what was done, which `--resume` continues.
+    GeoJSON, KML; on Mars a CSV on the IAU 2015 sphere), plots and report.md into the results
+    folder; a failed run leaves <out>.partial with what was done, which `--resume` continues.
     """
     from .. import api
     from ..processes import cores, start_process_server

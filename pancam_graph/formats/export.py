@@ -74,9 +74,16 @@ def write_kml(path: Path, lat_lon_h: np.ndarray, name: str) -> None:
 
 def write_trajectory_exports(folder: Path, name: str, origin: LocalFrame, times_s: np.ndarray,
                              world_T_body: np.ndarray) -> None:
-    """`<name>.kitti`, `<name>_wgs84.csv`, `<name>.geojson` and `<name>.kml` in `folder`."""
+    """`<name>.kitti`, `<name>_wgs84.csv`, `<name>.geojson` and `<name>.kml` in `folder`. On
+    Mars, `<name>_mars_iau2015.csv` (planetocentric latitude, east longitude, height above the
+    IAU 2015 sphere) instead of the three, whose formats are WGS84 by definition."""
     write_kitti(folder / f"{name}.kitti", world_T_body)
     llh = geodetic(origin, world_T_body)
+    if origin.body != "earth":
+        write_csv(folder / f"{name}_{origin.body}_iau2015.csv", ["time_s", "lat_deg", "lon_deg", "h_m"],
+                  [(f"{t:.6f}", f"{p[0]:.10f}", f"{p[1]:.10f}", f"{p[2]:.4f}") for t, p in zip(times_s, llh,
+                                                                                          strict=True)])
+        return
     write_geodetic_csv(folder / f"{name}_wgs84.csv", times_s, llh)
     write_geojson(folder / f"{name}.geojson", llh, name, times_s)
     write_kml(folder / f"{name}.kml", llh, name)
