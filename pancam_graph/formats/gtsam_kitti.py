@@ -192,37 +192,56 @@ class StartFit:
     truth_world_T_body: np.ndarray | None = None  # (N, 4, 4) the frames' true poses, when fitted on the truth
 
 
-def fit_start(example: Kitti00Example) -> StartFit:
-    """The start pose and clock offset from the example's VO poses and the GPS (least squares)."""
+@dataclass(frozen=True)
+class _TrackFit:
+    """Camera poses' OXTS track laid onto GPS fixes: the parameters (x[0] the clock offset), their
+    1-sigma, the horizontal RMS of the residuals and the poses as body poses."""
+
+    x: np.ndarray
+    std: np.ndarray
+    rms_m: float
+    body: np.ndarray  # (N, 4, 4)
+
+
+def _fit_track_to_fixes(world_T_camera: np.ndarray, times: np.ndarray, fix_t: np.ndarray, fix_xyz: np.ndarray,
+                        place, x0: np.ndarray, **options) -> _TrackFit:
+    """Least squares of `place(x, antenna)` (the antenna at the fixes' times, clock-shifted by
+    x[0], moved into the GPS's frame) onto the fixes; the covariance scaled by the residuals."""
     from scipy.optimize import least_squares
 
-    body = BODY_T_FORWARD_CAMERA @ example.example_world_T_camera @ np.linalg.inv(BODY_T_FORWARD_CAMERA)
+    body = BODY_T_FORWARD_CAMERA @ world_T_camera @ np.linalg.inv(BODY_T_FORWARD_CAMERA)
     antenna = body[:, :3, 3] + body[:, :3, :3] @ np.asarray(OXTS_IN_CAMERA_BODY_M)
+
+    def predicted(x: np.ndarray) -> np.ndarray:
+        return place(x, np.column_stack([np.interp(fix_t - x[0], times, antenna[:, i]) for i in range(3)]))
+
+    fit = least_squares(lambda x: (predicted(x) - fix_xyz).ravel(), x0, **options)
+    residual = predicted(fit.x) - fix_xyz
+    dof = max(residual.size - len(fit.x), 1)
+    covariance = np.linalg.pinv(fit.jac.T @ fit.jac) * float(np.sum(residual**2)) / dof
+    return _TrackFit(fit.x, np.sqrt(np.diag(covariance)),
+                     float(np.sqrt(np.mean(np.sum(residual[:, :2] ** 2, axis=1)))), body)
+
+
+def fit_start(example: Kitti00Example) -> StartFit:
+    """The start pose and clock offset from the example's VO poses and the GPS (least squares)."""
     times = example.frame_times_s()
     # fixes from half a second before the first frame: the clock offset may move them in
     inside = (example.gps_times_s >= times[0] - 0.5) & (example.gps_times_s <= times[-1])
     fix_t, fix_xyz = example.gps_times_s[inside], example.gps_xyz_m[inside]
-
-    def predicted(x: np.ndarray) -> np.ndarray:
-        offset, yaw, log_scale = x[0], x[1], x[5]
-        at = np.column_stack([np.interp(fix_t - offset, times, antenna[:, i]) for i in range(3)])
-        return np.exp(log_scale) * at @ _yaw(yaw).T + x[2:5]
-
     start_yaw = np.arctan2(*(fix_xyz[-1, 1::-1] - fix_xyz[0, 1::-1]))  # roughly along the drive
-    fit = least_squares(lambda x: (predicted(x) - fix_xyz).ravel(), np.r_[0.0, start_yaw, fix_xyz[0], 0.0])
-    residual = (predicted(fit.x) - fix_xyz).reshape(-1, 3)
-    dof = max(residual.size - len(fit.x), 1)
-    covariance = np.linalg.pinv(fit.jac.T @ fit.jac) * float(np.sum(residual**2)) / dof
+    # x: clock offset, yaw, translation (3), log of the example VO's scale
+    fit = _fit_track_to_fixes(example.example_world_T_camera, times, fix_t, fix_xyz,
+                              lambda x, at: np.exp(x[5]) * at @ _yaw(x[1]).T + x[2:5],
+                              np.r_[0.0, start_yaw, fix_xyz[0], 0.0])
     world_T_body = np.eye(4)
     world_T_body[:3, :3] = _yaw(fit.x[1])
     world_T_body[:3, 3] = fit.x[2:5]
-    std = np.sqrt(np.diag(covariance))
-    horizontal = max(std[2], std[3])
+    horizontal = max(fit.std[2], fit.std[3])
     level = np.deg2rad(1.0)  # the car's roll and pitch at the start: level to a degree
     return StartFit(world_T_body, float(fit.x[0]), float(np.exp(fit.x[5])),
-                    np.array([level, level, std[1], horizontal, horizontal, std[4]]),
-                    float(np.sqrt(np.mean(np.sum(residual[:, :2] ** 2, axis=1)))), int(inside.sum()),
-                    example.frame_times_s(float(fit.x[0])))
+                    np.array([level, level, fit.std[1], horizontal, horizontal, fit.std[4]]), fit.rms_m,
+                    int(inside.sum()), example.frame_times_s(float(fit.x[0])))
 
 
 @dataclass(frozen=True)
@@ -257,36 +276,24 @@ def fit_start_on_truth(example: Kitti00Example, truth: Kitti00Truth) -> StartFit
     offset that best lay the truth's OXTS track onto every fix of the drive (robust least
     squares; 469 fixes over 4541 frames). The example's frames then get the truth's own times and
     poses, carried into the GPS's frame; `scale` is 1 (the truth is metric)."""
-    from scipy.optimize import least_squares
     from scipy.spatial.transform import Rotation
 
-    body = BODY_T_FORWARD_CAMERA @ truth.world_T_camera @ np.linalg.inv(BODY_T_FORWARD_CAMERA)
-    antenna = body[:, :3, 3] + body[:, :3, :3] @ np.asarray(OXTS_IN_CAMERA_BODY_M)
     times = example.gps_times_s[0] + truth.times_s
     inside = (example.gps_times_s >= times[0]) & (example.gps_times_s <= times[-1])
     fix_t, fix_xyz = example.gps_times_s[inside], example.gps_xyz_m[inside]
-
-    def predicted(x: np.ndarray) -> np.ndarray:
-        at = np.column_stack([np.interp(fix_t - x[0], times, antenna[:, i]) for i in range(3)])
-        return at @ Rotation.from_rotvec(x[1:4]).as_matrix().T + x[4:7]
-
     ahead = min(10, len(fix_xyz) - 1)
     start_yaw = np.arctan2(*(fix_xyz[ahead, 1::-1] - fix_xyz[0, 1::-1]))  # roughly along the first 10 s
-    fit = least_squares(lambda x: (predicted(x) - fix_xyz).ravel(), np.r_[0.0, 0.0, 0.0, start_yaw, fix_xyz[0]],
-                        loss="soft_l1", f_scale=1.0)
-    residual = (predicted(fit.x) - fix_xyz).reshape(-1, 3)
-    dof = max(residual.size - len(fit.x), 1)
-    covariance = np.linalg.pinv(fit.jac.T @ fit.jac) * float(np.sum(residual**2)) / dof
+    # x: clock offset, rotation vector (3), translation (3)
+    fit = _fit_track_to_fixes(truth.world_T_camera, times, fix_t, fix_xyz,
+                              lambda x, at: at @ Rotation.from_rotvec(x[1:4]).as_matrix().T + x[4:7],
+                              np.r_[0.0, 0.0, 0.0, start_yaw, fix_xyz[0]], loss="soft_l1", f_scale=1.0)
     gps_T_truth = np.eye(4)
     gps_T_truth[:3, :3] = Rotation.from_rotvec(fit.x[1:4]).as_matrix()
     gps_T_truth[:3, 3] = fit.x[4:7]
-    frames_world_T_body = gps_T_truth @ body[example.frames]
-    std = np.sqrt(np.diag(covariance))
+    frames_world_T_body = gps_T_truth @ fit.body[example.frames]
     # the start's sigma: the fit's, on the rotation (rotvec, about the same small angles) and
     # the translation, the truth's frame 0 being where the car was
-    sigmas = np.r_[std[1:4], std[4:7]]
-    return StartFit(frames_world_T_body[0], float(fit.x[0]), 1.0, sigmas,
-                    float(np.sqrt(np.mean(np.sum(residual[:, :2] ** 2, axis=1)))), int(inside.sum()),
+    return StartFit(frames_world_T_body[0], float(fit.x[0]), 1.0, fit.std[1:7], fit.rms_m, int(inside.sum()),
                     times[example.frames] + float(fit.x[0]), frames_world_T_body)
 
 
