@@ -14,10 +14,16 @@ POSE_A = gtsam.Pose3(gtsam.Rot3.Ypr(0.4, -0.05, 0.02), np.array([3.0, -2.0, 0.3]
 POSE_B = gtsam.Pose3(gtsam.Rot3.Ypr(0.45, -0.03, 0.01), np.array([4.4, -1.5, 0.35]))
 
 
+_DIM = {ord("x"): 6, ord("l"): 3, ord("s"): 1}  # poses, landmarks, shared scalars (slip, VO scale and bias)
+
+
 def _perturb(values: gtsam.Values, key: int, delta: np.ndarray) -> gtsam.Values:
     out = gtsam.Values(values)
-    if gtsam.Symbol(key).chr() == ord("x"):
+    kind = gtsam.Symbol(key).chr()
+    if kind == ord("x"):
         out.update(key, values.atPose3(key).retract(delta))
+    elif kind == ord("s"):
+        out.update(key, values.atDouble(key) + float(delta[0]))
     else:
         out.update(key, values.atPoint3(key) + delta)
     return out
@@ -32,7 +38,7 @@ def _check(factor, values, eps=1e-6, rtol=1e-5):
     analytic = factor.linearize(values).jacobian()[0]
     numeric = []
     for key in factor.keys():
-        dim = 6 if gtsam.Symbol(key).chr() == ord("x") else 3
+        dim = _DIM[gtsam.Symbol(key).chr()]
         for i in range(dim):
             d = np.zeros(dim)
             d[i] = eps
@@ -118,3 +124,14 @@ def test_landmark_anchor_jacobian_and_its_relative_measurement():
     along.insert(X(0), POSE_A)
     along.insert(L(7), POSE_A.transformFrom(p_body * (1 + 3.0 / np.linalg.norm(p_body))))
     assert 2 * f.error(along) == pytest.approx(1.0, rel=1e-9)
+
+
+@pytest.mark.parametrize("bias", [(0.0, 0.0, 0.0), (0.02, 0.01, -0.03)])
+def test_vo_step_with_shared_scale_and_direction_bias_jacobian(bias):
+    from pancam_graph.kinds.vo_scale import VO_LATERAL, VO_SCALE, VO_VERTICAL, biased_vo_factor
+
+    vo_T = POSE_A.between(POSE_B).compose(gtsam.Pose3.Expmap(np.array([0.01, -0.02, 0.03, 0.05, -0.04, 0.02])))
+    values = _values()
+    for key, value in zip((VO_SCALE, VO_LATERAL, VO_VERTICAL), bias, strict=True):
+        values.insert(key, value)
+    _check(biased_vo_factor(X(0), X(1), vo_T, np.diag([1e-6] * 3 + [1e-4] * 3)), values)
