@@ -22,9 +22,8 @@ def terrain_dtm(height: Callable[[np.ndarray], np.ndarray], frame: LocalFrame, c
     corner = frame.to_map(np.array([[centre_enu[0] - size_m / 2, centre_enu[1] + size_m / 2, 0.0]]), crs)[0]
     x0, y0 = np.floor(corner[0] / post_m) * post_m, np.ceil(corner[1] / post_m) * post_m
     count = int(np.ceil(size_m / post_m))
-    grid = MapRaster(np.zeros((count, count), np.float32), float(x0), float(y0), float(post_m), crs.to_wkt())
-    x, y = grid.centres()
-    gx, gy = np.meshgrid(x, y)
+    dtm = MapRaster(np.empty((count, count), np.float32), float(x0), float(y0), float(post_m), crs.to_wkt())
+    gx, gy = np.meshgrid(*dtm.centres())
     enu = frame.from_map(np.column_stack([gx.ravel(), gy.ravel()]), frame.h0_m, crs)
-    values = (height(enu[:, :2]) + frame.h0_m).reshape(count, count).astype(np.float32)
-    return MapRaster(values, grid.x0_m, grid.y0_m, grid.post_m, grid.crs_wkt)
+    dtm.values[:] = (height(enu[:, :2]) + frame.h0_m).reshape(count, count)
+    return dtm

@@ -3,7 +3,7 @@ and a seeded landmark field on undulating terrain around the path."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
@@ -105,11 +105,16 @@ class LandmarkTerrain:
     path: DensePath
     undulation_m: float
     phase: np.ndarray  # (4,) rad
+    tree: cKDTree | None = field(default=None, repr=False, compare=False)  # the path's east-north (built if None)
+
+    def __post_init__(self) -> None:
+        if self.tree is None:
+            object.__setattr__(self, "tree", cKDTree(self.path.points[:, :2]))
 
     def height(self, xy: np.ndarray) -> np.ndarray:
         """Elevation (m, up of the local frame) at (N, 2) east-north positions."""
         xy = np.atleast_2d(xy)
-        _, nearest = cKDTree(self.path.points[:, :2]).query(xy)
+        _, nearest = self.tree.query(xy)
         return self.path.points[nearest, 2] + self.undulation_m * 0.5 * (
             np.sin(xy[:, 0] / 23.0 + self.phase[0]) * np.cos(xy[:, 1] / 31.0 + self.phase[1])
             + np.sin(xy[:, 0] / 11.0 + self.phase[2]) * np.sin(xy[:, 1] / 13.0 + self.phase[3])
@@ -132,6 +137,6 @@ def landmark_field(path: DensePath, cfg: TerrainConfig, rng: np.random.Generator
         in_gap = (s_near >= a) & (s_near <= b)
         keep &= ~in_gap | (rng.random(len(xy)) < cfg.featureless_density_factor)
     xy = xy[keep]
-    terrain = LandmarkTerrain(path, cfg.undulation_m, rng.uniform(0, 2 * np.pi, size=4))
+    terrain = LandmarkTerrain(path, cfg.undulation_m, rng.uniform(0, 2 * np.pi, size=4), tree)
     z = terrain.height(xy) + rng.normal(0.0, cfg.roughness_m, len(xy))
     return np.column_stack([xy, z]), terrain
