@@ -226,6 +226,7 @@ def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, ta
                     write_run(result, folder)
                     report = write_report(result, folder, figures)
                 remove_checkpoint(folder)
+                warnings += _kind_warnings(result)
             finally:
                 if recording is not None:  # also on failure: keep what was recorded
                     recording.close()
@@ -239,6 +240,21 @@ def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, ta
                                                                               path=out / recording.target.path.name))
     return RunOutcome(result, out, out / report.name, data.rejected, tuple(warnings), checkpoints.saves,
                       checkpoints.save_s, recording)
+
+
+def _kind_warnings(result) -> list[str]:
+    """What the kinds left undone that the user must hear of (Kind.warning_counters)."""
+    from .kinds import KINDS
+
+    out = []
+    for name, configuration in result.configurations.items():
+        for kind in KINDS.values():
+            for counter, what in kind.warning_counters.items():
+                entries = configuration.counters.get(counter) or []
+                if entries:
+                    shown = "; ".join(str(e) for e in entries[:5]) + ("; ..." if len(entries) > 5 else "")
+                    out.append(f"{name}: {len(entries)} {what}: {shown}")
+    return out
 
 
 def track(source: str | Path, out: Path | str, *, detector: str | None = None, skip_bad_frames: bool = False,

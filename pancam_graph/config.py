@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Annotated, Literal, TypeVar
 
 import tomli_w
-from pydantic import AfterValidator, BaseModel, Field, ValidationError, create_model, model_validator
+from pydantic import AfterValidator, BaseModel, Field, ValidationError, create_model, field_validator, model_validator
 
 from .errors import ConfigError, PancamGraphError
 from .kinds import KINDS, configuration_problem
@@ -85,6 +85,16 @@ class TerrainConfig(_Strict):
     roughness_m: float = Field(0.2, ge=0.0, le=10.0)
     featureless: list[Range] = Field(default_factory=list, description="path-distance ranges, m")
     featureless_density_factor: float = Field(0.01, ge=0.0, le=1.0)
+    craters_per_km2: float = Field(0.0, ge=0.0, le=20000.0, description="small impact craters (bowl and rim), "
+                                   "the relief an orbital DTM at 1 m posts resolves and a site's map registers on")
+    crater_radius_m: Range = Field((2.0, 15.0), description="crater radii, drawn from a -2 power law between these")
+
+    @field_validator("crater_radius_m")
+    @classmethod
+    def _positive_radii(cls, radii: tuple[float, float]) -> tuple[float, float]:
+        if radii[0] <= 0:
+            raise ValueError(f"crater radii must be positive, got {radii[0]:g} m")
+        return radii
 
 
 class CameraConfig(_Strict):
@@ -174,6 +184,9 @@ DEFAULT_CONFIGURATIONS: dict[str, list[str]] = {
     "vo_sites": ["vo", "sites"],
     "vo_sites_hrc": ["vo", "sites", "hrc"],
     "full": ["vo", "sites", "hrc", "gps"],
+    # Mars has no GPS: the orbital map (and the sun) are its absolute references
+    "vo_sites_orbital": ["vo", "sites", "orbital"],
+    "full_mars": ["vo", "sites", "hrc", "orbital", "sun_heading"],
 }
 
 

@@ -7,6 +7,7 @@ travels separately (`GroundTruth`) and is used only for evaluation.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import gtsam
@@ -168,6 +169,11 @@ class GroundTruth:
     world_T_body: np.ndarray  # (N, 4, 4)
     landmarks: np.ndarray  # (M, 3)
     wheel_slip: float | None = None  # the traverse's true slip, when simulated
+    # The terrain's true elevation (m, local up) at (N, 2) east-north points, when simulated.
+    terrain: Callable[[np.ndarray], np.ndarray] | None = field(default=None, repr=False, compare=False)
+    # The true values of kinds' own variables, when simulated: kind name -> variable -> value
+    # (the orbital kind's map biases).
+    kinds: dict[str, dict[str, float]] = field(default_factory=dict)
 
     @property
     def positions(self) -> np.ndarray:
@@ -220,3 +226,16 @@ class MapRaster:
                                        fill_value=np.nan)
         xy = np.atleast_2d(np.asarray(xy, dtype=float))
         return grid(np.column_stack([xy[:, 1], xy[:, 0]]))
+
+
+@dataclass(frozen=True)
+class OrbitalMap:
+    """An orbital map of the traverse's ground: a DTM (heights above the body's surface) and,
+    optionally, an orthoimage, with the accuracy its producer states for its georeference."""
+
+    name: str
+    dtm: MapRaster
+    orthoimage: MapRaster | None = None
+    offset_sigma_m: float = 3.0  # 1 sigma of its horizontal position, per axis
+    rotation_sigma_deg: float = 0.02  # 1 sigma of its rotation about the traverse's origin
+    vertical_sigma_m: float = 1.0  # 1 sigma of its heights' offset (its vertical datum)

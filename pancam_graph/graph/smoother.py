@@ -285,16 +285,16 @@ class Smoother:
         except RuntimeError as exc:
             raise GraphError(f"marginal covariance of {gtsam.Symbol(key).string()} failed: {exc}") from None
 
-    def joint_marginal_covariance(self, a: int, b: int) -> np.ndarray:
-        """12x12 joint marginal covariance of two variables in the window (a's block first),
-        tangent spaces."""
-        self._in_window(a, b)
+    def joint_marginal_covariance(self, *keys: int) -> np.ndarray:
+        """Joint marginal covariance of variables in the window (blocks in the order given),
+        tangent spaces: 12x12 for two poses."""
+        self._in_window(*keys)
         try:
-            joint = self.isam.getISAM2().jointMarginalCovariance([a, b])
+            joint = self.isam.getISAM2().jointMarginalCovariance(list(keys))
         except RuntimeError as exc:
-            names = f"{gtsam.Symbol(a).string()}, {gtsam.Symbol(b).string()}"
+            names = ", ".join(gtsam.Symbol(k).string() for k in keys)
             raise GraphError(f"joint marginal covariance of {names} failed: {exc}") from None
-        return np.block([[joint.at(a, a), joint.at(a, b)], [joint.at(b, a), joint.at(b, b)]])
+        return np.block([[np.atleast_2d(joint.at(a, b)) for b in keys] for a in keys])
 
     def estimate(self) -> gtsam.Values:
         """Every variable: the window's current estimate, back-substituted in full (the per-stop

@@ -68,6 +68,9 @@ class Kind:
     step_counters: ClassVar[dict[str, float | None]] = {}
     # Its counters over the whole traverse (metrics.json), the same for a configuration without it.
     counter_defaults: ClassVar[dict[str, float | list]] = {}
+    # Its list counters that the user must hear about when not empty (printed as warnings), with
+    # what their entries are: {"orbital_uncovered_stops": "site stops no orbital map covers"}.
+    warning_counters: ClassVar[dict[str, str]] = {}
     # What the run loop needs to know of a kind, so that it names none:
     motion: ClassVar[str | None] = None  # the motion between stops it stands for: "vo" or "dead_reckoning"
     needs: ClassVar[dict[str, str]] = {}  # kinds it hooks into, which a configuration must have too: why
@@ -110,6 +113,13 @@ class Kind:
         return ()
 
     @classmethod
+    def simulate_with_truth(cls, sensor: Section, traverse: Traverse, truth: GroundTruth,
+                            rng: np.random.Generator) -> tuple[tuple, dict[str, float]]:
+        """Its records and the true values of its own variables that the simulation drew (for
+        GroundTruth.kinds[name]); a kind whose sensor draws such a state overrides this."""
+        return cls.simulate(sensor, traverse, truth, rng), {}
+
+    @classmethod
     def to_rows(cls, records: tuple) -> list[tuple[float, ...]]:
         """The records as rows of `columns`."""
         return []
@@ -135,6 +145,10 @@ class Kind:
     def true_values(self, truth: GroundTruth, values: gtsam.Values) -> bool:
         """Insert the true values of this kind's own variables (for the CRLB); False when unknown."""
         return True
+
+    def against_truth(self, truth: GroundTruth) -> dict[str, float]:
+        """Its own variables' estimates against the truth (metrics.json), where the truth has them."""
+        return {}
 
     def finish(self) -> None:
         """The traverse is over: anything left to account for."""

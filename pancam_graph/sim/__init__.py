@@ -32,7 +32,7 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
     path = dense_path(scenario.path)
     stop_s = stop_distances(path, scenario.path, rng)
     poses = rover_poses(path, stop_s)
-    landmarks, _ = landmark_field(path, scenario.terrain, rng)
+    landmarks, terrain = landmark_field(path, scenario.terrain, rng, np.random.default_rng([seed, 3]))
     field = LandmarkField(landmarks)
     sites = set(site_stops(stop_s, scenario.sites, rng)) if scenario.sites.enabled else set()
 
@@ -108,22 +108,29 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
         measurements={"gps": tuple(fixes)},
         wheel_slip=SlipPrior(dr_cfg.wheel_slip_mean, dr_cfg.wheel_slip_bias_sigma),
     )
-    truth = GroundTruth(world_T_body=poses, landmarks=field.points, wheel_slip=float(traverse_slip))
-    return _with_kind_measurements(scenario, traverse, truth, seed), truth
+    truth = GroundTruth(world_T_body=poses, landmarks=field.points, wheel_slip=float(traverse_slip),
+                        terrain=terrain.height)
+    return _with_kind_measurements(scenario, traverse, truth, seed)
 
 
-def _with_kind_measurements(scenario: Scenario, traverse: Traverse, truth: GroundTruth, seed: int) -> Traverse:
+def _with_kind_measurements(scenario: Scenario, traverse: Traverse, truth: GroundTruth, seed: int
+                            ) -> tuple[Traverse, GroundTruth]:
     """The records of every kind with a simulated sensor (kinds/base.py), each drawn from a random
-    stream of its own, named after the kind: adding a kind changes nothing else."""
-    measurements = dict(traverse.measurements)
+    stream of its own, named after the kind: adding a kind changes nothing else. The true states
+    they drew go into the truth."""
+    measurements, true_states = dict(traverse.measurements), dict(truth.kinds)
     for name, kind in KINDS.items():
         sensor = getattr(scenario, name) if kind.Sensor is not None else None
         if sensor is None or not getattr(sensor, "enabled", True):
             continue
-        records = kind.simulate(sensor, traverse, truth, np.random.default_rng([seed, zlib.crc32(name.encode())]))
+        rng = np.random.default_rng([seed, zlib.crc32(name.encode())])
+        records, state = kind.simulate_with_truth(sensor, traverse, truth, rng)
         if records:
             measurements[name] = tuple(records)
-    return dataclasses.replace(traverse, measurements=measurements)
+        if state:
+            true_states[name] = state
+    return (dataclasses.replace(traverse, measurements=measurements),
+            dataclasses.replace(truth, kinds=true_states))
 
 
 def _fixes_while_driving(scenario: Scenario, path, stops: list[Stop], stop_s: np.ndarray, frame: LocalFrame,

@@ -12,6 +12,7 @@ from scipy.spatial import cKDTree
 from ..config import PathConfig, SitesConfig, TerrainConfig
 
 _DENSE_STEP_M = 0.25
+CRATER_MARGIN_M = 150.0  # craters reach this far beyond the landmark corridor's box (an orbital map's margin)
 
 
 @dataclass(frozen=True)
@@ -97,14 +98,52 @@ def rover_poses(path: DensePath, stop_s: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class Craters:
+    """Simple impact craters: a bowl 0.2 radii deep inside the rim, a raised rim 0.05 radii high
+    falling off as (R/r)^3 outside it, nothing beyond two radii."""
+
+    centres: np.ndarray  # (K, 2) east, north
+    radii: np.ndarray  # (K,)
+
+    @classmethod
+    def drawn(cls, lo: np.ndarray, hi: np.ndarray, per_km2: float, radius_m: tuple[float, float],
+              rng: np.random.Generator) -> Craters:
+        """Craters uniformly over the box lo..hi (east, north), radii from a -2 cumulative power law
+        (Mars' small craters) between radius_m's bounds."""
+        count = rng.poisson(per_km2 * float(np.prod(hi - lo)) / 1e6)
+        centres = rng.uniform(lo, hi, size=(count, 2))
+        a, b = np.asarray(radius_m, dtype=float) ** -2.0
+        radii = (a - rng.random(count) * (a - b)) ** -0.5
+        return cls(centres, radii)
+
+    def height(self, xy: np.ndarray) -> np.ndarray:
+        """The craters' relief (m) at (N, 2) east-north positions."""
+        out = np.zeros(len(xy))
+        if not len(self.radii) or not len(xy):
+            return out
+        points = cKDTree(xy)
+        for centre, radius in zip(self.centres, self.radii, strict=True):
+            near = np.asarray(points.query_ball_point(centre, 2.0 * radius), dtype=int)
+            if not len(near):
+                continue
+            r = np.linalg.norm(xy[near] - centre, axis=1) / radius
+            rim = 0.05 * radius
+            out[near] += np.where(r < 1.0, 0.2 * radius * (r**2 - 1.0) + rim,
+                                  rim * (np.maximum(r, 1.0) ** -3.0 - 0.125) / 0.875)
+        return out
+
+
+@dataclass(frozen=True)
 class LandmarkTerrain:
     """The ground the simulated landmarks lie on: the path's own elevation at its nearest point plus
-    smooth undulation at 11-31 m wavelengths. Each landmark adds the terrain's roughness on top
-    (rocks and the like), which an orbital DTM at 1 m posts does not resolve."""
+    smooth undulation at 11-31 m wavelengths and, where the scenario has them, craters. Each
+    landmark adds the terrain's roughness on top (rocks and the like), which an orbital DTM at
+    1 m posts does not resolve."""
 
     path: DensePath
     undulation_m: float
     phase: np.ndarray  # (4,) rad
+    craters: Craters | None = None
     tree: cKDTree | None = field(default=None, repr=False, compare=False)  # the path's east-north (built if None)
 
     def __post_init__(self) -> None:
@@ -115,15 +154,20 @@ class LandmarkTerrain:
         """Elevation (m, up of the local frame) at (N, 2) east-north positions."""
         xy = np.atleast_2d(xy)
         _, nearest = self.tree.query(xy)
-        return self.path.points[nearest, 2] + self.undulation_m * 0.5 * (
+        ground = self.path.points[nearest, 2] + self.undulation_m * 0.5 * (
             np.sin(xy[:, 0] / 23.0 + self.phase[0]) * np.cos(xy[:, 1] / 31.0 + self.phase[1])
             + np.sin(xy[:, 0] / 11.0 + self.phase[2]) * np.sin(xy[:, 1] / 13.0 + self.phase[3])
         )
+        return ground if self.craters is None else ground + self.craters.height(xy)
 
 
-def landmark_field(path: DensePath, cfg: TerrainConfig, rng: np.random.Generator) -> tuple[np.ndarray, LandmarkTerrain]:
+def landmark_field(path: DensePath, cfg: TerrainConfig, rng: np.random.Generator,
+                   crater_rng: np.random.Generator | None = None) -> tuple[np.ndarray, LandmarkTerrain]:
     """Landmarks (M, 3) uniformly in a corridor around the path, on undulating terrain (returned
-    too) with the terrain's roughness; thinned to nearly nothing along the featureless stretches."""
+    too) with the terrain's roughness; thinned to nearly nothing along the featureless stretches.
+    Craters, when the terrain has them, are drawn from `crater_rng` (a stream of their own, so
+    that a terrain without them is the same as before they existed) over the corridor's box and
+    CRATER_MARGIN_M around it, where an orbital map of the traverse reaches."""
     w = cfg.corridor_half_width_m
     lo = path.points[:, :2].min(axis=0) - w
     hi = path.points[:, :2].max(axis=0) + w
@@ -137,6 +181,11 @@ def landmark_field(path: DensePath, cfg: TerrainConfig, rng: np.random.Generator
         in_gap = (s_near >= a) & (s_near <= b)
         keep &= ~in_gap | (rng.random(len(xy)) < cfg.featureless_density_factor)
     xy = xy[keep]
-    terrain = LandmarkTerrain(path, cfg.undulation_m, rng.uniform(0, 2 * np.pi, size=4), tree)
+    craters = None
+    if cfg.craters_per_km2 > 0:
+        craters = Craters.drawn(lo - CRATER_MARGIN_M, hi + CRATER_MARGIN_M, cfg.craters_per_km2, cfg.crater_radius_m,
+                                crater_rng if crater_rng is not None else np.random.default_rng())
+    terrain = LandmarkTerrain(path, cfg.undulation_m, rng.uniform(0, 2 * np.pi, size=4), tree=tree,
+                              craters=craters)
     z = terrain.height(xy) + rng.normal(0.0, cfg.roughness_m, len(xy))
     return np.column_stack([xy, z]), terrain

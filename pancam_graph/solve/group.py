@@ -189,7 +189,7 @@ def _configuration_result(job: GroupJob, name: str, localizer: Localizer, steps:
         landmark_ids=final.landmark_ids,
         landmark_positions=final.landmarks,
         tie_links=localizer.tie_links(),
-        counters=localizer.counters(),
+        counters={**localizer.counters(), **(localizer.against_truth(truth) if truth is not None else {})},
         interpolated=list(localizer.interpolated),
         solver="isam2+batch_lm" if job.options.batch else "isam2",
         metrics=metrics,

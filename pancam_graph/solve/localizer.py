@@ -234,6 +234,13 @@ class Localizer:
             out.update(kind.counters())
         return out
 
+    def against_truth(self, truth: GroundTruth) -> dict:
+        """The kinds' own variables against the truth (Kind.against_truth)."""
+        out: dict = {}
+        for kind in self.kinds.values():
+            out.update(kind.against_truth(truth))
+        return out
+
     def snapshot(self) -> Snapshot:
         """The current iSAM2 estimate."""
         return self._snapshot_of(self.smoother.estimate())

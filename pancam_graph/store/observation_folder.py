@@ -9,7 +9,10 @@ A folder (documented in docs/observation_format.md):
     odometry.csv    stop,r11..r33,tx,ty,tz,c00..c55 (upper triangle)    (optional) dead reckoning
     truth.kitti     (optional) reference pose of every stop, KITTI layout, for evaluation
     truth_landmarks.csv  track,x_m,y_m,z_m (optional, with truth.kitti) true landmarks (ENU)
-    truth.toml      wheel_slip = ... (optional, with truth.kitti) the traverse's true slip
+    truth.toml      wheel_slip = ... (optional, with truth.kitti) the traverse's true slip, and
+                    [kinds.<kind>] the true values of kinds' own variables (the map biases)
+    maps/*.tif      (optional) orbital maps, DTM and orthoimage GeoTIFFs, listed in the
+                    manifest's [[maps]] with their stated accuracy (a real HiRISE DTM too)
     <kind>.csv      (optional) the records of a measurement kind with a table of its own
                     (Kind.columns in pancam_graph/kinds/): gps.csv (time_s,lat_deg,lon_deg,h_m,
                     sigma_h_m,sigma_v_m, each fix used at its time), sun_heading.csv
@@ -43,6 +46,7 @@ from ..records import (
     DeadReckoning,
     GroundTruth,
     HrcFrame,
+    OrbitalMap,
     PanoramaFrame,
     SlipPrior,
     StereoObservations,
@@ -122,6 +126,19 @@ class RigSource(_Strict):
         "transpose of stereoRectify's R1), when the images were rectified before the calibration was written")
 
 
+class MapSource(_Strict):
+    """An orbital map of the traverse's ground: GeoTIFFs (paths relative to the folder) and the
+    accuracy its producer states for its georeference."""
+
+    name: str = Field(min_length=1)
+    dtm: str = Field(description="DTM GeoTIFF: heights above the body's reference surface, a projected CRS")
+    orthoimage: str | None = Field(None, description="orthoimage GeoTIFF, one grey band, the DTM's CRS")
+    offset_sigma_m: float = Field(3.0, gt=0.0, le=10000.0, description="1-sigma horizontal georeference error, "
+                                  "per axis")
+    vertical_sigma_m: float = Field(1.0, gt=0.0, le=10000.0, description="1-sigma offset of its heights")
+    rotation_sigma_deg: float = Field(0.02, gt=0.0, le=10.0, description="1-sigma rotation about the origin")
+
+
 class Manifest(_Strict):
     name: str
     seed: int = Field(0, description="seeds the tie-point selection at sites")
@@ -138,6 +155,7 @@ class Manifest(_Strict):
                                    "traverse")
     wheel_slip_sigma: float = Field(0.05, gt=0.0, le=1.0, description="its uncertainty (1 sigma)")
     estimator: EstimatorConfig = EstimatorConfig()
+    maps: list[MapSource] = Field(default_factory=list, description="orbital maps (the orbital kind)")
 
 
 @dataclass(frozen=True)
@@ -210,7 +228,8 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
         gps_lever_arm_m=tuple(float(v) for v in traverse.gps_lever_arm_m),
         start_world_T_body=traverse.start_world_T_body.tolist(),
         start_sigmas=tuple(float(v) for v in traverse.start_sigmas), wheel_slip_mean=traverse.wheel_slip.mean,
-        wheel_slip_sigma=traverse.wheel_slip.sigma, estimator=estimator)
+        wheel_slip_sigma=traverse.wheel_slip.sigma, estimator=estimator,
+        maps=_write_maps(folder, traverse.measurements.get("orbital", ())))
     (folder / MANIFEST).write_text(tomli_w.dumps(manifest.model_dump(mode="json", exclude_none=True)),
                                    encoding="utf-8")
     def r(x) -> str:  # shortest text that reads back to the same float
@@ -259,8 +278,45 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
         seen = [t for t in seen if t < len(truth.landmarks)]
         _write_csv(folder / "truth_landmarks.csv", ["track", "x_m", "y_m", "z_m"],
                    [(t, *(r(v) for v in truth.landmarks[t])) for t in seen])
-        if truth.wheel_slip is not None:
-            (folder / "truth.toml").write_text(tomli_w.dumps({"wheel_slip": truth.wheel_slip}), encoding="utf-8")
+        states = {k: {name: float(v) for name, v in state.items()} for k, state in truth.kinds.items()}
+        truth_toml = ({"wheel_slip": truth.wheel_slip} if truth.wheel_slip is not None else {}) | (
+            {"kinds": states} if states else {})
+        if truth_toml:
+            (folder / "truth.toml").write_text(tomli_w.dumps(truth_toml), encoding="utf-8")
+
+
+def _write_maps(folder: Path, maps: tuple[OrbitalMap, ...]) -> list[MapSource]:
+    """Each orbital map's GeoTIFFs in maps/, and its manifest entry."""
+    from ..formats.geotiff import write_map_raster
+
+    out = []
+    for orbital_map in maps:
+        (folder / "maps").mkdir(exist_ok=True)
+        dtm = f"maps/{orbital_map.name}_dtm.tif"
+        write_map_raster(folder / dtm, orbital_map.dtm)
+        ortho = None
+        if orbital_map.orthoimage is not None:
+            ortho = f"maps/{orbital_map.name}_orthoimage.tif"
+            write_map_raster(folder / ortho, orbital_map.orthoimage)
+        out.append(MapSource(name=orbital_map.name, dtm=dtm, orthoimage=ortho,
+                             offset_sigma_m=orbital_map.offset_sigma_m, vertical_sigma_m=orbital_map.vertical_sigma_m,
+                             rotation_sigma_deg=orbital_map.rotation_sigma_deg))
+    return out
+
+
+def _read_maps(folder: Path, sources: list[MapSource]) -> tuple[OrbitalMap, ...]:
+    """The manifest's orbital maps, each GeoTIFF checked (formats/geotiff.py names the file)."""
+    from ..formats.geotiff import read_map_raster
+
+    maps = []
+    for source in sources:
+        dtm = read_map_raster(folder / source.dtm)
+        if dtm.values.dtype == np.uint8:
+            raise InputError(f"{folder / source.dtm}: 8-bit grey levels: expected a DTM of heights (float)")
+        ortho = None if source.orthoimage is None else read_map_raster(folder / source.orthoimage)
+        maps.append(OrbitalMap(source.name, dtm, ortho, source.offset_sigma_m, source.rotation_sigma_deg,
+                               source.vertical_sigma_m))
+    return tuple(maps)
 
 
 def _write_rectified_yaml(path: Path, rig: Rig) -> None:
@@ -324,12 +380,15 @@ def read_observations(folder: Path) -> ObservationSet:
                         wheel_slip=SlipPrior(manifest.wheel_slip_mean, manifest.wheel_slip_sigma),
                         body_T_nav_left=body_T_left)
     measurements = _read_kind_tables(folder, traverse)
+    if manifest.maps:
+        measurements["orbital"] = _read_maps(folder, manifest.maps)
     if measurements:
         traverse = dataclasses.replace(traverse, measurements=measurements)
     truth = None
     if (folder / "truth.kitti").is_file():
         landmarks = _read_truth_landmarks(folder / "truth_landmarks.csv")
-        truth = GroundTruth(_read_truth(folder / "truth.kitti", n), landmarks, _read_truth_slip(folder / "truth.toml"))
+        slip, states = _read_truth_toml(folder / "truth.toml")
+        truth = GroundTruth(_read_truth(folder / "truth.kitti", n), landmarks, slip, kinds=states)
     return ObservationSet(traverse, truth, manifest.estimator, manifest.seed, folder, frames, panorama_frames,
                           None if calibration is None or calibration.is_rectified else calibration)
 
@@ -561,18 +620,28 @@ def _read_truth_landmarks(path: Path) -> np.ndarray:
     return points
 
 
-def _read_truth_slip(path: Path) -> float | None:
+def _read_truth_toml(path: Path) -> tuple[float | None, dict[str, dict[str, float]]]:
+    """The true slip and the kinds' true states, where the folder has them."""
     if not path.is_file():
-        return None
+        return None, {}
     import tomllib
 
     try:
-        value = tomllib.loads(read_text(path, "truth")).get("wheel_slip")
+        data = tomllib.loads(read_text(path, "truth"))
     except (tomllib.TOMLDecodeError, ValueError) as exc:
         raise InputError(f"{path}: not valid TOML: {exc}") from None
-    if not isinstance(value, int | float) or isinstance(value, bool) or not abs(value) < 1e6:
-        raise InputError(f"{path}: field 'wheel_slip': expected a finite number, got {value!r}")
-    return float(value)
+
+    def number(field: str, value) -> float:
+        if not isinstance(value, int | float) or isinstance(value, bool) or not abs(value) < 1e6:
+            raise InputError(f"{path}: field {field!r}: expected a finite number, got {value!r}")
+        return float(value)
+
+    slip = data.get("wheel_slip")
+    kinds = data.get("kinds", {})
+    if not isinstance(kinds, dict) or not all(isinstance(v, dict) for v in kinds.values()):
+        raise InputError(f"{path}: [kinds] must hold one table of numbers per kind")
+    states = {k: {name: number(f"kinds.{k}.{name}", v) for name, v in state.items()} for k, state in kinds.items()}
+    return (None if slip is None else number("wheel_slip", slip)), states
 
 
 def _read_truth(path: Path, n: int) -> np.ndarray:

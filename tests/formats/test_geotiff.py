@@ -35,7 +35,7 @@ def test_a_written_dtm_opens_with_its_crs_and_transform_and_gives_the_terrain_ba
     with rasterio.open(tmp_path / "dtm.tif") as written:
         assert CRS.from_wkt(written.crs.to_wkt()) == frame.map_crs()
         assert written.transform == from_origin(dtm.x0_m, dtm.y0_m, 1.0, 1.0) and written.res == (1.0, 1.0)
-        assert written.shape == (120, 120) and written.dtypes[0] == "float32"
+        assert written.shape == dtm.values.shape and min(written.shape) >= 120 and written.dtypes[0] == "float32"
     back = read_map_raster(tmp_path / "dtm.tif")
     rng = np.random.default_rng(5)
     enu = np.column_stack([centre + rng.uniform(-50.0, 50.0, (400, 2)), np.zeros(400)])

@@ -135,3 +135,16 @@ def test_vo_step_with_shared_scale_and_direction_bias_jacobian(bias):
     for key, value in zip((VO_SCALE, VO_LATERAL, VO_VERTICAL), bias, strict=True):
         values.insert(key, value)
     _check(biased_vo_factor(X(0), X(1), vo_T, np.diag([1e-6] * 3 + [1e-4] * 3)), values)
+
+
+@pytest.mark.parametrize("bias", [(0.0, 0.0, 0.0, 0.0), (2.5, -1.7, 0.8, 0.004)])
+def test_orbital_registration_on_pose_and_map_bias_jacobian(bias):
+    from pancam_graph.kinds.orbital import bias_keys, orbital_factor
+
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(4, 4)) * 0.1
+    f = orbital_factor(0, 1, np.array([5.0, -0.8, 0.2, 0.5]), a @ a.T + np.eye(4) * 0.01)
+    values = _values()
+    for key, value in zip(bias_keys(1), bias, strict=True):
+        values.insert(key, value)
+    _check(f, values)

@@ -1,0 +1,377 @@
+"""Orbital-map registration: where there is no GPS (Mars), the absolute reference is the orbital
+map, a DTM at about 1 m posts (HiRISE stereo) and its orthoimage.
+
+At every site the panorama's triangulated points, a local elevation map, are registered to the
+DTM from the predicted pose (dem_registration.py): the rover's horizontal position and heading
+in the map's frame, with the fit's covariance; and its height, against the DTM's. A map's
+georeference is itself off by a few metres, a small rotation and a datum offset in height, the
+same for every site it serves; treated as white noise per site, that error would pull the whole
+traverse by the map's offset while the covariance shrank as if it averaged away. So each map
+has a bias variable, four shared scalars (east, north, up, and the rotation about the local
+origin: maps.MapBias) with a prior from the map's stated accuracy, and each registration is a
+factor on the site's pose and its map's bias: the same idea as the VO scale and the wheel slip.
+Before it goes in, a registration must agree with the predicted pose (Mahalanobis, chi-square
+with 4 dof at `gate_probability`); the refused are reported.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import Field
+
+from .. import chi2
+from ..dem_registration import DtmErrors, RegistrationFailed, register_site, yaw_jacobian, yaw_of
+from ..errors import InputError
+from ..graph import tie_gate
+from ..graph.keys import S, X
+from ..maps import MapBias, hillshade, sampled_raster
+from ..records import GroundTruth, MapRaster, OrbitalMap, Stop, Traverse
+from ..sections import Section
+from .base import Kind
+
+_FIRST_BIAS_KEY = 10  # S(0) is the wheel slip, S(1..3) the VO scale and direction
+
+
+BIAS_NAMES = ("east_m", "north_m", "up_m", "rotation_rad")
+
+
+def bias_keys(map_index: int) -> tuple[int, int, int, int]:
+    """The shared variables of map `map_index`'s bias: east, north, up (m), rotation (rad)."""
+    first = _FIRST_BIAS_KEY + len(BIAS_NAMES) * map_index
+    return tuple(S(first + i) for i in range(len(BIAS_NAMES)))
+
+
+def _wrap(angle: float) -> float:
+    return float((angle + np.pi) % (2 * np.pi) - np.pi)
+
+
+def predicted_measurement(pose, bias: np.ndarray, jacobians: list | None = None) -> np.ndarray:
+    """(east, north, up, yaw) of the body in the map's frame, from its pose (gtsam.Pose3) in the
+    world and the map's bias (east, north, up, rotation); `jacobians` gets d/d pose (4x6, GTSAM's
+    [rotation, translation] right perturbation) and d/d each bias scalar (4x1)."""
+    rotation = pose.rotation().matrix()
+    position = pose.translation()
+    c, s = np.cos(bias[3]), np.sin(bias[3])
+    turn = np.array([[c, -s], [s, c]])
+    out = np.array([*(turn @ position[:2] + bias[:2]), position[2] + bias[2], yaw_of(rotation) + bias[3]])
+    if jacobians is not None:
+        d_pose = np.zeros((4, 6))
+        d_pose[:2, 3:] = turn @ rotation[:2, :]
+        d_pose[2, 3:] = rotation[2, :]
+        d_pose[3, :3] = yaw_jacobian(rotation)
+        jacobians[0] = d_pose
+        for i in range(3):
+            jacobians[1 + i] = np.eye(4)[:, [i]]
+        jacobians[4] = np.array([*(np.array([[-s, -c], [c, -s]]) @ position[:2]), 0.0, 1.0]).reshape(4, 1)
+    return out
+
+
+def orbital_error(measured: np.ndarray, pose, bias: np.ndarray, jacobians: list | None = None) -> np.ndarray:
+    """Predicted minus measured (east, north, up, yaw), the yaw wrapped."""
+    error = predicted_measurement(pose, bias, jacobians) - measured
+    error[3] = _wrap(error[3])
+    return error
+
+
+def orbital_factor(stop: int, map_index: int, measured: np.ndarray, covariance: np.ndarray):
+    """A site's registration to map `map_index`: a factor on its pose and the map's bias."""
+    import gtsam
+
+    def error(factor, values, jacobians):
+        pose_key, *keys = factor.keys()
+        bias = np.array([values.atDouble(k) for k in keys])
+        return orbital_error(measured, values.atPose3(pose_key), bias, jacobians)
+
+    model = gtsam.noiseModel.Gaussian.Covariance(0.5 * (covariance + covariance.T))
+    return gtsam.CustomFactor(model, [X(stop), *bias_keys(map_index)], error)
+
+
+class OrbitalSettings(Section):
+    """[estimator.orbital]: how sites are registered to the orbital maps."""
+
+    gate_probability: float = Field(0.999, gt=0.5, lt=1.0, description="chi-square (4 dof) level of the "
+                                    "registration's agreement with the predicted pose above which it is refused")
+    max_range_m: float = Field(40.0, gt=2.0, le=200.0, description="site points used, out to this horizontal range")
+    min_points: int = Field(30, ge=6, description="fewer site points than this: no registration")
+    min_distinctness: float = Field(50.0, ge=0.0, description="how much worse (summed squared weighted residuals) "
+                                    "the best other place more than 2 m away must fit; less: ambiguous, not used")
+    surface_sigma_m: float = Field(0.25, gt=0.0, le=10.0, description="a point's ground against the DTM's surface "
+                                   "(rocks, the DTM's resolution), independent per point")
+    dtm_sigma_m: float = Field(0.15, ge=0.0, le=10.0, description="the DTM's own height error and what its "
+                               "smoothing takes off the relief, shared by nearby points")
+    dtm_correlation_m: float = Field(3.0, gt=0.0, le=100.0, description="distance over which that error is shared")
+    search_sigmas: float = Field(3.0, gt=0.0, le=10.0, description="horizontal search around the prediction, in "
+                                 "its standard deviations")
+    search_m: tuple[float, float] = Field((2.0, 15.0), description="least and largest horizontal search (m)")
+
+
+class OrbitalSensor(Section):
+    """A scenario's [orbital]: the orbital map a simulation makes of its terrain."""
+
+    enabled: bool = False
+    post_m: float = Field(1.0, gt=0.1, le=20.0, description="DTM post spacing (HiRISE: 1 m)")
+    margin_m: float = Field(80.0, ge=0.0, le=1000.0, description="map beyond the traverse's box")
+    offset_sigma_m: float = Field(3.0, ge=0.0, le=100.0, description="1-sigma georeference offset, per axis")
+    vertical_sigma_m: float = Field(1.0, ge=0.0, le=100.0, description="1-sigma offset of its heights (its datum)")
+    rotation_sigma_deg: float = Field(0.02, ge=0.0, le=5.0, description="1-sigma georeference rotation")
+    dtm_noise_m: float = Field(0.1, ge=0.0, le=10.0, description="1-sigma DTM height error, smooth over "
+                               "`noise_correlation_posts`")
+    noise_correlation_posts: float = Field(2.0, gt=0.0, le=50.0)
+    smoothing_posts: float = Field(1.0, ge=0.0, le=20.0, description="the stereo's smoothing of the relief (posts)")
+    orthoimage_pixel_m: float = Field(0.5, ge=0.0, le=20.0, description="orthoimage pixel (HiRISE: 0.25-0.5 m); "
+                                      "0: none")
+    sun_azimuth_deg: float = Field(135.0, ge=0.0, lt=360.0, description="the orthoimage's sun, not the rover's")
+    sun_elevation_deg: float = Field(35.0, gt=0.0, le=90.0)
+
+
+class Orbital(Kind):
+    name = "orbital"
+    order = 8
+    absolute = True
+    cost = 0.5
+    Settings = OrbitalSettings
+    Sensor = OrbitalSensor
+    step_counters = {"orbital_registrations": 0, "orbital_refused": 0}
+    counter_defaults = {"orbital_registrations_used": 0, "orbital_registrations_refused": 0,
+                        "orbital_uncovered_stops": [], "orbital_failed_stops": [], "orbital_bias": [],
+                        "orbital_bias_sigma": [], "orbital_seconds_per_site": 0.0}
+
+    warning_counters = {"orbital_uncovered_stops": "site stops no orbital map covers (not registered)",
+                        "orbital_failed_stops": "sites not registered to an orbital map"}
+
+    records = "orbital maps"
+
+    @classmethod
+    def unavailable(cls, traverse: Traverse) -> str | None:
+        if not traverse.measurements.get(cls.name):
+            return "the traverse has no orbital maps"
+        if not any(s.is_site for s in traverse.stops):
+            return "the traverse has no site panoramas to register"
+        return None
+
+    # -- records -------------------------------------------------------------------------------
+
+    @classmethod
+    def simulate_with_truth(cls, sensor: OrbitalSensor, traverse: Traverse, truth: GroundTruth,
+                            rng: np.random.Generator) -> tuple[tuple[OrbitalMap, ...], dict[str, float]]:
+        """A map of the truth's terrain over the traverse's box, with a drawn georeference error,
+        the orbiter's smoothing and a smooth height error; its orthoimage lit by its own sun."""
+        from scipy.ndimage import gaussian_filter
+
+        if truth.terrain is None:
+            return (), {}
+        offset = rng.normal(0.0, sensor.offset_sigma_m, 2)
+        bias = MapBias(*offset, rng.normal(0.0, np.deg2rad(sensor.rotation_sigma_deg)))
+        up = float(rng.normal(0.0, sensor.vertical_sigma_m))
+        lo = truth.positions[:, :2].min(axis=0) - sensor.margin_m
+        hi = truth.positions[:, :2].max(axis=0) + sensor.margin_m
+        dtm = sampled_raster(truth.terrain, traverse.origin, lo, hi, sensor.post_m, bias)
+        if sensor.smoothing_posts > 0:
+            dtm.values[:] = gaussian_filter(dtm.values.astype(float), sensor.smoothing_posts)
+        if sensor.dtm_noise_m > 0:
+            noise = gaussian_filter(rng.normal(size=dtm.values.shape), sensor.noise_correlation_posts)
+            dtm.values[:] += (sensor.dtm_noise_m / noise.std() * noise).astype(np.float32)
+        dtm.values[:] += np.float32(up)
+        orthoimage = None
+        if sensor.orthoimage_pixel_m > 0:
+            fine = sampled_raster(truth.terrain, traverse.origin, lo, hi, sensor.orthoimage_pixel_m, bias)
+            shade = hillshade(fine.values, fine.post_m, sensor.sun_azimuth_deg, sensor.sun_elevation_deg)
+            grey = np.clip(40 + 200 * shade + rng.normal(0.0, 4.0, shade.shape), 0, 255).astype(np.uint8)
+            orthoimage = MapRaster(grey, fine.x0_m, fine.y0_m, fine.post_m, fine.crs_wkt)
+        orbital_map = OrbitalMap("orbital_map", dtm, orthoimage, sensor.offset_sigma_m, sensor.rotation_sigma_deg,
+                                 sensor.vertical_sigma_m)
+        state = {"map0_east_m": float(bias.east_m), "map0_north_m": float(bias.north_m), "map0_up_m": up,
+                 "map0_rotation_rad": float(bias.rotation_rad)}
+        return (orbital_map,), state
+
+    # -- the step ------------------------------------------------------------------------------
+
+    def __init__(self, localizer):
+        import gtsam
+
+        super().__init__(localizer)
+        settings: OrbitalSettings = localizer.estimator.orbital
+        self.settings = settings
+        self.errors = DtmErrors(settings.surface_sigma_m, settings.dtm_sigma_m, settings.dtm_correlation_m)
+        self.maps: tuple[OrbitalMap, ...] = localizer.traverse.measurements.get(self.name, ())
+        self.gate = chi2.quantile(settings.gate_probability, 4)
+        frame = localizer.traverse.origin
+        start = localizer.traverse.start_world_T_body[:3, 3]
+        covering = []
+        for m, orbital_map in enumerate(self.maps):
+            _check_map(orbital_map, frame)
+            sigmas = (orbital_map.offset_sigma_m, orbital_map.offset_sigma_m, orbital_map.vertical_sigma_m,
+                      np.deg2rad(orbital_map.rotation_sigma_deg))
+            for key, sigma in zip(bias_keys(m), sigmas, strict=True):
+                prior = gtsam.noiseModel.Isotropic.Sigma(1, max(sigma, 1e-6))
+                localizer.smoother.add(gtsam.PriorFactorDouble(key, 0.0, prior))
+                localizer.smoother.insert(key, 0.0, shared=True)
+            covering.append(np.isfinite(orbital_map.dtm.at(frame.to_map(start[None, :]))[0]))
+        if self.maps and not any(covering):
+            raise InputError(f"orbital map {self.maps[0].name!r} does not cover the traverse's start "
+                             f"({start[0]:.1f} m east, {start[1]:.1f} m north of the origin)")
+        self.registrations: list[tuple[int, int, np.ndarray, np.ndarray]] = []  # stop, map, measured, covariance
+        self.refused: list[int] = []
+        self.uncovered: list[int] = []
+        self.failed: list[str] = []
+        self.seconds: list[float] = []
+
+    def add(self, stop: Stop, counts) -> None:
+        if not stop.is_site or not self.maps:
+            return
+        points = self._site_points(stop)
+        if points is None:
+            self.failed.append(f"stop {stop.index}: no triangulated site points")
+            return
+        smoother = self.loc.smoother
+        smoother.update(context=f"at stop {stop.index}, before its orbital registration")
+        pose = smoother.pose(X(stop.index))
+        covered = False
+        for m, orbital_map in enumerate(self.maps):
+            keys = bias_keys(m)
+            bias = np.array([smoother.estimate_double(k) for k in keys])
+            jacobians = [None] * 5
+            predicted = predicted_measurement(pose, bias, jacobians)
+            spread = np.hstack(jacobians)
+            predicted_cov = spread @ smoother.joint_marginal_covariance(X(stop.index), *keys) @ spread.T
+            search = np.clip(self.settings.search_sigmas * np.sqrt(np.linalg.eigvalsh(predicted_cov[:2, :2]).max()),
+                             *self.settings.search_m)
+            rotation = pose.rotation().matrix()
+            vertical_var = np.einsum("i,nij,j->n", rotation[2], points[1], rotation[2])
+            try:
+                registration = register_site(points[0], vertical_var, _map_pose(pose, bias), orbital_map.dtm,
+                                             self.loc.traverse.origin, float(search), self.errors,
+                                             self.settings.max_range_m, self.settings.min_points,
+                                             self.settings.min_distinctness)
+            except RegistrationFailed as exc:
+                if "not covered" not in str(exc):
+                    covered = True
+                    self.failed.append(f"stop {stop.index}, map {orbital_map.name!r}: {exc}")
+                continue
+            covered = True
+            self.seconds.append(registration.seconds)
+            innovation = registration.measurement - predicted
+            innovation[3] = _wrap(innovation[3])
+            d2 = float(innovation @ np.linalg.solve(registration.covariance + predicted_cov, innovation))
+            if d2 > self.gate:
+                self.refused.append(stop.index)
+                counts.add("orbital_refused")
+                continue
+            arguments = (stop.index, m, registration.measurement, registration.covariance)
+            smoother.add(orbital_factor(*arguments), rebuild=(orbital_factor, arguments))
+            self.registrations.append((stop.index, m, registration.measurement, registration.covariance))
+            counts.add("orbital_registrations")
+        if not covered:
+            self.uncovered.append(stop.index)
+
+    def _site_points(self, stop: Stop) -> tuple[np.ndarray, np.ndarray] | None:
+        """The site panorama's triangulated points in the body frame and their covariances."""
+        rig = self.loc.traverse.rig
+        views: dict[int, list] = {}
+        for frame in stop.panorama:
+            mount = rig.body_T_left(frame.pan_rad, frame.tilt_rad)
+            for track, uvv in zip(frame.observations.track_ids, frame.observations.uvv, strict=True):
+                views.setdefault(int(track), []).append((mount, uvv))
+        points = [p for p in tie_gate.site_points(views, rig, self.loc.traverse.image_noise_px).values() if p]
+        if not points:
+            return None
+        return np.array([p.p_body for p in points]), np.array([p.cov_body for p in points])
+
+    # -- results -------------------------------------------------------------------------------
+
+    def _bias(self, m: int) -> tuple[np.ndarray, np.ndarray]:
+        keys = bias_keys(m)
+        estimate = np.array([self.loc.smoother.estimate_double(k) for k in keys])
+        sigma = np.sqrt(np.diag(self.loc.smoother.joint_marginal_covariance(*keys)))
+        return estimate, sigma
+
+    def true_values(self, truth: GroundTruth, values) -> bool:
+        state = truth.kinds.get(self.name)
+        if state is None:
+            return False
+        for m in range(len(self.maps)):
+            for key, name in zip(bias_keys(m), BIAS_NAMES, strict=True):
+                values.insert(key, float(state[f"map{m}_{name}"]))
+        return True
+
+    def counters(self) -> dict:
+        biases = [self._bias(m) for m in range(len(self.maps))]
+        degrees = np.array([1.0, 1.0, 1.0, 180.0 / np.pi])
+        return {"orbital_registrations_used": len(self.registrations),
+                "orbital_registrations_refused": len(self.refused),
+                "orbital_uncovered_stops": self.uncovered, "orbital_failed_stops": self.failed,
+                "orbital_bias": [(b * degrees).tolist() for b, _ in biases],
+                "orbital_bias_sigma": [(s * degrees).tolist() for _, s in biases],
+                "orbital_seconds_per_site": float(np.median(self.seconds)) if self.seconds else 0.0}
+
+    def against_truth(self, truth: GroundTruth) -> dict:
+        """The map biases in their standard deviations off the drawn ones, and each registration's
+        horizontal error against the true pose seen through the true bias."""
+        state = truth.kinds.get(self.name)
+        if state is None:
+            return {}
+        out: dict = {"orbital_bias_error_sigmas": []}
+        true_biases = []
+        for m in range(len(self.maps)):
+            true = np.array([state[f"map{m}_{n}"] for n in BIAS_NAMES])
+            estimate, sigma = self._bias(m)
+            out["orbital_bias_error_sigmas"].append(((estimate - true) / sigma).tolist())
+            true_biases.append(true)
+        errors, nees = [], []
+        import gtsam
+
+        for stop, m, measured, covariance in self.registrations:
+            truth_pose = gtsam.Pose3(truth.world_T_body[stop])
+            error = predicted_measurement(truth_pose, true_biases[m]) - measured
+            error[3] = _wrap(error[3])
+            errors.append(np.hypot(*error[:2]))
+            nees.append(float(error @ np.linalg.solve(covariance, error)))
+        if errors:
+            out.update({"orbital_registration_error_median_m": float(np.median(errors)),
+                        "orbital_registration_error_p95_m": float(np.percentile(errors, 95)),
+                        "orbital_registration_nees_mean": float(np.mean(nees))})
+        return out
+
+
+def _map_pose(pose, bias: np.ndarray) -> np.ndarray:
+    """The body's pose in the map's frame (4x4) with the map's bias (east, north, up, rotation)."""
+    matrix = pose.matrix()
+    c, s = np.cos(bias[3]), np.sin(bias[3])
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    out = matrix.copy()
+    out[:3, :3] = turn @ matrix[:3, :3]
+    out[:3, 3] = turn @ matrix[:3, 3] + bias[:3]
+    return out
+
+
+def _check_map(orbital_map: OrbitalMap, frame) -> None:
+    """A map of the traverse's body, in a projected CRS, with data: InputError naming it if not."""
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    try:
+        crs = CRS.from_wkt(orbital_map.dtm.crs_wkt)
+    except CRSError as exc:
+        raise InputError(f"orbital map {orbital_map.name!r}: unreadable CRS ({exc})") from None
+    radius = crs.ellipsoid.semi_major_metre if crs.ellipsoid is not None else float("nan")
+    expected = frame.map_crs().ellipsoid.semi_major_metre
+    if not np.isclose(radius, expected, rtol=0.01):
+        raise InputError(f"orbital map {orbital_map.name!r}: its CRS is on a body of radius {radius:,.0f} m, the "
+                         f"traverse is on {frame.body} ({expected:,.0f} m)")
+    if not np.isfinite(orbital_map.dtm.values).any():
+        raise InputError(f"orbital map {orbital_map.name!r}: its DTM has no data")
+    ortho = orbital_map.orthoimage
+    if ortho is not None:
+        if CRS.from_wkt(ortho.crs_wkt) != crs:
+            raise InputError(f"orbital map {orbital_map.name!r}: its orthoimage and DTM are in different CRSs")
+        dtm_box = _box(orbital_map.dtm)
+        ortho_box = _box(ortho)
+        overlap = np.minimum(dtm_box[2:], ortho_box[2:]) - np.maximum(dtm_box[:2], ortho_box[:2])
+        if np.any(overlap <= 0):
+            raise InputError(f"orbital map {orbital_map.name!r}: its orthoimage and DTM do not overlap")
+
+
+def _box(raster: MapRaster) -> np.ndarray:
+    """(x_min, y_min, x_max, y_max) of a raster in map coordinates."""
+    rows, cols = raster.values.shape
+    return np.array([raster.x0_m, raster.y0_m - rows * raster.post_m, raster.x0_m + cols * raster.post_m, raster.y0_m])
