@@ -395,8 +395,15 @@ class _ScenarioCore(_Strict):
         if self.origin.body == "mars" and self.gps.enabled:
             raise ValueError("origin on mars: there is no GPS on Mars; set [gps] enabled = false")
         sun = getattr(self, "sun_heading", None)
-        if sun is not None and sun.enabled and sun.planet != self.origin.body:
-            raise ValueError(f"[sun_heading] planet = {sun.planet!r} but the origin is on {self.origin.body}")
+        if sun is not None and sun.enabled:
+            if sun.planet not in (None, self.origin.body):
+                raise ValueError(f"[sun_heading] planet = {sun.planet!r} but the origin is on {self.origin.body}")
+            if self.origin.body == "mars" and sun.start_utc is None:
+                raise ValueError("[sun_heading] on mars needs start_utc (local solar time on Mars is not derived here)")
+        estimated = getattr(self.estimator, "sun_heading", None)
+        if estimated is not None and estimated.planet not in (None, self.origin.body):
+            raise ValueError(f"[estimator.sun_heading] planet = {estimated.planet!r} but the origin is on "
+                             f"{self.origin.body}")
         return self
 
 

@@ -146,11 +146,7 @@ def register_site(points_body: np.ndarray, vertical_var_body: np.ndarray, predic
         normal_inverse = np.linalg.inv(jacobian.T @ jacobian)
     except np.linalg.LinAlgError:
         raise RegistrationFailed("the site's relief leaves the fit undetermined (singular normal matrix)") from None
-    at = moved(fit.x)[inliers, :2]
-    distance2 = np.sum((at[:, None, :] - at[None, :, :]) ** 2, axis=-1)
-    w = weight[inliers]
-    shared = errors.dtm_sigma_m**2 * np.exp(-distance2 / (2 * errors.dtm_correlation_m**2)) * np.outer(w, w)
-    spread = jacobian.T @ shared @ jacobian
+    spread = _shared_error_spread(moved(fit.x)[inliers, :2], weight[inliers, None] * jacobian, errors)
     covariance = sigma2 * normal_inverse + normal_inverse @ spread @ normal_inverse
     pose = predicted_map_T_body.copy()
     c, s = np.cos(fit.x[2]), np.sin(fit.x[2])
@@ -159,6 +155,25 @@ def register_site(points_body: np.ndarray, vertical_var_body: np.ndarray, predic
     order = [0, 1, 3, 2]  # the fit's (east, north, yaw, up) as (east, north, up, yaw)
     return Registration(pose, covariance[np.ix_(order, order)], int(inliers.sum()), float(np.sqrt(sigma2)),
                         time.perf_counter() - start, margin)
+
+
+def _shared_error_spread(xy: np.ndarray, weighted_jacobian: np.ndarray, errors: DtmErrors) -> np.ndarray:
+    """J' C J of the DTM's shared error: C_ij = dtm_sigma^2 exp(-d_ij^2 / 2 l^2) w_i w_j over the
+    points' horizontal distances d_ij (the weights already in `weighted_jacobian`, rows w_i J_i).
+    Pairs beyond 4 l (a correlation below 3e-4) are left out: a site's points have a few hundred
+    neighbours within that, not thousands."""
+    from scipy.spatial import cKDTree
+
+    a = weighted_jacobian
+    length = errors.dtm_correlation_m
+    pairs = cKDTree(xy).query_pairs(4.0 * length, output_type="ndarray")
+    shared = a.T @ a
+    if len(pairs):
+        i, j = pairs[:, 0], pairs[:, 1]
+        k = np.exp(-np.sum((xy[i] - xy[j]) ** 2, axis=1) / (2.0 * length**2))
+        cross = (a[i] * k[:, None]).T @ a[j]
+        shared += cross + cross.T
+    return errors.dtm_sigma_m**2 * shared
 
 
 def _window(dtm: MapRaster, centre_xy: np.ndarray, radius_m: float) -> tuple[slice, slice]:

@@ -38,7 +38,8 @@ Planet = Literal["earth", "mars"]
 class SunHeadingSettings(Section):
     """[estimator.sun_heading]: what the estimator assumes of the sun sightings."""
 
-    planet: Planet = Field("earth", description="whose ephemeris gives the sun's direction")
+    planet: Planet | None = Field(None, description="whose ephemeris gives the sun's direction; default: the "
+                                  "body of the traverse's origin")
     sigma_deg: float = Field(0.3, gt=0.0, le=30.0, description="1-sigma error of the measured sun direction, "
                              "per axis: the sun's centroid on the WAC (0.04 deg pixels) and, larger, the mast's "
                              "pan and tilt knowledge")
@@ -52,7 +53,7 @@ class SunSensor(Section):
     """A scenario's [sun_heading]: how the sun sightings are simulated."""
 
     enabled: bool = True
-    planet: Planet = "earth"
+    planet: Planet | None = Field(None, description="default: the body of the scenario's origin")
     start_utc: dt.datetime | None = Field(None, description="the traverse's time 0; default (Earth): 09:00 local "
                                        "mean solar time at the origin on `date`")
     date: dt.date = dt.date(2026, 6, 21)
@@ -67,7 +68,6 @@ class SunSensor(Section):
         if self.planet == "mars" and self.start_utc is None:
             raise ValueError("planet 'mars' needs start_utc (local solar time on Mars is not derived here)")
         return self
-
 
 @dataclass(frozen=True)
 class SunSighting:
@@ -157,7 +157,7 @@ class SunHeading(Kind):
         if not sites:
             return ()
         utc = start_utc_s(sensor, traverse.origin) + np.array([s.time_s for s in sites])
-        directions = sun_directions_enu(sensor.planet, traverse.origin, utc)
+        directions = sun_directions_enu(sensor.planet or traverse.origin.body, traverse.origin, utc)
         low = np.sin(np.deg2rad(sensor.min_elevation_deg))
         out = []
         for stop, t, n in zip(sites, utc, directions, strict=True):
@@ -189,7 +189,8 @@ class SunHeading(Kind):
         super().__init__(localizer)
         settings: SunHeadingSettings = localizer.estimator.sun_heading
         sightings = localizer.traverse.measurements.get(self.name, ())
-        references = sun_directions_enu(settings.planet, localizer.traverse.origin, [s.utc_s for s in sightings])
+        origin = localizer.traverse.origin
+        references = sun_directions_enu(settings.planet or origin.body, origin, [s.utc_s for s in sightings])
         self._at_stop = {s.stop: (s, n) for s, n in zip(sightings, references, strict=True)}
         self.sigma_rad = np.deg2rad(settings.sigma_deg)
         self.gate = chi2.quantile(settings.gate_probability, 2)

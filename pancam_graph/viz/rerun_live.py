@@ -96,11 +96,16 @@ class RerunRecorder:
         self.distance_m = 0.0
         self.previous_tracks = np.zeros(0, dtype=np.int64)
         rig = traverse.rig
-        self.rec.send_blueprint(scene.blueprint(self.configs, None if truth is None else truth.positions))
+        maps = [m for m in traverse.measurements.get("orbital", ()) if m.orthoimage is not None]
+        self.orbital = scene.OrbitalMapView(maps[0], traverse.origin) if maps else None
+        self.rec.send_blueprint(scene.blueprint(self.configs, None if truth is None else truth.positions,
+                                                orbital_map=self.orbital is not None))
         self.rec.log("world/rover/left_cam/features", rr.Points2D.from_fields(radii=2.0), FEATURES, static=True)
         scene.log_static(self.rec, self.configs, rig, traverse.body_T_nav().matrix(),
                          traverse.origin, None if truth is None else truth.positions,
                          None if truth is None else truth.landmarks)
+        if self.orbital is not None:
+            self.orbital.log_static(self.rec, None if truth is None else truth.positions)
 
     def step(self, stop: Stop, motion, steps: dict[str, StepResult]) -> None:
         if self.stopped:
@@ -172,6 +177,8 @@ class RerunRecorder:
         for config, c in result.configurations.items():
             self.positions[config] = c.world_T_body[:, :3, 3]
             self.rec.log(scene.estimate_path(config, "trajectory"), scene.trajectory(self.positions[config]))
+            if self.orbital is not None:
+                self.rec.log(*self.orbital.trajectory(config, self.positions[config]))
             self.rec.log(scene.estimate_path(config, "covariance"), scene.ellipsoids(
                 self.positions[config][site_rows], c.position_covariance[site_rows]))
             if len(c.landmark_ids):
@@ -218,6 +225,8 @@ class RerunRecorder:
             self.rec.log(scene.estimate_path(config, "trajectory"), scene.trajectory(self.positions[config]))
             self.rec.log(scene.estimate_path(config, "covariance"),
                          scene.ellipsoids(current[None, :3, 3], covariance[None]))
+        if refresh and self.orbital is not None:
+            self.rec.log(*self.orbital.trajectory(config, self.positions[config]))
         return current
 
     def _log_landmarks(self, config, ids, points, links, site_positions) -> None:

@@ -11,6 +11,9 @@ Entities (world = local ENU, z up):
     world/rover, world/rover/left_cam  current pose of the primary configuration, its left WAC
     world/rover/left_cam/features     the stop's stereo features (green: tracked from the last stop)
     map/gps, map/truth, map/estimate/<config>, map/rover   the same in WGS84 latitude/longitude
+    world/orbital_map                 the orbital DTM as a mesh textured with its orthoimage, static
+    orbital_map/image, orbital_map/truth, orbital_map/<config>   the orthoimage (the 2-D map's
+                                      background) and the trajectories on it, in its pixels
     plots/<series>/<config>           time series
     events                            text log: VO bridges, sites, GPS outliers
 Timelines: `stop` (index), `sensor_time` (the stop's time) and `distance_cm` (odometer:
@@ -29,6 +32,8 @@ import rerun.blueprint as rrb
 
 from .. import chi2
 from ..geodesy import LocalFrame
+from ..maps import post_enu
+from ..records import OrbitalMap
 from ..rig import Camera, Rig
 
 APP_ID = "pancam_graph"
@@ -38,6 +43,8 @@ COLOURS = {  # the matplotlib tab10 colours of the report plots
     "vo_sites": (255, 127, 14),
     "vo_sites_hrc": (44, 160, 44),
     "full": (31, 119, 180),
+    "vo_sites_orbital": (140, 86, 75),
+    "full_mars": (227, 119, 194),
 }
 TRUTH_COLOUR = (235, 235, 235)
 TIE_ALPHA = 50  # tie links are many: faint, so the trajectories stay visible
@@ -74,12 +81,13 @@ def series_path(name: str, config: str | None = None) -> str:
     return f"plots/{name}" + (f"/{config}" if config else "")
 
 
-def blueprint(configs: list[str], extent: np.ndarray | None = None) -> rrb.Blueprint:
+def blueprint(configs: list[str], extent: np.ndarray | None = None, orbital_map: bool = False) -> rrb.Blueprint:
     """The 3-D traverse left; the error plot right, the other series in tabs beside it, and the
     camera and the map in tabs below; the stop timeline, following the data. A tab draws only
     when shown: a software-rendered browser keeps up, and the map (rerun's maps are online tiles)
     asks for nothing offline until it is opened. `extent` (points spanning the traverse, when
-    known) places the 3-D eye above its south side."""
+    known) places the 3-D eye above its south side. `orbital_map`: a tab with the orbital
+    orthoimage under the trajectories."""
     plots = [rrb.TimeSeriesView(origin=series_path(name), name=title) for name, (title, _) in SERIES.items()]
     eye = None
     if extent is not None and len(extent):
@@ -99,6 +107,8 @@ def blueprint(configs: list[str], extent: np.ndarray | None = None) -> rrb.Bluep
             rrb.Vertical(
                 rrb.Tabs(*plots, active_tab=0),
                 rrb.Tabs(rrb.Spatial2DView(origin="world/rover/left_cam", name="left WAC features"),
+                         *([rrb.Spatial2DView(origin="orbital_map", name="orbital map (orthoimage)")]
+                           if orbital_map else []),
                          rrb.MapView(origin="map", name="map (WGS84, online tiles)"), active_tab=0),
                 row_shares=[1, 1],
             ),
@@ -162,6 +172,62 @@ def log_static(
         for config in configs if per_config else [None]:
             rgb = colour(config) if config else (220, 220, 220)
             rec.log(series_path(name, config), rr.SeriesLines(colors=rgb, names=config or name), static=True)
+
+
+MESH_POSTS = 200  # the orbital DTM's mesh, at most this many vertices a side (a software renderer draws it)
+MESH_DROP_M = 0.5  # the mesh is drawn this much low: the trajectories (the body's origin) stay above it
+TEXTURE_PIXELS = 2048  # the orthoimage, at most this many pixels a side (a browser's texture limit)
+
+
+@dataclass(frozen=True)
+class OrbitalMapView:
+    """An orbital map in rerun: its DTM as the 3-D view's ground, textured with its orthoimage,
+    and the orthoimage as a 2-D map with the trajectories drawn on it (in its pixels). The map
+    is shown where it says it is: its georeference error is what the orbital kind estimates."""
+
+    orbital_map: OrbitalMap
+    origin: LocalFrame
+
+    @property
+    def image(self):
+        return self.orbital_map.orthoimage
+
+    def log_static(self, rec: rr.RecordingStream, truth_positions: np.ndarray | None) -> None:
+        if self.image is None:
+            return
+        dtm, image = self.orbital_map.dtm, self.image
+        step = max(1, int(np.ceil(max(dtm.values.shape) / MESH_POSTS)))
+        rows, cols = slice(0, None, step), slice(0, None, step)
+        vertices = post_enu(dtm, self.origin, rows, cols)
+        height, width = dtm.values[rows, cols].shape
+        vertices[~np.isfinite(vertices[:, 2]), 2] = np.nanmin(vertices[:, 2])
+        vertices[:, 2] -= MESH_DROP_M
+        x, y = dtm.centres()
+        gx, gy = np.meshgrid(x[cols], y[rows])
+        texcoords = np.column_stack([(gx.ravel() - image.x0_m) / (image.values.shape[1] * image.post_m),
+                                     (image.y0_m - gy.ravel()) / (image.values.shape[0] * image.post_m)])
+        index = np.arange(height * width).reshape(height, width)
+        a, b, c, d = index[:-1, :-1].ravel(), index[:-1, 1:].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel()
+        triangles = np.concatenate([np.column_stack([a, c, b]), np.column_stack([b, c, d])])
+        shrink = max(1, int(np.ceil(max(image.values.shape) / TEXTURE_PIXELS)))
+        texture = np.repeat(image.values[::shrink, ::shrink, None], 3, axis=2)
+        rec.log("world/orbital_map", rr.Mesh3D(vertex_positions=vertices, triangle_indices=triangles,
+                                               vertex_texcoords=texcoords, albedo_texture=texture), static=True)
+        rec.log("orbital_map/image", rr.Image(image.values[::shrink, ::shrink], draw_order=-1.0), static=True)
+        if truth_positions is not None:
+            rec.log("orbital_map/truth", rr.LineStrips2D([self.pixels(truth_positions)], colors=TRUTH_COLOUR,
+                                                         radii=rr.Radius.ui_points(2.0)), static=True)
+
+    def pixels(self, positions: np.ndarray) -> np.ndarray:
+        """ENU positions (N, 3) as (column, row) of the image as logged."""
+        xy = self.origin.to_map(positions)
+        shrink = max(1, int(np.ceil(max(self.image.values.shape) / TEXTURE_PIXELS)))
+        return np.column_stack([(xy[:, 0] - self.image.x0_m), (self.image.y0_m - xy[:, 1])]) / (
+            self.image.post_m * shrink)
+
+    def trajectory(self, config: str, positions: np.ndarray) -> tuple[str, rr.LineStrips2D]:
+        return f"orbital_map/{config}", rr.LineStrips2D([self.pixels(positions)], colors=colour(config),
+                                                        radii=rr.Radius.ui_points(2.0))
 
 
 def pinhole(camera: Camera) -> rr.Pinhole:

@@ -208,3 +208,32 @@ def test_registration_refuses_a_site_it_cannot_place(mars_traverse):
         register_site(points, np.full(200, 0.01), pose, flat, traverse.origin, 4.0)
     with pytest.raises(RegistrationFailed, match="fewer than 30"):
         register_site(points[:10], np.full(10, 0.01), pose, dtm, traverse.origin, 4.0)
+
+
+@pytest.mark.slow
+def test_rerun_shows_the_orthoimage_on_the_dtm_and_as_the_2d_map(mars_traverse, mars_scenario, tmp_path):
+    from rrd import Recording, array
+
+    from pancam_graph.viz.rerun_live import RerunRecorder
+    from pancam_graph.viz.rerun_scene import MESH_POSTS
+    from pancam_graph.viz.rerun_sink import RerunTarget, open_recording
+
+    traverse, truth = mars_traverse
+    recording = open_recording(RerunTarget("save", path=tmp_path / "run.rrd"), "test")
+    run_traverse(traverse, truth, mars_scenario.estimator, 1, RunOptions(configs=("vo_sites_orbital",)),
+                 listener=RerunRecorder(recording))
+    recording.close()
+    rec = Recording(tmp_path / "run.rrd")
+    assert {"/world/orbital_map", "/orbital_map/image", "/orbital_map/truth",
+            "/orbital_map/vo_sites_orbital"} <= rec.entity_paths
+    vertices = array(rec.latest("/world/orbital_map", "Mesh3D:vertex_positions"))
+    texcoords = array(rec.latest("/world/orbital_map", "Mesh3D:vertex_texcoords"))
+    assert len(vertices) <= MESH_POSTS**2 and len(texcoords) == len(vertices)
+    assert texcoords.min() > -0.01 and texcoords.max() < 1.01  # the orthoimage covers the DTM
+    # the ground under the truth's path (the map's own georeference: its bias apart, metres)
+    near = np.linalg.norm(vertices[:, None, :2] - truth.positions[None, ::50, :2], axis=2).argmin(axis=0)
+    assert np.all(np.abs(vertices[near, 2] - truth.positions[::50, 2]) < 3.0)
+    image = array(rec.latest("/orbital_map/image", "Image:buffer"))
+    assert image.size > 10_000
+    path = array(rec.latest("/orbital_map/vo_sites_orbital", "LineStrips2D:strips")[0])
+    assert len(path) == len(traverse.stops) and path.min() >= 0

@@ -141,3 +141,16 @@ def test_with_the_sun_dead_reckoning_stays_consistent(denver_dead_reckoning):
     # one run's stops are not independent samples (the band of metrics.json treats them so):
     # the Monte Carlo over seeds is docs/sun_heading.md's; here, within half of 1 either way
     assert 0.67 < consistency.anees < 1.5
+
+
+@pytest.mark.parametrize("change, words", [
+    (("start_utc = 2026-06-15T06:00:00Z", ""), r"\[sun_heading\] on mars needs start_utc"),
+    (("[sun_heading]", '[estimator.sun_heading]\nplanet = "earth"\n\n[sun_heading]'),
+     r"\[estimator.sun_heading\] planet = 'earth' but the origin is on mars"),
+])
+def test_on_mars_the_sun_is_mars_and_needs_a_start_time(tmp_path, change, words):
+    text = resolve_scenario("mars_traverse").read_text()
+    assert change[0] in text
+    (tmp_path / "s.toml").write_text(text.replace(*change))
+    with pytest.raises(ConfigError, match=words):
+        load_scenario(tmp_path / "s.toml")
