@@ -134,13 +134,21 @@ def test_a_map_that_leaves_out_part_of_the_traverse_names_the_uncovered_sites(ma
     keep = dtm.values.shape[0] // 2  # the south half: the start, not the second leg's far end
     top = dtm.y0_m - keep * dtm.post_m
     cropped = MapRaster(dtm.values[keep:].copy(), dtm.x0_m, top, dtm.post_m, dtm.crs_wkt)
-    counters = _run_orbital(_with_map(traverse, dtm=cropped, orthoimage=None), truth, mars_scenario).counters
+    result = run_traverse(_with_map(traverse, dtm=cropped, orthoimage=None), truth, mars_scenario.estimator, 7,
+                          RunOptions(configs=(ORBITAL,)))
+    counters = result.configurations[ORBITAL].counters
     north = traverse.origin.to_map(truth.positions)[:, 1]
     sites = np.array([s.index for s in traverse.stops if s.is_site])
     uncovered = set(counters["orbital_uncovered_stops"])
     # a site's window reaches its points' range (40 m), the search (2-15 m) and two posts
     assert set(sites[north[sites] > top]) <= uncovered <= set(sites[north[sites] > top - 57.0])
     assert uncovered and counters["orbital_registrations_used"] >= 3
+    # the run says so at its end, naming the stops
+    from pancam_graph.api import _kind_warnings
+
+    (warning,) = _kind_warnings(result)
+    assert warning.startswith(f"{ORBITAL}: {len(uncovered)} site stops no orbital map covers")
+    assert str(min(uncovered)) in warning
 
 
 def test_a_map_that_misses_the_start_is_refused_by_name(mars_traverse, mars_scenario):
