@@ -35,6 +35,10 @@ class RegistrationFailed(PancamGraphError):
     """A site that cannot be registered to a map (the reason is the message)."""
 
 
+class MapNotCovering(RegistrationFailed):
+    """The map does not reach round the site."""
+
+
 @dataclass(frozen=True)
 class Registration:
     """The rover's pose in the map's frame at a site, from its points against the map's DTM."""
@@ -184,7 +188,7 @@ def _window(dtm: MapRaster, centre_xy: np.ndarray, radius_m: float) -> tuple[sli
     size = int(np.ceil(2 * radius_m / dtm.post_m)) + 1
     height, width = dtm.values.shape
     if row0 < 0 or col0 < 0 or row0 + size > height or col0 + size > width:
-        raise RegistrationFailed("the site is not covered by the map (within "
+        raise MapNotCovering("the site is not covered by the map (within "
                                  f"{radius_m:.0f} m of its predicted position)")
     return slice(row0, row0 + size), slice(col0, col0 + size)
 

@@ -16,11 +16,12 @@ with 4 dof at `gate_probability`); the refused are reported.
 
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 from pydantic import Field
 
 from .. import chi2
-from ..dem_registration import DtmErrors, RegistrationFailed, register_site, yaw_jacobian, yaw_of
+from ..dem_registration import DtmErrors, MapNotCovering, RegistrationFailed, register_site, yaw_jacobian, yaw_of
 from ..errors import InputError
 from ..graph import tie_gate
 from ..graph.keys import S, X
@@ -75,8 +76,6 @@ def orbital_error(measured: np.ndarray, pose, bias: np.ndarray, jacobians: list 
 
 def orbital_factor(stop: int, map_index: int, measured: np.ndarray, covariance: np.ndarray):
     """A site's registration to map `map_index`: a factor on its pose and the map's bias."""
-    import gtsam
-
     def error(factor, values, jacobians):
         pose_key, *keys = factor.keys()
         bias = np.array([values.atDouble(k) for k in keys])
@@ -187,13 +186,10 @@ class Orbital(Kind):
     # -- the step ------------------------------------------------------------------------------
 
     def __init__(self, localizer):
-        import gtsam
-
         super().__init__(localizer)
         settings: OrbitalSettings = localizer.estimator.orbital
         self.settings = settings
         self.errors = DtmErrors(settings.surface_sigma_m, settings.dtm_sigma_m, settings.dtm_correlation_m)
-        self.maps: tuple[OrbitalMap, ...] = localizer.traverse.measurements.get(self.name, ())
         self.gate = chi2.quantile(settings.gate_probability, 4)
         frame = localizer.traverse.origin
         start = localizer.traverse.start_world_T_body[:3, 3]
@@ -215,6 +211,12 @@ class Orbital(Kind):
         self.uncovered: list[int] = []
         self.failed: list[str] = []
         self.seconds: list[float] = []
+
+    @property
+    def maps(self) -> tuple[OrbitalMap, ...]:
+        """The traverse's maps (read through it: a checkpoint refers to the traverse, it does not
+        copy its rasters)."""
+        return self.loc.traverse.measurements.get(self.name, ())
 
     def add(self, stop: Stop, counts) -> None:
         if not stop.is_site or not self.maps:
@@ -243,10 +245,11 @@ class Orbital(Kind):
                                              self.loc.traverse.origin, float(search), self.errors,
                                              self.settings.max_range_m, self.settings.min_points,
                                              self.settings.min_distinctness)
+            except MapNotCovering:
+                continue
             except RegistrationFailed as exc:
-                if "not covered" not in str(exc):
-                    covered = True
-                    self.failed.append(f"stop {stop.index}, map {orbital_map.name!r}: {exc}")
+                covered = True
+                self.failed.append(f"stop {stop.index}, map {orbital_map.name!r}: {exc}")
                 continue
             covered = True
             self.seconds.append(registration.seconds)
@@ -300,7 +303,7 @@ class Orbital(Kind):
         return {"orbital_registrations_used": len(self.registrations),
                 "orbital_registrations_refused": len(self.refused),
                 "orbital_uncovered_stops": self.uncovered, "orbital_failed_stops": self.failed,
-                "orbital_bias": [(b * degrees).tolist() for b, _ in biases],
+                "orbital_bias": [(b * degrees).tolist() for b, _ in biases],  # per map: east, north, up m, rotation deg
                 "orbital_bias_sigma": [(s * degrees).tolist() for _, s in biases],
                 "orbital_seconds_per_site": float(np.median(self.seconds)) if self.seconds else 0.0}
 
@@ -318,8 +321,6 @@ class Orbital(Kind):
             out["orbital_bias_error_sigmas"].append(((estimate - true) / sigma).tolist())
             true_biases.append(true)
         errors, nees = [], []
-        import gtsam
-
         for stop, m, measured, covariance in self.registrations:
             truth_pose = gtsam.Pose3(truth.world_T_body[stop])
             error = predicted_measurement(truth_pose, true_biases[m]) - measured
