@@ -14,14 +14,15 @@ import numpy as np
 
 from ..config import RenderConfig, Scenario
 from ..errors import ResultsError
-from ..records import Traverse
+from ..kinds.orbital import Orbital
+from ..records import GroundTruth, Traverse
 from ..rig import Camera
-from ..sim import simulate
+from ..sim import kind_rng, simulate
 from ..sim.world import dense_path
 from ..stereo_pair import StereoCalibration
 from ..store.observation_folder import PanoramaImage, write_observations
 from .renderer import TerrainRenderer, sensor_image
-from .terrain import terrain_tiles
+from .terrain import Ground, terrain_tiles
 
 
 def raw_stereo_pair(camera: Camera, baseline_m: float, config: RenderConfig) -> StereoCalibration:
@@ -43,7 +44,7 @@ def render_scenario(scenario: Scenario, folder: Path, seed: int | None = None,
     """Write the image folder; returns the number of images."""
     seed = scenario.seed if seed is None else seed
     config = scenario.render
-    traverse, truth = simulate(scenario, seed)
+    traverse, truth = maps_of_rendered_ground(scenario, *simulate(scenario, seed), seed)
     if progress is not None:
         progress("terrain", 0, 1)
     renderer = TerrainRenderer(terrain_tiles(scenario, dense_path(scenario.path), seed), seed=seed)
@@ -92,6 +93,20 @@ def render_scenario(scenario: Scenario, folder: Path, seed: int | None = None,
     write_observations(folder, traverse, scenario.estimator, seed, truth, scenario.rig, frames=frames,
                        panorama_frames=panorama, calibration=calibration)
     return 2 * len(frames) + sum(2 if p.camera == "wac" else 1 for p in panorama)
+
+
+def maps_of_rendered_ground(scenario: Scenario, traverse: Traverse, truth: GroundTruth, seed: int
+                            ) -> tuple[Traverse, GroundTruth]:
+    """The traverse with its orbital maps made of the ground the images show (the renderer's,
+    which is not the measurement-level simulation's landmark terrain), drawn from the same
+    stream as the simulation's: the same georeference error. Unchanged without maps."""
+    if Orbital.name not in traverse.measurements:
+        return traverse, truth
+    ground = Ground(scenario, dense_path(scenario.path), seed)
+    truth = replace(truth, terrain=ground.height)
+    maps, state = Orbital.simulate_with_truth(scenario.orbital, traverse, truth, kind_rng(seed, Orbital.name))
+    return (replace(traverse, measurements={**traverse.measurements, Orbital.name: maps}),
+            replace(truth, kinds={**truth.kinds, Orbital.name: state}))
 
 
 def _frame_name(site: int, camera: str, pan_rad: float, tilt_rad: float) -> str:

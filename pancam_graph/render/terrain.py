@@ -3,7 +3,10 @@
 The rover drives on the path's own elevation (the simulated poses), so the terrain blends from
 the path's height on the path to undulating ground a few metres away. Each vertex carries a
 texture contrast: 1 on ordinary ground, the scenario's featureless factor along its
-featureless stretches (a sand sheet the front-end should find nothing on).
+featureless stretches (a sand sheet the front-end should find nothing on). A scenario with
+craters (`[terrain] craters_per_km2`) has the same craters as its measurement-level simulation
+(sim.world.Craters, drawn from the same stream over the same box), flattened on the path as
+the rest of the relief is.
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..config import Scenario
-from ..sim.world import DensePath
+from ..sim.world import CRATER_MARGIN_M, Craters, DensePath
 
 GRID_M = 0.5  # height-field spacing
 TILE_M = 40.0  # terrain is drawn tile by tile: only tiles near the camera
@@ -43,18 +46,32 @@ class Ground:
     def __init__(self, scenario: Scenario, path: DensePath, seed: int):
         self.scenario, self.path, self.seed = scenario, path, seed
         self.tree = cKDTree(path.points[:, :2])
+        terrain = scenario.terrain
+        self.craters = None
+        if terrain.craters_per_km2 > 0:
+            w = terrain.corridor_half_width_m
+            lo, hi = path.points[:, :2].min(axis=0) - w, path.points[:, :2].max(axis=0) + w
+            self.craters = Craters.drawn(lo - CRATER_MARGIN_M, hi + CRATER_MARGIN_M, terrain.craters_per_km2,
+                                         terrain.crater_radius_m, np.random.default_rng([seed, 3]))
 
     def at(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(height m, texture contrast, distance to the path m) at (N, 2) positions."""
         dist, nearest = self.tree.query(xy)
         blend = np.clip((dist - _PATH_FLAT_M[0]) / (_PATH_FLAT_M[1] - _PATH_FLAT_M[0]), 0.0, 1.0)
-        z = self.path.points[nearest, 2] + blend * undulation(xy, self.scenario.terrain.undulation_m, self.seed)
+        relief = undulation(xy, self.scenario.terrain.undulation_m, self.seed)
+        if self.craters is not None:
+            relief = relief + self.craters.height(xy)
+        z = self.path.points[nearest, 2] + blend * relief
         contrast = np.ones(len(xy))
         s_near = self.path.distance_m[nearest]
         w = self.scenario.terrain.corridor_half_width_m
         for a, b in self.scenario.terrain.featureless:
             contrast[(s_near >= a) & (s_near <= b) & (dist < w)] = self.scenario.terrain.featureless_density_factor
         return z, contrast, dist
+
+    def height(self, xy: np.ndarray) -> np.ndarray:
+        """Elevation (m) at (N, 2) positions: the terrain as an orbiter sees it (maps.Height)."""
+        return self.at(np.atleast_2d(xy))[0]
 
 
 def terrain_tiles(scenario: Scenario, path: DensePath, seed: int) -> list[TerrainTile]:

@@ -113,6 +113,11 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
     return _with_kind_measurements(scenario, traverse, truth, seed)
 
 
+def kind_rng(seed: int, name: str) -> np.random.Generator:
+    """The random stream of a kind's simulated sensor, named after the kind."""
+    return np.random.default_rng([seed, zlib.crc32(name.encode())])
+
+
 def _with_kind_measurements(scenario: Scenario, traverse: Traverse, truth: GroundTruth, seed: int
                             ) -> tuple[Traverse, GroundTruth]:
     """The records of every kind with a simulated sensor (kinds/base.py), each drawn from a random
@@ -123,8 +128,7 @@ def _with_kind_measurements(scenario: Scenario, traverse: Traverse, truth: Groun
         sensor = getattr(scenario, name) if kind.Sensor is not None else None
         if sensor is None or not getattr(sensor, "enabled", True):
             continue
-        rng = np.random.default_rng([seed, zlib.crc32(name.encode())])
-        records, state = kind.simulate_with_truth(sensor, traverse, truth, rng)
+        records, state = kind.simulate_with_truth(sensor, traverse, truth, kind_rng(seed, name))
         if records:
             measurements[name] = tuple(records)
         if state:

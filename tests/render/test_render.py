@@ -206,3 +206,32 @@ def test_bench_frontend_times_the_runs_own_loop_on_rendered_images(rendered):
     assert set(report["stages_ms"]) == {"rectify", "temporal", "detect", "stereo", "smoothness"}
     assert report["frame_ms"]["median"] > report["stages_ms"]["rectify"]["median"] > 0
     assert report["features_per_frame_median"] > 300
+
+
+def test_a_rendered_mars_scenario_has_the_craters_and_its_map_is_of_the_rendered_ground():
+    from pancam_graph.config import load_scenario, resolve_scenario
+    from pancam_graph.kinds.orbital import BIAS_NAMES
+    from pancam_graph.maps import MapBias
+    from pancam_graph.render.scenario_images import maps_of_rendered_ground
+    from pancam_graph.render.terrain import Ground
+
+    mars = load_scenario(resolve_scenario("mars_traverse"))
+    path_cfg = mars.path.model_copy(update={"waypoints": [[0.0, 0.0, 0.0], [120.0, 5.0, 1.0]], "sharp_turns": []})
+    scenario = mars.model_copy(update={"path": path_cfg, "terrain": mars.terrain.model_copy(update={"featureless": []}),
+                                       "orbital": mars.orbital.model_copy(update={"orthoimage_pixel_m": 0.0})})
+    ground = Ground(scenario, dense_path(scenario.path), 2)
+    craters = ground.craters
+    big = np.argmax(craters.radii)
+    far = np.linalg.norm(ground.tree.query(craters.centres[[big]])[0])
+    assert far > 10.0 or craters.radii[big] < 3.0  # off the path, where the relief is not flattened
+    bowl, rim = ground.height(craters.centres[[big]]), ground.height(craters.centres[[big]] + [craters.radii[big], 0])
+    assert (rim - bowl)[0] > 0.1 * craters.radii[big]  # a bowl 0.2 radii deep (less the undulation)
+    traverse, truth = maps_of_rendered_ground(scenario, *simulate(scenario, 2), 2)
+    dtm = traverse.measurements["orbital"][0].dtm
+    bias = np.array([truth.kinds["orbital"][f"map0_{n}"] for n in BIAS_NAMES])
+    rng = np.random.default_rng(0)
+    ground_xy = truth.positions[rng.integers(0, len(truth.positions), 200), :2] + rng.uniform(-30, 30, (200, 2))
+    shown = np.column_stack([MapBias(bias[0], bias[1], bias[3]).to_map(ground_xy), ground.height(ground_xy)])
+    frame = traverse.origin
+    error = dtm.at(frame.to_map(shown)) - bias[2] - frame.to_geodetic(shown)[:, 2]
+    assert np.sqrt(np.mean(error**2)) < 0.25  # the DTM's 0.1 m error and smoothing of 1.5 m craters
