@@ -28,6 +28,7 @@ from .errors import PancamGraphError
 from .geodesy import LocalFrame
 from .records import MapRaster
 
+MAX_POINTS = 4000  # a site's points used at most (a simulated panorama has 2,000-2,600 within 40 m)
 _DISTINCT_M = 2.0  # a place this far from the best one is another place, not the same one less well fitted
 
 
@@ -99,7 +100,9 @@ def register_site(points_body: np.ndarray, vertical_var_body: np.ndarray, predic
     from scipy.optimize import least_squares
 
     start = time.perf_counter()
-    near = np.hypot(points_body[:, 0], points_body[:, 1]) <= max_range_m
+    near = np.flatnonzero(np.hypot(points_body[:, 0], points_body[:, 1]) <= max_range_m)
+    if len(near) > MAX_POINTS:  # an image front-end's dense tracks: every k-th, spread over the site
+        near = near[np.linspace(0, len(near) - 1, MAX_POINTS).astype(int)]
     points_body, variance = points_body[near], vertical_var_body[near]
     if len(points_body) < min_points:
         raise RegistrationFailed(f"{len(points_body)} site points within {max_range_m:g} m, fewer than {min_points}")
