@@ -46,7 +46,7 @@ def test_bag_runs_the_scenario_back_end_and_matches_the_fixes_it_never_saw(bag_r
     data, result = bag_run
     assert len(data.held_out) == 197 and len(data.traverse.gps_fixes) == 792
     assert list(result.configurations) == ["dead_reckoning", "dead_reckoning_gps"]
-    assert set(result.skipped) == {"vo", "vo_sites", "vo_sites_hrc", "full"}
+    assert set(result.skipped) == {"vo", "vo_sites", "vo_sites_hrc", "full", "vo_sites_orbital", "full_mars"}
     # GPS path about 396 m, start and end 13.4 m apart (the data set's description)
     _, enu = gps_enu(data.traverse, tuple(sorted(data.traverse.gps_fixes + data.held_out, key=lambda f: f.time_s)))
     assert np.sum(np.linalg.norm(np.diff(enu[:, :2], axis=0), axis=1)) == pytest.approx(396, abs=2)

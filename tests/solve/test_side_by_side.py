@@ -5,7 +5,7 @@ same estimate."""
 import numpy as np
 import pytest
 
-from pancam_graph.solve.pipeline import configuration_groups, run_traverse
+from pancam_graph.solve.pipeline import configuration_groups, run_traverse, select_configurations
 from pancam_graph.solve.results import RunOptions
 from pancam_graph.sources import open_source
 from pancam_graph.store.checkpoint import CheckpointWriter, RunInputs, read_checkpoint
@@ -34,8 +34,13 @@ def _assert_same(a, b):
         assert x.consistency == y.consistency, name
 
 
+def _feedable(data) -> dict:
+    """The configurations a run of `data` chooses (those its traverse can feed)."""
+    return select_configurations(data.estimator, data.traverse, None)[0]
+
+
 def test_groups_balance_the_configurations_by_cost(short_trail):
-    chosen = dict(short_trail.estimator.configurations)
+    chosen = _feedable(short_trail)
     groups = configuration_groups(chosen, SIDE_BY_SIDE, None, None, 1000)
     # the configurations without VO start while it is estimated; the others in groups of equal cost
     assert [list(g) for g in groups] == [["dead_reckoning", "dead_reckoning_gps"], ["vo_sites", "full"],
@@ -66,7 +71,7 @@ def test_a_run_checkpointed_in_groups_resumes_to_the_same_estimate(short_trail, 
     writer = CheckpointWriter(tmp_path, RunInputs(short_trail, SIDE_BY_SIDE), min_interval_s=0)
     _run(short_trail, SIDE_BY_SIDE, save=writer)
     inputs, states = read_checkpoint(tmp_path)  # the last states saved before the end: as if killed there
-    groups = configuration_groups(dict(short_trail.estimator.configurations), SIDE_BY_SIDE, None, None, 1000)
+    groups = configuration_groups(_feedable(short_trail), SIDE_BY_SIDE, None, None, 1000)
     assert [list(s.localizers) for s in states] == [list(g) for g in groups]
     n = len(short_trail.traverse.stops)
     assert all(0 < s.next_stop < n for s in states)
