@@ -175,7 +175,9 @@ def log_static(
 
 
 MESH_POSTS = 200  # the orbital DTM's mesh, at most this many vertices a side (a software renderer draws it)
-MESH_DROP_M = 0.5  # the mesh is drawn this much low: the trajectories (the body's origin) stay above it
+# The mesh is drawn this much low, plus twice the map's stated vertical error: the trajectories
+# (the body's origin) stay above it, whatever the map's datum offset
+MESH_DROP_M = 0.5
 TEXTURE_PIXELS = 2048  # the orthoimage, at most this many pixels a side (a browser's texture limit)
 
 
@@ -201,7 +203,7 @@ class OrbitalMapView:
         vertices = post_enu(dtm, self.origin, rows, cols)
         height, width = dtm.values[rows, cols].shape
         vertices[~np.isfinite(vertices[:, 2]), 2] = np.nanmin(vertices[:, 2])
-        vertices[:, 2] -= MESH_DROP_M
+        vertices[:, 2] -= MESH_DROP_M + 2.0 * self.orbital_map.vertical_sigma_m
         x, y = dtm.centres()
         gx, gy = np.meshgrid(x[cols], y[rows])
         texcoords = np.column_stack([(gx.ravel() - image.x0_m) / (image.values.shape[1] * image.post_m),
