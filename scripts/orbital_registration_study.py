@@ -21,18 +21,7 @@ from pancam_graph.config import bundled_scenarios, load_scenario
 from pancam_graph.dem_registration import DtmErrors, RegistrationFailed, register_site
 from pancam_graph.graph import tie_gate
 from pancam_graph.kinds.orbital import BIAS_NAMES, OrbitalSettings, _map_pose, predicted_measurement
-from pancam_graph.records import Stop, Traverse
 from pancam_graph.sim import simulate
-
-
-def site_points(traverse: Traverse, stop: Stop) -> tuple[np.ndarray, np.ndarray]:
-    views: dict[int, list] = {}
-    for frame in stop.panorama:
-        mount = traverse.rig.body_T_left(frame.pan_rad, frame.tilt_rad)
-        for track, uvv in zip(frame.observations.track_ids, frame.observations.uvv, strict=True):
-            views.setdefault(int(track), []).append((mount, uvv))
-    points = [p for p in tie_gate.site_points(views, traverse.rig, traverse.image_noise_px).values() if p]
-    return np.array([p.p_body for p in points]), np.array([p.cov_body for p in points])
 
 
 def main() -> None:
@@ -57,7 +46,7 @@ def main() -> None:
             guess = _map_pose(pose, true_bias)
             guess[:2, 3] += rng.normal(0.0, args.offset_m, 2)
             guess[:3, :3] = gtsam.Rot3.Yaw(rng.normal(0.0, np.deg2rad(0.3))).matrix() @ guess[:3, :3]
-            points, covs = site_points(traverse, stop)
+            points, covs = tie_gate.site_point_cloud(stop, traverse.rig, traverse.image_noise_px)
             rotation = truth.world_T_body[stop.index][:3, :3]
             vertical = np.einsum("i,nij,j->n", rotation[2], covs, rotation[2])
             start = time.perf_counter()

@@ -12,12 +12,14 @@ the measurements are.
 
 from __future__ import annotations
 
+from collections import defaultdict
 from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 
 from .. import chi2
+from ..records import Stop
 from ..rig import Rig, triangulate_rectified, triangulation_covariance
 
 # Squared Mahalanobis distance of a 3-D disagreement that passes: chi-square, 3 dof, 99.9 %.
@@ -32,6 +34,26 @@ class SitePoint:
 
     p_body: np.ndarray  # (3,)
     cov_body: np.ndarray  # (3, 3)
+
+
+def panorama_views(stop: Stop, rig: Rig) -> defaultdict[int, list[tuple[gtsam.Pose3, np.ndarray]]]:
+    """A site panorama's stereo views of each track: (camera mount body_T_left, rectified
+    (u_left, u_right, v)) per frame that saw it."""
+    views: defaultdict[int, list] = defaultdict(list)
+    for frame in stop.panorama:
+        mount = rig.body_T_left(frame.pan_rad, frame.tilt_rad)
+        for track, uvv in zip(frame.observations.track_ids, frame.observations.uvv, strict=True):
+            views[int(track)].append((mount, uvv))
+    return views
+
+
+def site_point_cloud(stop: Stop, rig: Rig, sigma_px: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """A site panorama's triangulated points in the body frame (N, 3) and their covariances
+    (N, 3, 3): its local elevation map; None when nothing triangulates."""
+    points = [p for p in site_points(panorama_views(stop, rig), rig, sigma_px).values() if p is not None]
+    if not points:
+        return None
+    return np.array([p.p_body for p in points]), np.array([p.cov_body for p in points])
 
 
 def site_points(views: dict[int, list[tuple[gtsam.Pose3, np.ndarray]]], rig: Rig, sigma_px: float

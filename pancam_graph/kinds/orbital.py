@@ -221,7 +221,7 @@ class Orbital(Kind):
     def add(self, stop: Stop, counts) -> None:
         if not stop.is_site or not self.maps:
             return
-        points = self._site_points(stop)
+        points = tie_gate.site_point_cloud(stop, self.loc.traverse.rig, self.loc.traverse.image_noise_px)
         if points is None:
             self.failed.append(f"stop {stop.index}: no triangulated site points")
             return
@@ -266,19 +266,6 @@ class Orbital(Kind):
             counts.add("orbital_registrations")
         if not covered:
             self.uncovered.append(stop.index)
-
-    def _site_points(self, stop: Stop) -> tuple[np.ndarray, np.ndarray] | None:
-        """The site panorama's triangulated points in the body frame and their covariances."""
-        rig = self.loc.traverse.rig
-        views: dict[int, list] = {}
-        for frame in stop.panorama:
-            mount = rig.body_T_left(frame.pan_rad, frame.tilt_rad)
-            for track, uvv in zip(frame.observations.track_ids, frame.observations.uvv, strict=True):
-                views.setdefault(int(track), []).append((mount, uvv))
-        points = [p for p in tie_gate.site_points(views, rig, self.loc.traverse.image_noise_px).values() if p]
-        if not points:
-            return None
-        return np.array([p.p_body for p in points]), np.array([p.cov_body for p in points])
 
     # -- results -------------------------------------------------------------------------------
 

@@ -124,11 +124,7 @@ class Sites(Kind):
         return obs
 
     def _collect_anew(self, stop: Stop) -> SiteObservations:
-        obs = SiteObservations(stop.index)
-        for frame in stop.panorama:
-            mount = self.rig.body_T_left(frame.pan_rad, frame.tilt_rad)
-            for track, uvv in zip(frame.observations.track_ids, frame.observations.uvv, strict=True):
-                obs.stereo[int(track)].append((mount, uvv))
+        obs = SiteObservations(stop.index, stereo=tie_gate.panorama_views(stop, self.rig))
         if self.hrc is not None:
             self.hrc.collect(stop, obs)
         obs.points = tie_gate.site_points(obs.stereo, self.rig, self.sigma_px)

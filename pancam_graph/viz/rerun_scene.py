@@ -194,6 +194,11 @@ class OrbitalMapView:
     def image(self):
         return self.orbital_map.orthoimage
 
+    @property
+    def shrink(self) -> int:
+        """The orthoimage is logged every `shrink`-th pixel (a browser's texture limit)."""
+        return max(1, int(np.ceil(max(self.image.values.shape) / TEXTURE_PIXELS)))
+
     def log_static(self, rec: rr.RecordingStream, truth_positions: np.ndarray | None) -> None:
         if self.image is None:
             return
@@ -211,7 +216,7 @@ class OrbitalMapView:
         index = np.arange(height * width).reshape(height, width)
         a, b, c, d = index[:-1, :-1].ravel(), index[:-1, 1:].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel()
         triangles = np.concatenate([np.column_stack([a, c, b]), np.column_stack([b, c, d])])
-        shrink = max(1, int(np.ceil(max(image.values.shape) / TEXTURE_PIXELS)))
+        shrink = self.shrink
         texture = np.repeat(image.values[::shrink, ::shrink, None], 3, axis=2)
         rec.log("world/orbital_map", rr.Mesh3D(vertex_positions=vertices, triangle_indices=triangles,
                                                vertex_texcoords=texcoords, albedo_texture=texture), static=True)
@@ -223,9 +228,8 @@ class OrbitalMapView:
     def pixels(self, positions: np.ndarray) -> np.ndarray:
         """ENU positions (N, 3) as (column, row) of the image as logged."""
         xy = self.origin.to_map(positions)
-        shrink = max(1, int(np.ceil(max(self.image.values.shape) / TEXTURE_PIXELS)))
         return np.column_stack([(xy[:, 0] - self.image.x0_m), (self.image.y0_m - xy[:, 1])]) / (
-            self.image.post_m * shrink)
+            self.image.post_m * self.shrink)
 
     def trajectory(self, config: str, positions: np.ndarray) -> tuple[str, rr.LineStrips2D]:
         return f"orbital_map/{config}", rr.LineStrips2D([self.pixels(positions)], colors=colour(config),

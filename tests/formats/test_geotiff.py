@@ -1,4 +1,4 @@
-"""Site maps as GeoTIFF (formats/geotiff.py, sim/orbital.py; issue 34): a DTM of a scenario's
+"""Site maps as GeoTIFF (formats/geotiff.py, maps.py; issue 34): a DTM of a scenario's
 terrain written at 1 m posts opens in rasterio with the map projection's CRS and transform and
 gives back the terrain's heights; a map that cannot be used is refused with its file named."""
 
@@ -12,9 +12,9 @@ from pancam_graph.config import bundled_scenarios, load_scenario
 from pancam_graph.errors import InputError
 from pancam_graph.formats.geotiff import read_map_raster, write_map_raster
 from pancam_graph.geodesy import LocalFrame
+from pancam_graph.maps import sampled_raster
 from pancam_graph.records import MapRaster
 from pancam_graph.render.terrain import Ground
-from pancam_graph.sim.orbital import terrain_dtm
 from pancam_graph.sim.world import dense_path, landmark_field
 
 
@@ -30,7 +30,7 @@ def test_a_written_dtm_opens_with_its_crs_and_transform_and_gives_the_terrain_ba
     scenario, path, ground = terrain
     frame = LocalFrame(scenario.origin.lat_deg, scenario.origin.lon_deg, 250.0, body=body)
     centre = path.points[len(path.points) // 2, :2]
-    dtm = terrain_dtm(lambda xy: ground.at(xy)[0], frame, centre, size_m=120.0, post_m=1.0)
+    dtm = sampled_raster(ground.height, frame, centre - 60.0, centre + 60.0, 1.0)
     write_map_raster(tmp_path / "dtm.tif", dtm)
     with rasterio.open(tmp_path / "dtm.tif") as written:
         assert CRS.from_wkt(written.crs.to_wkt()) == frame.map_crs()
@@ -57,7 +57,7 @@ def test_at_measurement_level_the_dtm_is_the_ground_the_landmarks_lie_on(terrain
     landmarks, ground = landmark_field(path, scenario.terrain, np.random.default_rng(8))
     frame = LocalFrame(scenario.origin.lat_deg, scenario.origin.lon_deg, 0.0, body="mars")
     centre = path.points[len(path.points) // 3, :2]
-    dtm = terrain_dtm(ground.height, frame, centre, size_m=100.0)
+    dtm = sampled_raster(ground.height, frame, centre - 50.0, centre + 50.0, 1.0)
     near = np.all(np.abs(landmarks[:, :2] - centre) < 45.0, axis=1)
     assert near.sum() > 1000
     residual = landmarks[near, 2] - dtm.at(frame.to_map(landmarks[near]))

@@ -14,7 +14,8 @@ from pancam_graph.config import load_scenario, resolve_scenario
 from pancam_graph.dem_registration import DtmErrors, RegistrationFailed, register_site
 from pancam_graph.errors import InputError
 from pancam_graph.formats.geotiff import read_map_raster, write_map_raster
-from pancam_graph.kinds.orbital import BIAS_NAMES, Orbital, _map_pose, predicted_measurement
+from pancam_graph.graph.tie_gate import site_point_cloud
+from pancam_graph.kinds.orbital import BIAS_NAMES, _map_pose, predicted_measurement
 from pancam_graph.maps import MapBias
 from pancam_graph.records import MapRaster
 from pancam_graph.sim import simulate
@@ -76,14 +77,12 @@ def test_each_site_registers_within_half_a_metre_median_with_a_covariance_that_h
     settings = mars_scenario.estimator.orbital
     bias = _true_bias(truth)
     rng = np.random.default_rng(3)
-    kind = Orbital.__new__(Orbital)  # only its site points
-    kind.loc = type("Host", (), {"traverse": traverse})()
     errors, nees = [], []
     for stop in (s for s in traverse.stops if s.is_site):
         pose = gtsam.Pose3(truth.world_T_body[stop.index])
         guess = _map_pose(pose, bias)
         guess[:2, 3] += rng.normal(0.0, 2.0, 2)  # a predicted pose 2 m off
-        points, covariances = kind._site_points(stop)
+        points, covariances = site_point_cloud(stop, traverse.rig, traverse.image_noise_px)
         vertical = np.einsum("i,nij,j->n", pose.rotation().matrix()[2], covariances, pose.rotation().matrix()[2])
         result = register_site(points, vertical, guess, orbital_map.dtm, traverse.origin, 6.0,
                                DtmErrors(settings.surface_sigma_m, settings.dtm_sigma_m, settings.dtm_correlation_m),
