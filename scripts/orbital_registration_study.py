@@ -37,7 +37,8 @@ from pancam_graph.sim import simulate
 
 
 def measured_clouds(scenario, seed: int, every: int):
-    """(traverse, truth, [(stop, {"ties": (points, covariances)})]) at measurement level."""
+    """Per site (every `every`-th): traverse, truth, the stop and {"ties": (points, covariances)}
+    of its simulated tie points."""
     traverse, truth = simulate(scenario, seed)
     sites = [s for s in traverse.stops if s.is_site][::every]
     for stop in sites:
