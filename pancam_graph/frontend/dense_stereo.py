@@ -18,6 +18,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
+from ..errors import FrontendError
 from ..rig import Camera, triangulate_rectified, triangulation_covariance
 
 SCALE = 2  # images matched at 1/SCALE resolution
@@ -31,6 +32,9 @@ def dense_points(left: np.ndarray, right: np.ndarray, camera: Camera, baseline_m
                  max_range_m: float = 40.0) -> np.ndarray:
     """Points (N, 3) in the rectified left camera's frame from one rectified pair, out to
     `max_range_m` along the optical axis."""
+    if left.dtype != np.uint8 or right.dtype != np.uint8 or left.ndim != 2 or left.shape != right.shape:
+        raise FrontendError(f"dense stereo needs two 8-bit grey images of one size, not {left.dtype} {left.shape} "
+                            f"and {right.dtype} {right.shape}")
     small_l, small_r = (cv2.resize(im, None, fx=1 / SCALE, fy=1 / SCALE, interpolation=cv2.INTER_AREA)
                         for im in (left, right))
     focal = camera.fx / SCALE

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pancam_graph.config import Scenario
-from pancam_graph.errors import FrameError, InputError
+from pancam_graph.errors import FrameError, FrontendError, InputError
 from pancam_graph.render.renderer import TerrainRenderer, sensor_image
 from pancam_graph.render.scenario_images import raw_stereo_pair, render_scenario
 from pancam_graph.render.terrain import terrain_tiles
@@ -271,6 +271,8 @@ def test_dense_stereo_on_a_rendered_raw_pair_puts_the_points_on_the_ground():
     far = points[:, 2] > 15.0
     assert abs(np.median(error)) < 0.01 and np.percentile(np.abs(error), 90) < 0.05  # measured: 3 mm, 1.7 cm
     assert far.sum() > 200 and abs(np.median(error[far])) < 0.04  # measured: 1.5 cm
+    with pytest.raises(FrontendError, match="8-bit grey images"):
+        dense_points(pair[0].astype(float), pair[1], rig.wac, rig.baseline_m)
     kept, covariances = elevation_map(points, np.zeros((len(points), 3, 3)))
     cells = np.floor(kept[:, :2] / 0.5)
     assert len(np.unique(cells, axis=0)) == len(kept) < len(points)
