@@ -187,8 +187,8 @@ def _window(dtm: MapRaster, centre_xy: np.ndarray, radius_m: float) -> tuple[sli
     size = int(np.ceil(2 * radius_m / dtm.post_m)) + 1
     height, width = dtm.values.shape
     if row0 < 0 or col0 < 0 or row0 + size > height or col0 + size > width:
-        raise MapNotCovering("the site is not covered by the map (within "
-                                 f"{radius_m:.0f} m of its predicted position)")
+        raise MapNotCovering(f"the site is not covered by the map (within {radius_m:.0f} m of its predicted "
+                             "position)")
     return slice(row0, row0 + size), slice(col0, col0 + size)
 
 

@@ -55,6 +55,12 @@ class StereoCalibration:
     def baseline_m(self) -> float:
         return float(np.linalg.norm(self.translation))
 
+    def left_T_right(self) -> np.ndarray:
+        """The right camera's pose in the left camera's frame (4x4): the inverse of (R, T)."""
+        right_T_left = np.eye(4)
+        right_T_left[:3, :3], right_T_left[:3, 3] = self.rotation, self.translation
+        return np.linalg.inv(right_T_left)
+
     def cameras(self) -> tuple[Camera, Camera]:
         """The left and right cameras as calibrated (their first four distortion coefficients)."""
         w, h = self.size

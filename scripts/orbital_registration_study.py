@@ -62,8 +62,7 @@ def rendered_clouds(scenario, seed: int, every: int, modes: tuple[str, ...], cel
     mounted = traverse.rig
     calibration = raw_stereo_pair(mounted.wac, mounted.baseline_m, scenario.render)
     left_camera, right_camera = calibration.cameras()
-    left_T_right = np.linalg.inv(np.vstack([np.column_stack([calibration.rotation, calibration.translation]),
-                                            [0.0, 0.0, 0.0, 1.0]]))
+    left_T_right = calibration.left_T_right()
     rectify = calibration.rectification_maps()
     stereo = calibration.rectified()
     # what reading the folder makes of the rig (store/observation_folder._rig)

@@ -51,8 +51,7 @@ def render_scenario(scenario: Scenario, folder: Path, seed: int | None = None,
     rig = traverse.rig
     calibration = raw_stereo_pair(rig.wac, rig.baseline_m, config)
     left_camera, right_camera = calibration.cameras()
-    left_T_right = np.linalg.inv(np.vstack([np.column_stack([calibration.rotation, calibration.translation]),
-                                            [0.0, 0.0, 0.0, 1.0]]))
+    left_T_right = calibration.left_T_right()
     rng = np.random.default_rng([seed, 3])
     folder = Path(folder)
     (folder / "images").mkdir(parents=True, exist_ok=True)

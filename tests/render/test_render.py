@@ -73,10 +73,8 @@ def test_rectifying_the_raw_pair_gives_the_pinhole_images_of_the_rectified_pair(
     rectified = calibration.rectified()
     assert not calibration.is_rectified
     left_raw, right_raw = calibration.cameras()
-    right_T_left = np.eye(4)
-    right_T_left[:3, :3], right_T_left[:3, 3] = calibration.rotation, calibration.translation
     world_T_left = truth.world_T_body[5] @ traverse.body_T_nav().matrix()
-    world_T_right = world_T_left @ np.linalg.inv(right_T_left)
+    world_T_right = world_T_left @ calibration.left_T_right()
     raw = (renderer.render(world_T_left, left_raw), renderer.render(world_T_right, right_raw))
     rect_left, rect_right = calibration.rectification_maps()(*raw)
     world_T_rect = world_T_left.copy()
@@ -253,14 +251,12 @@ def test_dense_stereo_on_a_rendered_raw_pair_puts_the_points_on_the_ground():
     rig = replace(traverse.rig, wac=stereo.camera, baseline_m=stereo.baseline_m,
                   raw_R_rectified=tuple(stereo.raw_R_rectified.ravel().tolist()))
     left_raw, right_raw = calibration.cameras()
-    right_T_left = np.eye(4)
-    right_T_left[:3, :3], right_T_left[:3, 3] = calibration.rotation, calibration.translation
     world_T_body = truth.world_T_body[2]
     mounted = traverse.rig.body_T_left(0.0, np.deg2rad(-15.0)).matrix()
     world_T_left = world_T_body @ mounted
     rng = np.random.default_rng(0)
     raw = [sensor_image(renderer.render(world_T, camera), rng) for world_T, camera in
-           ((world_T_left, left_raw), (world_T_left @ np.linalg.inv(right_T_left), right_raw))]
+           ((world_T_left, left_raw), (world_T_left @ calibration.left_T_right(), right_raw))]
     pair = calibration.rectification_maps()(*raw)
     points = dense_points(*pair, rig.wac, rig.baseline_m)
     assert len(points) > 2000 and points[:, 2].max() > 25.0
