@@ -1,14 +1,15 @@
 """Variable keys: X(i) rover body pose at stop i, L(j) landmark with track id j, T(j) rover body
 pose at the time of a measurement between two stops (j counts them), S(0) the traverse's wheel
-slip."""
+slip, E(k) an error two neighbouring sites' orbital registrations share (a 4-vector)."""
 
 import gtsam
-from gtsam.symbol_shorthand import L, S, T, X
+from gtsam.symbol_shorthand import E, L, S, T, X
 
-__all__ = ["L", "S", "T", "X", "subset"]
+__all__ = ["E", "L", "S", "T", "X", "subset"]
 
 _VALUE_TYPE = {gtsam.Symbol(X(0)).chr(): "Pose3", gtsam.Symbol(T(0)).chr(): "Pose3",
-               gtsam.Symbol(L(0)).chr(): "Point3", gtsam.Symbol(S(0)).chr(): "Double"}
+               gtsam.Symbol(L(0)).chr(): "Point3", gtsam.Symbol(S(0)).chr(): "Double",
+               gtsam.Symbol(E(0)).chr(): "Vector"}
 
 
 def subset(values: gtsam.Values, keys: list[int]) -> gtsam.Values:

@@ -12,7 +12,7 @@ import gtsam
 import numpy as np
 
 from ..errors import GraphError
-from .keys import L, S, T, X, subset
+from .keys import E, L, S, T, X, subset
 from .update_log import Rebuild, UpdateLog, picklable, with_scalars
 
 WINDOW_STEPS = 4  # the window moves in steps of a quarter of its length
@@ -34,7 +34,7 @@ class RelinearizeThresholds:
         thresholds = gtsam.ISAM2ThresholdMap()
         pose = np.r_[np.full(3, self.rotation_rad), np.full(3, self.translation_m)]  # GTSAM: rotation first
         for symbol, vector in ((X, pose), (T, pose), (L, np.full(3, self.translation_m)),
-                               (S, np.full(1, self.scalar))):
+                               (S, np.full(1, self.scalar)), (E, np.full(4, self.scalar))):
             thresholds.insert((chr(gtsam.Symbol(symbol(0)).chr()), vector))
         return thresholds
 
@@ -257,6 +257,9 @@ class Smoother:
 
     def point(self, key: int) -> np.ndarray:
         return self._current(key, "Point3")
+
+    def vector(self, key: int) -> np.ndarray:
+        return self._current(key, "Vector")
 
     def _current(self, key: int, kind: str):
         """A variable's value: its initial value if not yet in iSAM2, its value when it left the

@@ -12,9 +12,20 @@ origin: maps.MapBias) with a prior from the map's stated accuracy, and each regi
 factor on the site's pose and its map's bias: the same idea as the VO scale and the wheel slip.
 Before it goes in, a registration must agree with the predicted pose (Mahalanobis, chi-square
 with 4 dof at `gate_probability`); the refused are reported.
+
+Neighbouring sites see overlapping parts of the map (their points reach 40 m, and sites are
+30-60 m apart), so their registration errors are correlated: +0.1 to +0.3 one site apart and
+none further (docs/orbital.md, "The map's bias"). Averaged as if independent, they made the map
+bias about 1.2 times over-confident over 10 km. So the errors are a moving average: each pair of
+consecutive registrations (of one map, at most `neighbour_m` apart) shares an error variable,
+a 4-vector E(k) with a prior of `neighbour_correlation` times the registration's covariance, and
+each registration keeps the rest of its covariance as its own. A registration's variance stays
+what its fit says, and its neighbours' errors have the stated correlation.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
@@ -24,7 +35,7 @@ from .. import chi2
 from ..dem_registration import DtmErrors, MapNotCovering, RegistrationFailed, register_site, yaw_jacobian, yaw_of
 from ..errors import InputError
 from ..graph import tie_gate
-from ..graph.keys import S, X
+from ..graph.keys import E, S, X
 from ..maps import MapBias, hillshade, sampled_raster
 from ..records import GroundTruth, MapRaster, OrbitalMap, Stop, Traverse
 from ..sections import Section
@@ -67,22 +78,40 @@ def predicted_measurement(pose, bias: np.ndarray, jacobians: list | None = None)
     return out
 
 
-def orbital_error(measured: np.ndarray, pose, bias: np.ndarray, jacobians: list | None = None) -> np.ndarray:
-    """Predicted minus measured (east, north, up, yaw), the yaw wrapped."""
-    error = predicted_measurement(pose, bias, jacobians) - measured
+def orbital_error(measured: np.ndarray, pose, bias: np.ndarray, jacobians: list | None = None,
+                  shared: tuple[np.ndarray, ...] = ()) -> np.ndarray:
+    """Predicted minus measured (east, north, up, yaw), the yaw wrapped; the errors `shared` with
+    the neighbouring sites add to the prediction (`jacobians` gets the identity for each)."""
+    error = predicted_measurement(pose, bias, jacobians) - measured + sum(shared, np.zeros(4))
     error[3] = _wrap(error[3])
+    if jacobians is not None:
+        for i in range(len(shared)):
+            jacobians[5 + i] = np.eye(4)
     return error
 
 
-def orbital_factor(stop: int, map_index: int, measured: np.ndarray, covariance: np.ndarray):
-    """A site's registration to map `map_index`: a factor on its pose and the map's bias."""
+def orbital_factor(stop: int, map_index: int, measured: np.ndarray, covariance: np.ndarray,
+                   shared: tuple[int, ...] = ()):
+    """A site's registration to map `map_index`: a factor on its pose, the map's bias and the
+    errors it shares with its neighbouring sites' registrations (E keys); `covariance` is its
+    own part."""
     def error(factor, values, jacobians):
         pose_key, *keys = factor.keys()
-        bias = np.array([values.atDouble(k) for k in keys])
-        return orbital_error(measured, values.atPose3(pose_key), bias, jacobians)
+        bias = np.array([values.atDouble(k) for k in keys[:4]])
+        return orbital_error(measured, values.atPose3(pose_key), bias, jacobians,
+                             tuple(values.atVector(k) for k in keys[4:]))
 
     model = gtsam.noiseModel.Gaussian.Covariance(0.5 * (covariance + covariance.T))
-    return gtsam.CustomFactor(model, [X(stop), *bias_keys(map_index)], error)
+    return gtsam.CustomFactor(model, [X(stop), *bias_keys(map_index), *shared], error)
+
+
+@dataclass(frozen=True)
+class _Neighbour:
+    """A map's last registration: where its site is and the error the next one may share."""
+
+    stop: int
+    position: np.ndarray  # east, north (m) as estimated then
+    shared_key: int
 
 
 class OrbitalSettings(Section):
@@ -102,6 +131,10 @@ class OrbitalSettings(Section):
     search_sigmas: float = Field(3.0, gt=0.0, le=10.0, description="horizontal search around the prediction, in "
                                  "its standard deviations")
     search_m: tuple[float, float] = Field((2.0, 15.0), description="least and largest horizontal search (m)")
+    neighbour_correlation: float = Field(0.25, ge=0.0, lt=0.5, description="correlation of consecutive sites' "
+                                         "registration errors (overlapping parts of the map); 0: independent")
+    neighbour_m: float = Field(80.0, gt=0.0, le=1000.0, description="consecutive sites further apart than this "
+                               "share no error (about twice `max_range_m`: their points no longer overlap)")
 
 
 class OrbitalSensor(Section):
@@ -211,6 +244,8 @@ class Orbital(Kind):
         self.uncovered: list[int] = []
         self.failed: list[str] = []
         self.seconds: list[float] = []
+        self.shared_errors: list[int] = []  # E keys, in order
+        self._last: dict[int, _Neighbour] = {}  # by map
 
     @property
     def maps(self) -> tuple[OrbitalMap, ...]:
@@ -232,10 +267,14 @@ class Orbital(Kind):
         for m, orbital_map in enumerate(self.maps):
             keys = bias_keys(m)
             bias = np.array([smoother.estimate_double(k) for k in keys])
+            earlier = self._neighbour(m, pose)
             jacobians = [None] * 5
             predicted = predicted_measurement(pose, bias, jacobians)
+            if earlier:
+                predicted += smoother.vector(earlier[0])
+                jacobians.append(np.eye(4))
             spread = np.hstack(jacobians)
-            predicted_cov = spread @ smoother.joint_marginal_covariance(X(stop.index), *keys) @ spread.T
+            predicted_cov = spread @ smoother.joint_marginal_covariance(X(stop.index), *keys, *earlier) @ spread.T
             search = np.clip(self.settings.search_sigmas * np.sqrt(np.linalg.eigvalsh(predicted_cov[:2, :2]).max()),
                              *self.settings.search_m)
             rotation = pose.rotation().matrix()
@@ -255,17 +294,39 @@ class Orbital(Kind):
             self.seconds.append(registration.seconds)
             innovation = registration.measurement - predicted
             innovation[3] = _wrap(innovation[3])
-            d2 = float(innovation @ np.linalg.solve(registration.covariance + predicted_cov, innovation))
+            rho = self.settings.neighbour_correlation
+            unshared = (1.0 - rho * len(earlier)) * registration.covariance  # what the earlier one's error leaves
+            d2 = float(innovation @ np.linalg.solve(unshared + predicted_cov, innovation))
             if d2 > self.gate:
                 self.refused.append(stop.index)
                 counts.add("orbital_refused")
                 continue
-            arguments = (stop.index, m, registration.measurement, registration.covariance)
+            shared = earlier
+            if rho > 0:
+                key = E(len(self.shared_errors))
+                smoother.insert(key, np.zeros(4), leaves_with=X(stop.index))
+                prior = gtsam.noiseModel.Gaussian.Covariance(rho * registration.covariance)
+                smoother.add(gtsam.PriorFactorVector(key, np.zeros(4), prior))
+                self.shared_errors.append(key)
+                self._last[m] = _Neighbour(stop.index, pose.translation()[:2], key)
+                shared = (*earlier, key)
+            own = (1.0 - rho * len(shared)) * registration.covariance
+            arguments = (stop.index, m, registration.measurement, own, shared)
             smoother.add(orbital_factor(*arguments), rebuild=(orbital_factor, arguments))
             self.registrations.append((stop.index, m, registration.measurement, registration.covariance))
             counts.add("orbital_registrations")
         if not covered:
             self.uncovered.append(stop.index)
+
+    def _neighbour(self, m: int, pose) -> tuple[int, ...]:
+        """The error this site's registration to map `m` shares with the map's last one: its key,
+        or nothing if that one is too far away or its error left the smoother's window."""
+        last = self._last.get(m)
+        if last is None or not self.loc.smoother.live(last.shared_key):
+            return ()
+        if np.hypot(*(pose.translation()[:2] - last.position)) > self.settings.neighbour_m:
+            return ()
+        return (last.shared_key,)
 
     # -- results -------------------------------------------------------------------------------
 
@@ -282,6 +343,8 @@ class Orbital(Kind):
         for m in range(len(self.maps)):
             for key, name in zip(bias_keys(m), BIAS_NAMES, strict=True):
                 values.insert(key, float(state[f"map{m}_{name}"]))
+        for key in self.shared_errors:  # not drawn by the simulation: their prior's mean
+            values.insert(key, np.zeros(4))
         return True
 
     def counters(self) -> dict:

@@ -13,7 +13,7 @@ from ..config import EstimatorConfig
 from ..errors import ConfigError
 from ..frontend.motion import Motion
 from ..graph import factors
-from ..graph.keys import T, X
+from ..graph.keys import L, T, X
 from ..graph.smoother import RelinearizeThresholds, Smoother, poses_array
 from ..kinds import KINDS, STEP_COUNTERS, Kind, absolute, uses_vo
 from ..kinds.base import StepCounts
@@ -248,7 +248,9 @@ class Localizer:
     def _snapshot_of(self, values: gtsam.Values) -> Snapshot:
         poses = poses_array(values, [X(k) for k in self.stops])  # not the poses inserted between stops
         ids = np.array(sorted(self.landmarks), dtype=np.int64)
-        points = gtsam.utilities.extractPoint3(values) if len(ids) else np.zeros((0, 3))
+        # by key: GTSAM's extractPoint3 also reads every other vector as a point (the orbital
+        # kind's 4-vectors, as three numbers of garbage)
+        points = np.array([values.atPoint3(L(t)) for t in ids]).reshape(-1, 3)
         return Snapshot(np.asarray(self.stops), poses, ids, points)
 
     # -- results ---------------------------------------------------------------------------

@@ -14,7 +14,8 @@ POSE_A = gtsam.Pose3(gtsam.Rot3.Ypr(0.4, -0.05, 0.02), np.array([3.0, -2.0, 0.3]
 POSE_B = gtsam.Pose3(gtsam.Rot3.Ypr(0.45, -0.03, 0.01), np.array([4.4, -1.5, 0.35]))
 
 
-_DIM = {ord("x"): 6, ord("l"): 3, ord("s"): 1}  # poses, landmarks, shared scalars (slip, VO scale and bias)
+# poses, landmarks, shared scalars (slip, VO scale and bias), errors neighbouring registrations share
+_DIM = {ord("x"): 6, ord("l"): 3, ord("s"): 1, ord("e"): 4}
 
 
 def _perturb(values: gtsam.Values, key: int, delta: np.ndarray) -> gtsam.Values:
@@ -24,6 +25,8 @@ def _perturb(values: gtsam.Values, key: int, delta: np.ndarray) -> gtsam.Values:
         out.update(key, values.atPose3(key).retract(delta))
     elif kind == ord("s"):
         out.update(key, values.atDouble(key) + float(delta[0]))
+    elif kind == ord("e"):
+        out.update(key, values.atVector(key) + delta)
     else:
         out.update(key, values.atPoint3(key) + delta)
     return out
@@ -138,13 +141,23 @@ def test_vo_step_with_shared_scale_and_direction_bias_jacobian(bias):
 
 
 @pytest.mark.parametrize("bias", [(0.0, 0.0, 0.0, 0.0), (2.5, -1.7, 0.8, 0.004)])
-def test_orbital_registration_on_pose_and_map_bias_jacobian(bias):
+@pytest.mark.parametrize("shared", [0, 2])
+def test_orbital_registration_on_pose_map_bias_and_shared_errors_jacobian(bias, shared):
+    from pancam_graph.graph.keys import E
     from pancam_graph.kinds.orbital import bias_keys, orbital_factor
 
     rng = np.random.default_rng(3)
     a = rng.normal(size=(4, 4)) * 0.1
-    f = orbital_factor(0, 1, np.array([5.0, -0.8, 0.2, 0.5]), a @ a.T + np.eye(4) * 0.01)
+    keys = tuple(E(k) for k in range(shared))
+    f = orbital_factor(0, 1, np.array([5.0, -0.8, 0.2, 0.5]), a @ a.T + np.eye(4) * 0.01, keys)
     values = _values()
     for key, value in zip(bias_keys(1), bias, strict=True):
         values.insert(key, value)
+    for key in keys:
+        values.insert(key, rng.normal(0.0, 0.3, 4))
     _check(f, values)
+    if shared:  # the errors add to the prediction: moving one by d moves the error by d
+        moved = gtsam.Values(values)
+        moved.update(keys[0], values.atVector(keys[0]) + np.array([0.1, -0.2, 0.05, 0.001]))
+        np.testing.assert_allclose(f.unwhitenedError(moved) - f.unwhitenedError(values), [0.1, -0.2, 0.05, 0.001],
+                                   atol=1e-12)
