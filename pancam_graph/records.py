@@ -119,6 +119,7 @@ class Stop:
     hrc: tuple[HrcFrame, ...] = ()
     dead_reckoning: DeadReckoning | None = None
     dwell_s: float = 0.0  # the rover stands still for this long after time_s, then drives on
+    ground: GroundPatch | None = None  # a site's ground from its panorama's images (none at measurement level)
 
     @property
     def departure_s(self) -> float:
@@ -226,6 +227,18 @@ class MapRaster:
                                        fill_value=np.nan)
         xy = np.atleast_2d(np.asarray(xy, dtype=float))
         return grid(np.column_stack([xy[:, 1], xy[:, 0]]))
+
+
+@dataclass(frozen=True)
+class GroundPatch:
+    """A site's ground seen from above, from its panorama's dense stereo: per cell of a
+    horizontal grid of the body frame, the mean body-frame position of the ground pixels in it
+    and their mean grey level (what the orbital kind correlates with an orthoimage)."""
+
+    points_body: np.ndarray  # (N, 3) float32, m
+    grey: np.ndarray  # (N,) float32, 0-255
+    samples: np.ndarray  # (N,) int32: pixels averaged in each cell
+    cell_m: float
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """Registration of every site to the orbital DTM against the truth.
 
     python scripts/orbital_registration_study.py SCENARIO SEED [SEED ...] [--offset-m 2.0]
-        [--images {ties,dense,both}] [--cell-m 0.5 [1.0 ...]] [--every N] [--save FILE.npz]
+        [--images {ties,dense,both,ortho,all}] [--cell-m 0.5 [1.0 ...]] [--every N] [--save FILE.npz]
 
 Simulates the scenario, then registers each site's local elevation map to the simulated map
 from the true pose seen through the true map bias, moved by a random horizontal offset (1 sigma
@@ -15,7 +15,9 @@ level). With --images, each site's WAC pairs are rendered as `pancam-graph rende
 (raw, distorted, a misaligned right camera; the map is made of the rendered ground) and
 rectified with the pair's calibration: "ties" are the image front-end's features
 (frontend/panorama.py), "dense<cell>" is OpenCV SGBM on every rectified pair gridded to one point
-per --cell-m cell (frontend/dense_stereo.py).
+per --cell-m cell (frontend/dense_stereo.py). "ortho" is the site's ground patch from the same
+SGBM (dense_stereo.ground_patch) correlated with the map's orthoimage, rendered from above under
+the orbiter's sun (ortho_registration.py): east and north only (up and yaw print as 0).
 --every N registers every N-th site only (rendering a site takes a minute).
 """
 
@@ -48,17 +50,17 @@ def measured_clouds(scenario, seed: int, every: int):
 def rendered_clouds(scenario, seed: int, every: int, modes: tuple[str, ...], cells_m: tuple[float, ...]):
     """The same from each site's rendered WAC pairs: the front-end's features ("ties") and SGBM's
     dense points gridded at each of `cells_m` ("dense<cell>")."""
-    from pancam_graph.frontend.dense_stereo import dense_site_points, elevation_map
+    from pancam_graph.frontend.dense_stereo import dense_site_points, elevation_map, ground_patch
     from pancam_graph.frontend.panorama import PanoramaMatcher, PanoramaView
     from pancam_graph.render.renderer import TerrainRenderer, sensor_image
     from pancam_graph.render.scenario_images import maps_of_rendered_ground, raw_stereo_pair
     from pancam_graph.render.terrain import terrain_tiles
     from pancam_graph.sim.world import dense_path
 
-    traverse, truth = maps_of_rendered_ground(scenario, *simulate(scenario, seed), seed)
     started = time.perf_counter()
     renderer = TerrainRenderer(terrain_tiles(scenario, dense_path(scenario.path), seed), seed=seed)
-    print(f"terrain: {time.perf_counter() - started:.0f} s")
+    traverse, truth = maps_of_rendered_ground(scenario, *simulate(scenario, seed), seed, renderer)
+    print(f"terrain and orthoimage: {time.perf_counter() - started:.0f} s")
     mounted = traverse.rig
     calibration = raw_stereo_pair(mounted.wac, mounted.baseline_m, scenario.render)
     left_camera, right_camera = calibration.cameras()
@@ -93,8 +95,10 @@ def rendered_clouds(scenario, seed: int, every: int, modes: tuple[str, ...], cel
             points = dense_site_points(views, rig.wac, rig.baseline_m)
             for cell in cells_m:
                 clouds[f"dense{cell:g}"] = None if points is None else elevation_map(*points, cell)
+        if "ortho" in modes:
+            clouds["ortho"] = ground_patch(views, rig.wac, rig.baseline_m)
         print(f"site {n + 1}/{len(sites)} (stop {stop.index}): rendered in {rendered:.0f} s, "
-              + ", ".join(f"{k} {0 if c is None else len(c[0])} points" for k, c in clouds.items()), flush=True)
+              + ", ".join(f"{k} {_size(c)} points" for k, c in clouds.items()), flush=True)
         yield traverse, truth, stop, clouds
 
 
@@ -103,7 +107,7 @@ def main() -> None:
     parser.add_argument("scenario")
     parser.add_argument("seeds", type=int, nargs="+")
     parser.add_argument("--offset-m", type=float, default=2.0)
-    parser.add_argument("--images", choices=["ties", "dense", "both"])
+    parser.add_argument("--images", choices=["ties", "dense", "both", "ortho", "all"])
     parser.add_argument("--every", type=int, default=1)
     parser.add_argument("--cell-m", type=float, nargs="+", default=[0.5], help="dense: elevation map cells")
     parser.add_argument("--save", help="write each registration's error, covariance and place (.npz)")
@@ -111,7 +115,7 @@ def main() -> None:
     scenario = load_scenario(bundled_scenarios().get(args.scenario, args.scenario))
     settings: OrbitalSettings = scenario.estimator.orbital
     errors = DtmErrors(settings.surface_sigma_m, settings.dtm_sigma_m, settings.dtm_correlation_m)
-    modes = ("ties", "dense") if args.images == "both" else (args.images or "ties",)
+    modes = {"both": ("ties", "dense"), "all": ("ties", "dense", "ortho")}.get(args.images, (args.images or "ties",))
     names = [m for m in modes if m != "dense"] + ([f"dense{c:g}" for c in args.cell_m] if "dense" in modes else [])
     rows: dict[str, list] = {m: [] for m in names}
     failed = dict.fromkeys(names, 0)
@@ -132,12 +136,16 @@ def main() -> None:
                 if cloud is None:
                     failed[mode] += 1
                     continue
-                points, covs = cloud
                 try:
-                    result = register_site(points, np.einsum("i,nij,j->n", up, covs, up), guess, orbital_map.dtm,
-                                           traverse.origin, float(np.clip(3 * args.offset_m, *settings.search_m)),
-                                           errors, settings.max_range_m, settings.min_points,
-                                           settings.min_distinctness)
+                    if mode == "ortho":
+                        result = _ortho(cloud, guess, orbital_map, traverse.origin, 3 * args.offset_m, true)
+                    else:
+                        points, covs = cloud
+                        result = register_site(points, np.einsum("i,nij,j->n", up, covs, up), guess,
+                                               orbital_map.dtm, traverse.origin,
+                                               float(np.clip(3 * args.offset_m, *settings.search_m)),
+                                               errors, settings.max_range_m, settings.min_points,
+                                               settings.min_distinctness)
                 except RegistrationFailed as exc:
                     failed[mode] += 1
                     print(f"  {mode}: seed {seed} stop {stop.index}: {exc}")
@@ -153,6 +161,26 @@ def main() -> None:
         _summary(name, np.array(rows[name]), failed[name])
     if args.save:
         np.savez(args.save, **{m: np.array(r) for m, r in rows.items()})
+
+
+def _size(cloud) -> int:
+    """Points of an elevation map (points, covariances) or cells of a ground patch."""
+    return 0 if cloud is None else len(cloud[0]) if isinstance(cloud, tuple) else len(cloud.grey)
+
+
+def _ortho(patch, guess: np.ndarray, orbital_map, frame, search_m: float, true: np.ndarray):
+    """The orthoimage correlation as a 4-component result: up and yaw taken as the truth's."""
+    from types import SimpleNamespace
+
+    from pancam_graph.ortho_registration import register_patch
+
+    if orbital_map.orthoimage is None:
+        raise RegistrationFailed("the map has no orthoimage")
+    found = register_patch(patch, guess, orbital_map.orthoimage, frame, search_m)
+    covariance = np.eye(4)
+    covariance[:2, :2] = found.covariance
+    return SimpleNamespace(measurement=np.array([*found.measurement, *true[2:]]), covariance=covariance,
+                           seconds=found.seconds)
 
 
 def _summary(mode: str, rows: np.ndarray, failed: int) -> None:

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from ..errors import FrontendError
+from ..records import GroundPatch
 from ..rig import Camera, triangulate_rectified, triangulation_covariance
 
 SCALE = 2  # images matched at 1/SCALE resolution
@@ -26,12 +27,26 @@ GRID_PX = 6  # a point every GRID_PX pixels (at the matched resolution) in both 
 SIGMA_PX = 1.0  # a disparity's error at full resolution: SGBM's subpixel estimate, half a matched pixel
 MIN_RANGE_M = 1.5
 CELL_M = 0.5  # the local elevation map's cell: half the orbital DTM's post
+PATCH_CELL_M = 0.25  # the ground patch's cell: half an orthoimage's finest pixel (HiRISE 0.25-0.5 m)
 
 
 def dense_points(left: np.ndarray, right: np.ndarray, camera: Camera, baseline_m: float,
                  max_range_m: float = 40.0) -> np.ndarray:
     """Points (N, 3) in the rectified left camera's frame from one rectified pair, out to
     `max_range_m` along the optical axis."""
+    if left.dtype != np.uint8 or right.dtype != np.uint8 or left.ndim != 2 or left.shape != right.shape:
+        raise FrontendError(f"dense stereo needs two 8-bit grey images of one size, not {left.dtype} {left.shape} "
+                            f"and {right.dtype} {right.shape}")
+    disparity, least, _ = _disparity(left, right, camera, baseline_m, max_range_m)
+    rows, cols = np.mgrid[GRID_PX // 2:disparity.shape[0]:GRID_PX, GRID_PX // 2:disparity.shape[1]:GRID_PX]
+    points = _triangulated(disparity, rows, cols, least, camera, baseline_m)
+    return points[(points[:, 2] > MIN_RANGE_M) & (points[:, 2] <= max_range_m)]
+
+
+def _disparity(left: np.ndarray, right: np.ndarray, camera: Camera, baseline_m: float, max_range_m: float
+               ) -> tuple[np.ndarray, int, np.ndarray]:
+    """SGBM's disparity (at the matched resolution, in its pixels), the least disparity searched
+    and the left image at that resolution."""
     if left.dtype != np.uint8 or right.dtype != np.uint8 or left.ndim != 2 or left.shape != right.shape:
         raise FrontendError(f"dense stereo needs two 8-bit grey images of one size, not {left.dtype} {left.shape} "
                             f"and {right.dtype} {right.shape}")
@@ -45,15 +60,20 @@ def dense_points(left: np.ndarray, right: np.ndarray, camera: Camera, baseline_m
                                     P1=8 * block * block, P2=32 * block * block, disp12MaxDiff=1,
                                     uniquenessRatio=10, speckleWindowSize=100, speckleRange=2,
                                     mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
-    disparity = matcher.compute(small_l, small_r).astype(np.float32) / 16.0
-    rows, cols = np.mgrid[GRID_PX // 2:disparity.shape[0]:GRID_PX, GRID_PX // 2:disparity.shape[1]:GRID_PX]
+    return matcher.compute(small_l, small_r).astype(np.float32) / 16.0, least, small_l
+
+
+def _triangulated(disparity: np.ndarray, rows: np.ndarray, cols: np.ndarray, least: int, camera: Camera,
+                  baseline_m: float) -> np.ndarray:
+    """Points (N, 3), left camera frame, of the matched pixels (rows, cols) with a disparity;
+    NaN rows where there is none."""
     d = disparity[rows, cols]
-    valid = d > least
     # back to full-resolution pixels (pixel centres: u_full = SCALE (u + 0.5) - 0.5)
-    u = SCALE * (cols[valid] + 0.5) - 0.5
-    v = SCALE * (rows[valid] + 0.5) - 0.5
-    points = triangulate_rectified(u, u - SCALE * d[valid], v, camera, baseline_m)
-    return points[(points[:, 2] > MIN_RANGE_M) & (points[:, 2] <= max_range_m)]
+    u = SCALE * (cols + 0.5) - 0.5
+    v = SCALE * (rows + 0.5) - 0.5
+    points = triangulate_rectified(u.ravel(), (u - SCALE * d).ravel(), v.ravel(), camera, baseline_m)
+    points[~(d > least).ravel()] = np.nan
+    return points
 
 
 def dense_site_points(views: Sequence, camera: Camera, baseline_m: float, max_range_m: float = 40.0
@@ -87,3 +107,28 @@ def elevation_map(points: np.ndarray, covariances: np.ndarray, cell_m: float = C
     ends = np.r_[starts[1:], len(order)]
     median = order[(starts + ends) // 2]
     return points[median], covariances[median]
+
+
+def ground_patch(views: Sequence, camera: Camera, baseline_m: float, max_range_m: float = 40.0,
+                 cell_m: float = PATCH_CELL_M) -> GroundPatch | None:
+    """A site's ground from above: every matched pixel of every rectified pair (a quarter of the
+    full-resolution pixels) put on the ground by its disparity, and averaged per `cell_m` cell
+    of the body frame's horizontal grid, as an orbiter's pixel averages the ground under it.
+    None when no pair gives any."""
+    positions, greys = [], []
+    for view in views:
+        disparity, least, small_left = _disparity(view.left, view.right, camera, baseline_m, max_range_m)
+        rows, cols = np.mgrid[:disparity.shape[0], :disparity.shape[1]]
+        p_cam = _triangulated(disparity, rows, cols, least, camera, baseline_m)
+        keep = (p_cam[:, 2] > MIN_RANGE_M) & (p_cam[:, 2] <= max_range_m)
+        rotation, shift = view.body_T_camera[:3, :3], view.body_T_camera[:3, 3]
+        positions.append(p_cam[keep] @ rotation.T + shift)
+        greys.append(small_left.ravel()[keep].astype(np.float64))
+    if not positions or not sum(len(p) for p in positions):
+        return None
+    points, grey = np.vstack(positions), np.concatenate(greys)
+    cells, index = np.unique(np.floor(points[:, :2] / cell_m).astype(np.int64), axis=0, return_inverse=True)
+    count = np.bincount(index, minlength=len(cells))
+    mean = np.column_stack([np.bincount(index, points[:, k], len(cells)) for k in range(3)]) / count[:, None]
+    return GroundPatch(mean.astype(np.float32), (np.bincount(index, grey, len(cells)) / count).astype(np.float32),
+                       count.astype(np.int32), cell_m)

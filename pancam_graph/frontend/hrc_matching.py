@@ -29,9 +29,9 @@ import cv2
 import numpy as np
 
 from .. import chi2
+from ..ortho_registration import peak_offset
 from ..rig import Rig, triangulation_covariance
 from .panorama import PanoramaView, Region, SitePanorama
-from .ties import peak_offset
 
 
 @dataclass(frozen=True)

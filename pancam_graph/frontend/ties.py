@@ -31,6 +31,7 @@ from scipy.spatial import cKDTree
 
 from .. import chi2
 from ..graph.tie_gate import RelativePose, SitePoint, site_points
+from ..ortho_registration import peak_offset
 from ..rig import Rig, triangulate_rectified, triangulation_covariance
 from .panorama import SitePanorama
 from .tracker import StereoTracker
@@ -303,17 +304,6 @@ class _Ground:
         _, _, vt = np.linalg.svd(near - near.mean(axis=0))
         n = vt[2] * np.sign(vt[2][2])
         return n if n[2] > 0.9 else up  # steeper than 25 deg: a rock, not the ground
-
-
-def peak_offset(score: np.ndarray, x: int, y: int) -> tuple[float, float]:
-    """Sub-cell position of a correlation peak (a parabola through it and its neighbours)."""
-    def vertex(lo, mid, hi):
-        den = lo - 2.0 * mid + hi
-        return 0.0 if den >= 0 else float(np.clip(0.5 * (lo - hi) / den, -0.5, 0.5))
-
-    dx = vertex(score[y, x - 1], score[y, x], score[y, x + 1]) if 0 < x < score.shape[1] - 1 else 0.0
-    dy = vertex(score[y - 1, x], score[y, x], score[y + 1, x]) if 0 < y < score.shape[0] - 1 else 0.0
-    return dx, dy
 
 
 def _kabsch(p: np.ndarray, q: np.ndarray) -> np.ndarray | None:

@@ -13,6 +13,11 @@ factor on the site's pose and its map's bias: the same idea as the VO scale and 
 Before it goes in, a registration must agree with the predicted pose (Mahalanobis, chi-square
 with 4 dof at `gate_probability`); the refused are reported.
 
+Where the rover's images are at hand (runs on image folders), the site's ground seen from above
+(records.GroundPatch, from its panorama's dense stereo) is also correlated with the map's
+orthoimage (ortho_registration.py): the rover's east and north in the map's frame, a second
+factor on the same pose and bias, gated at chi-square with 2 dof.
+
 Neighbouring sites see overlapping parts of the map (their points reach 40 m, and sites are
 30-60 m apart), so their registration errors are correlated: +0.1 to +0.3 one site apart and
 none further (docs/orbital.md, "The map's bias"). Averaged as if independent, they made the map
@@ -37,6 +42,7 @@ from ..errors import InputError
 from ..graph import tie_gate
 from ..graph.keys import E, S, X
 from ..maps import MapBias, hillshade, sampled_raster
+from ..ortho_registration import register_patch
 from ..records import GroundTruth, MapRaster, OrbitalMap, Stop, Traverse
 from ..sections import Section
 from .base import Kind
@@ -91,15 +97,25 @@ def orbital_error(measured: np.ndarray, pose, bias: np.ndarray, jacobians: list 
 
 
 def orbital_factor(stop: int, map_index: int, measured: np.ndarray, covariance: np.ndarray,
-                   shared: tuple[int, ...] = ()):
+                   shared: tuple[int, ...] = (), components: tuple[int, ...] = (0, 1, 2, 3)):
     """A site's registration to map `map_index`: a factor on its pose, the map's bias and the
     errors it shares with its neighbouring sites' registrations (E keys); `covariance` is its
-    own part."""
+    own part. `components`: which of (east, north, up, yaw) it measures (an orthoimage's
+    correlation: east and north), `measured` and `covariance` being theirs."""
+    rows = list(components)
+    full = np.zeros(4)
+    full[rows] = measured
+
     def error(factor, values, jacobians):
         pose_key, *keys = factor.keys()
         bias = np.array([values.atDouble(k) for k in keys[:4]])
-        return orbital_error(measured, values.atPose3(pose_key), bias, jacobians,
-                             tuple(values.atVector(k) for k in keys[4:]))
+        all_jacobians = None if jacobians is None else [None] * len(jacobians)
+        out = orbital_error(full, values.atPose3(pose_key), bias, all_jacobians,
+                            tuple(values.atVector(k) for k in keys[4:]))
+        if jacobians is not None:
+            for i, jacobian in enumerate(all_jacobians):
+                jacobians[i] = jacobian[rows]
+        return out[rows]
 
     model = gtsam.noiseModel.Gaussian.Covariance(0.5 * (covariance + covariance.T))
     return gtsam.CustomFactor(model, [X(stop), *bias_keys(map_index), *shared], error)
@@ -135,6 +151,8 @@ class OrbitalSettings(Section):
                                          "registration errors (overlapping parts of the map); 0: independent")
     neighbour_m: float = Field(80.0, gt=0.0, le=1000.0, description="consecutive sites further apart than this "
                                "share no error (about twice `max_range_m`: their points no longer overlap)")
+    use_orthoimage: bool = Field(True, description="also correlate a site's ground, where its images give it "
+                                 "(runs on image folders), with the map's orthoimage")
 
 
 class OrbitalSensor(Section):
@@ -164,7 +182,8 @@ class Orbital(Kind):
     Settings = OrbitalSettings
     Sensor = OrbitalSensor
     step_counters = {"orbital_registrations": 0, "orbital_refused": 0}
-    counter_defaults = {"orbital_registrations_used": 0, "orbital_registrations_refused": 0,
+    counter_defaults = {"orbital_registrations_used": 0, "orbital_ortho_registrations_used": 0,
+                        "orbital_registrations_refused": 0,
                         "orbital_uncovered_stops": [], "orbital_failed_stops": [], "orbital_bias": [],
                         "orbital_bias_sigma": [], "orbital_seconds_per_site": 0.0}
 
@@ -224,6 +243,7 @@ class Orbital(Kind):
         self.settings = settings
         self.errors = DtmErrors(settings.surface_sigma_m, settings.dtm_sigma_m, settings.dtm_correlation_m)
         self.gate = chi2.quantile(settings.gate_probability, 4)
+        self.gate_2 = chi2.quantile(settings.gate_probability, 2)
         frame = localizer.traverse.origin
         start = localizer.traverse.start_world_T_body[:3, 3]
         covering = []
@@ -244,6 +264,7 @@ class Orbital(Kind):
         self.uncovered: list[int] = []
         self.failed: list[str] = []
         self.seconds: list[float] = []
+        self.ortho_registrations: list[tuple[int, int, np.ndarray, np.ndarray]] = []  # east, north only
         self.shared_errors: list[int] = []  # E keys, in order
         self._last: dict[int, _Neighbour] = {}  # by map
 
@@ -259,64 +280,105 @@ class Orbital(Kind):
         points = tie_gate.site_point_cloud(stop, self.loc.traverse.rig, self.loc.traverse.image_noise_px)
         if points is None:
             self.failed.append(f"stop {stop.index}: no triangulated site points")
+        ground = stop.ground if self.settings.use_orthoimage else None
+        if points is None and ground is None:
             return
         smoother = self.loc.smoother
         smoother.update(context=f"at stop {stop.index}, before its orbital registration")
         pose = smoother.pose(X(stop.index))
         covered = False
         for m, orbital_map in enumerate(self.maps):
-            keys = bias_keys(m)
-            bias = np.array([smoother.estimate_double(k) for k in keys])
-            earlier = self._neighbour(m, pose)
-            jacobians = [None] * 5
-            predicted = predicted_measurement(pose, bias, jacobians)
-            if earlier:
-                predicted += smoother.vector(earlier[0])
-                jacobians.append(np.eye(4))
-            spread = np.hstack(jacobians)
-            predicted_cov = spread @ smoother.joint_marginal_covariance(X(stop.index), *keys, *earlier) @ spread.T
-            search = np.clip(self.settings.search_sigmas * np.sqrt(np.linalg.eigvalsh(predicted_cov[:2, :2]).max()),
-                             *self.settings.search_m)
-            rotation = pose.rotation().matrix()
-            vertical_var = np.einsum("i,nij,j->n", rotation[2], points[1], rotation[2])
-            try:
-                registration = register_site(points[0], vertical_var, _map_pose(pose, bias), orbital_map.dtm,
-                                             self.loc.traverse.origin, float(search), self.errors,
-                                             self.settings.max_range_m, self.settings.min_points,
-                                             self.settings.min_distinctness)
-            except MapNotCovering:
-                continue
-            except RegistrationFailed as exc:
-                covered = True
-                self.failed.append(f"stop {stop.index}, map {orbital_map.name!r}: {exc}")
-                continue
-            covered = True
-            self.seconds.append(registration.seconds)
-            innovation = registration.measurement - predicted
-            innovation[3] = _wrap(innovation[3])
-            rho = self.settings.neighbour_correlation
-            unshared = (1.0 - rho * len(earlier)) * registration.covariance  # what the earlier one's error leaves
-            d2 = float(innovation @ np.linalg.solve(unshared + predicted_cov, innovation))
-            if d2 > self.gate:
-                self.refused.append(stop.index)
-                counts.add("orbital_refused")
-                continue
-            shared = earlier
-            if rho > 0:
-                key = E(len(self.shared_errors))
-                smoother.insert(key, np.zeros(4), leaves_with=X(stop.index))
-                prior = gtsam.noiseModel.Gaussian.Covariance(rho * registration.covariance)
-                smoother.add(gtsam.PriorFactorVector(key, np.zeros(4), prior))
-                self.shared_errors.append(key)
-                self._last[m] = _Neighbour(stop.index, pose.translation()[:2], key)
-                shared = (*earlier, key)
-            own = (1.0 - rho * len(shared)) * registration.covariance
-            arguments = (stop.index, m, registration.measurement, own, shared)
-            smoother.add(orbital_factor(*arguments), rebuild=(orbital_factor, arguments))
-            self.registrations.append((stop.index, m, registration.measurement, registration.covariance))
-            counts.add("orbital_registrations")
+            bias = np.array([smoother.estimate_double(k) for k in bias_keys(m)])
+            if points is not None:
+                covered |= self._register_to_dtm(stop.index, m, points, pose, bias, counts)
+            if ground is not None and orbital_map.orthoimage is not None:
+                covered |= self._register_to_orthoimage(stop.index, m, ground, pose, bias, counts)
         if not covered:
             self.uncovered.append(stop.index)
+
+    def _prediction(self, stop: int, m: int, pose, bias: np.ndarray, shared: tuple[int, ...] = ()
+                    ) -> tuple[np.ndarray, np.ndarray, float]:
+        """The predicted registration to map `m` (east, north, up, yaw) with the errors `shared`
+        with the last site added, its covariance, and the horizontal search it calls for."""
+        smoother = self.loc.smoother
+        jacobians = [None] * 5
+        predicted = predicted_measurement(pose, bias, jacobians)
+        for key in shared:
+            predicted += smoother.vector(key)
+            jacobians.append(np.eye(4))
+        spread = np.hstack(jacobians)
+        covariance = spread @ smoother.joint_marginal_covariance(X(stop), *bias_keys(m), *shared) @ spread.T
+        search = np.clip(self.settings.search_sigmas * np.sqrt(np.linalg.eigvalsh(covariance[:2, :2]).max()),
+                         *self.settings.search_m)
+        return predicted, covariance, float(search)
+
+    def _register_to_dtm(self, stop: int, m: int, points, pose, bias: np.ndarray, counts) -> bool:
+        """The site's points registered to map `m`'s DTM, gated and added; False if the map
+        does not cover the site."""
+        smoother = self.loc.smoother
+        orbital_map = self.maps[m]
+        earlier = self._neighbour(m, pose)
+        predicted, predicted_cov, search = self._prediction(stop, m, pose, bias, earlier)
+        rotation = pose.rotation().matrix()
+        vertical_var = np.einsum("i,nij,j->n", rotation[2], points[1], rotation[2])
+        try:
+            registration = register_site(points[0], vertical_var, _map_pose(pose, bias), orbital_map.dtm,
+                                         self.loc.traverse.origin, search, self.errors, self.settings.max_range_m,
+                                         self.settings.min_points, self.settings.min_distinctness)
+        except MapNotCovering:
+            return False
+        except RegistrationFailed as exc:
+            self.failed.append(f"stop {stop}, map {orbital_map.name!r}: {exc}")
+            return True
+        self.seconds.append(registration.seconds)
+        innovation = registration.measurement - predicted
+        innovation[3] = _wrap(innovation[3])
+        rho = self.settings.neighbour_correlation
+        unshared = (1.0 - rho * len(earlier)) * registration.covariance  # what the earlier one's error leaves
+        d2 = float(innovation @ np.linalg.solve(unshared + predicted_cov, innovation))
+        if d2 > self.gate:
+            self.refused.append(stop)
+            counts.add("orbital_refused")
+            return True
+        shared = earlier
+        if rho > 0:
+            key = E(len(self.shared_errors))
+            smoother.insert(key, np.zeros(4), leaves_with=X(stop))
+            prior = gtsam.noiseModel.Gaussian.Covariance(rho * registration.covariance)
+            smoother.add(gtsam.PriorFactorVector(key, np.zeros(4), prior))
+            self.shared_errors.append(key)
+            self._last[m] = _Neighbour(stop, pose.translation()[:2], key)
+            shared = (*earlier, key)
+        own = (1.0 - rho * len(shared)) * registration.covariance
+        arguments = (stop, m, registration.measurement, own, shared)
+        smoother.add(orbital_factor(*arguments), rebuild=(orbital_factor, arguments))
+        self.registrations.append((stop, m, registration.measurement, registration.covariance))
+        counts.add("orbital_registrations")
+        return True
+
+    def _register_to_orthoimage(self, stop: int, m: int, ground, pose, bias: np.ndarray, counts) -> bool:
+        """The site's ground patch correlated with map `m`'s orthoimage, gated and added (east
+        and north); False if the orthoimage does not cover the site."""
+        orbital_map = self.maps[m]
+        predicted, predicted_cov, search = self._prediction(stop, m, pose, bias)
+        try:
+            found = register_patch(ground, _map_pose(pose, bias), orbital_map.orthoimage, self.loc.traverse.origin,
+                                   search)
+        except MapNotCovering:
+            return False
+        except RegistrationFailed as exc:
+            self.failed.append(f"stop {stop}, map {orbital_map.name!r}'s orthoimage: {exc}")
+            return True
+        innovation = found.measurement - predicted[:2]
+        if float(innovation @ np.linalg.solve(found.covariance + predicted_cov[:2, :2], innovation)) > self.gate_2:
+            self.refused.append(stop)
+            counts.add("orbital_refused")
+            return True
+        arguments = (stop, m, found.measurement, found.covariance, (), (0, 1))
+        self.loc.smoother.add(orbital_factor(*arguments), rebuild=(orbital_factor, arguments))
+        self.ortho_registrations.append((stop, m, found.measurement, found.covariance))
+        counts.add("orbital_registrations")
+        return True
 
     def _neighbour(self, m: int, pose) -> tuple[int, ...]:
         """The error this site's registration to map `m` shares with the map's last one: its key,
@@ -351,6 +413,7 @@ class Orbital(Kind):
         biases = [self._bias(m) for m in range(len(self.maps))]
         degrees = np.array([1.0, 1.0, 1.0, 180.0 / np.pi])
         return {"orbital_registrations_used": len(self.registrations),
+                "orbital_ortho_registrations_used": len(self.ortho_registrations),
                 "orbital_registrations_refused": len(self.refused),
                 "orbital_uncovered_stops": self.uncovered, "orbital_failed_stops": self.failed,
                 "orbital_bias": [(b * degrees).tolist() for b, _ in biases],  # per map: east, north, up m, rotation deg
@@ -370,17 +433,19 @@ class Orbital(Kind):
             estimate, sigma = self._bias(m)
             out["orbital_bias_error_sigmas"].append(((estimate - true) / sigma).tolist())
             true_biases.append(true)
-        errors, nees = [], []
-        for stop, m, measured, covariance in self.registrations:
-            truth_pose = gtsam.Pose3(truth.world_T_body[stop])
-            error = predicted_measurement(truth_pose, true_biases[m]) - measured
-            error[3] = _wrap(error[3])
-            errors.append(np.hypot(*error[:2]))
-            nees.append(float(error @ np.linalg.solve(covariance, error)))
-        if errors:
-            out.update({"orbital_registration_error_median_m": float(np.median(errors)),
-                        "orbital_registration_error_p95_m": float(np.percentile(errors, 95)),
-                        "orbital_registration_nees_mean": float(np.mean(nees))})
+        for name, registrations in (("registration", self.registrations), ("ortho", self.ortho_registrations)):
+            errors, nees = [], []
+            for stop, m, measured, covariance in registrations:
+                truth_pose = gtsam.Pose3(truth.world_T_body[stop])
+                error = predicted_measurement(truth_pose, true_biases[m])[:len(measured)] - measured
+                if len(error) == 4:
+                    error[3] = _wrap(error[3])
+                errors.append(np.hypot(*error[:2]))
+                nees.append(float(error @ np.linalg.solve(covariance, error)))
+            if errors:
+                out.update({f"orbital_{name}_error_median_m": float(np.median(errors)),
+                            f"orbital_{name}_error_p95_m": float(np.percentile(errors, 95)),
+                            f"orbital_{name}_nees_mean": float(np.mean(nees))})
         return out
 
 

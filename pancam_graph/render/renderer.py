@@ -197,6 +197,53 @@ class TerrainRenderer:
         image = np.frombuffer(raw, dtype=np.float32).reshape(camera.height, camera.width)
         return np.flipud(image)  # OpenGL's first row is the bottom one
 
+    def render_top_down(self, map_T_world: np.ndarray, corner: tuple[float, float], pixel_m: float,
+                        size: tuple[int, int], sun_azimuth_deg: float, sun_elevation_deg: float,
+                        heights_m: tuple[float, float]) -> np.ndarray:
+        """An orthographic view from above, as an orbiter's orthoimage: `size` (width, height)
+        pixels of `pixel_m` whose upper-left corner is at map `corner` (x, y; rows run south),
+        where map x, y = map_T_world (2x3, affine) @ (east, north, 1); lit by its own sun
+        (azimuth clockwise from north). Albedo x shading in [0, 1], (height, width) float32; NaN
+        where there is no rendered ground. `heights_m`: the lowest and highest ground."""
+        import moderngl
+
+        width, height = size
+        x0, y0 = corner
+        span_x, span_y = width * pixel_m, height * pixel_m
+        low, high = heights_m
+        affine = np.zeros((4, 4))
+        affine[:2, [0, 1, 3]] = map_T_world
+        affine[2, 2] = affine[3, 3] = 1.0
+        # map x, y to clip x, y over the box; higher ground is nearer (smaller depth)
+        clip_T_map = np.array([[2.0 / span_x, 0.0, 0.0, -2.0 * x0 / span_x - 1.0],
+                               [0.0, 2.0 / span_y, 0.0, -2.0 * (y0 - span_y) / span_y - 1.0],
+                               [0.0, 0.0, -2.0 / (high - low + 2.0), (high + low) / (high - low + 2.0)],
+                               [0.0, 0.0, 0.0, 1.0]])
+        self.program["clip_T_world"].write((clip_T_map @ affine).T.astype("f4").tobytes())
+        sun = self.program["sun"].value
+        el, az = np.deg2rad(sun_elevation_deg), np.deg2rad(sun_azimuth_deg)
+        # the shader's sun is (east, north, up): azimuth from north, clockwise
+        self.program["sun"].value = (float(np.cos(el) * np.sin(az)), float(np.cos(el) * np.cos(az)),
+                                     float(np.sin(el)))
+        fbo = self._framebuffer((width, height))
+        fbo.use()
+        self.ctx.clear(-1.0, -1.0, -1.0, 1.0, depth=1.0)
+        self.ctx.enable(moderngl.DEPTH_TEST)
+        world_T_map = np.linalg.inv(affine)
+        centre = (world_T_map @ [x0 + span_x / 2, y0 - span_y / 2, 0.0, 1.0])[:2]
+        reach = np.hypot(span_x, span_y) / 2 + TILE_M
+        try:
+            for tile_centre, vao in self.tiles:
+                if np.linalg.norm(tile_centre - centre) < reach:
+                    vao.render()
+        finally:
+            self.program["sun"].value = sun
+        self._last = None
+        raw = fbo.read(components=1, dtype="f4")
+        image = np.flipud(np.frombuffer(raw, dtype=np.float32).reshape(height, width)).copy()
+        image[image < 0.0] = np.nan
+        return image
+
     def render(self, world_T_camera: np.ndarray, camera: Camera) -> np.ndarray:
         """What the camera sees through its lens: with distortion, a pinhole image wide enough
         for every pixel is resampled through the lens model (OpenCV's k1, k2, p1, p2)."""

@@ -11,11 +11,14 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from pyproj import CRS
 
 from ..config import RenderConfig, Scenario
 from ..errors import ResultsError
-from ..kinds.orbital import Orbital
-from ..records import GroundTruth, Traverse
+from ..geodesy import LocalFrame
+from ..kinds.orbital import Orbital, OrbitalSensor
+from ..maps import MapBias
+from ..records import GroundTruth, MapRaster, Traverse
 from ..rig import Camera
 from ..sim import kind_rng, simulate
 from ..sim.world import dense_path
@@ -44,10 +47,10 @@ def render_scenario(scenario: Scenario, folder: Path, seed: int | None = None,
     """Write the image folder; returns the number of images."""
     seed = scenario.seed if seed is None else seed
     config = scenario.render
-    traverse, truth = maps_of_rendered_ground(scenario, *simulate(scenario, seed), seed)
     if progress is not None:
         progress("terrain", 0, 1)
     renderer = TerrainRenderer(terrain_tiles(scenario, dense_path(scenario.path), seed), seed=seed)
+    traverse, truth = maps_of_rendered_ground(scenario, *simulate(scenario, seed), seed, renderer)
     rig = traverse.rig
     calibration = raw_stereo_pair(rig.wac, rig.baseline_m, config)
     left_camera, right_camera = calibration.cameras()
@@ -94,18 +97,60 @@ def render_scenario(scenario: Scenario, folder: Path, seed: int | None = None,
     return 2 * len(frames) + sum(2 if p.camera == "wac" else 1 for p in panorama)
 
 
-def maps_of_rendered_ground(scenario: Scenario, traverse: Traverse, truth: GroundTruth, seed: int
-                            ) -> tuple[Traverse, GroundTruth]:
+def maps_of_rendered_ground(scenario: Scenario, traverse: Traverse, truth: GroundTruth, seed: int,
+                            renderer: TerrainRenderer | None = None) -> tuple[Traverse, GroundTruth]:
     """The traverse with its orbital maps made of the ground the images show (the renderer's,
     which is not the measurement-level simulation's landmark terrain), drawn from the same
-    stream as the simulation's: the same georeference error. Unchanged without maps."""
+    stream as the simulation's: the same georeference error. With the `renderer`, the
+    orthoimage is that ground rendered from above under the orbiter's sun, albedo and rocks
+    and all; without, the DTM's hillshade. Unchanged without maps."""
     if Orbital.name not in traverse.measurements:
         return traverse, truth
     ground = Ground(scenario, dense_path(scenario.path), seed)
     truth = replace(truth, terrain=ground.height)
     maps, state = Orbital.simulate_with_truth(scenario.orbital, traverse, truth, kind_rng(seed, Orbital.name))
+    if renderer is not None:
+        bias = MapBias(state["map0_east_m"], state["map0_north_m"], state["map0_rotation_rad"])
+        heights = (float(truth.positions[:, 2].min()) - 50.0, float(truth.positions[:, 2].max()) + 50.0)
+        rng = np.random.default_rng([seed, 13])
+        maps = tuple(replace(m, orthoimage=rendered_orthoimage(renderer, m.orthoimage, traverse.origin, bias,
+                                                                scenario.orbital, heights, rng))
+                     if m.orthoimage is not None else m for m in maps)
     return (replace(traverse, measurements={**traverse.measurements, Orbital.name: maps}),
             replace(truth, kinds={**truth.kinds, Orbital.name: state}))
+
+
+ORTHO_CHUNK_PX = 1024  # rendered a square of this many pixels at a time
+ORTHO_NOISE_DN = 2.0
+
+
+def rendered_orthoimage(renderer: TerrainRenderer, raster: MapRaster, frame: LocalFrame, bias: MapBias,
+                        sensor: OrbitalSensor, heights_m: tuple[float, float], rng: np.random.Generator
+                        ) -> MapRaster:
+    """`raster`'s pixels rendered from above: the ground the map (with its `bias`) puts under
+    each, lit by the orbiter's sun, with sensor noise. 0 where there is no rendered ground (the
+    corridor around the path ends). The map projection is taken as affine over each chunk of
+    ORTHO_CHUNK_PX (512 m at 0.5 m: a few millimetres off at its corners), at the origin's height
+    (a map point's horizontal ENU moves with its height: at 1 km from the origin on Mars, 0.3 mm
+    per metre)."""
+    crs = CRS.from_wkt(raster.crs_wkt)
+    rows, cols = raster.values.shape
+    out = np.zeros((rows, cols), np.uint8)
+    px = raster.post_m
+    for r0 in range(0, rows, ORTHO_CHUNK_PX):
+        for c0 in range(0, cols, ORTHO_CHUNK_PX):
+            h, w = min(ORTHO_CHUNK_PX, rows - r0), min(ORTHO_CHUNK_PX, cols - c0)
+            corner = (raster.x0_m + c0 * px, raster.y0_m - r0 * px)
+            gx, gy = np.meshgrid(corner[0] + np.linspace(0, w * px, 3), corner[1] - np.linspace(0, h * px, 3))
+            map_xy = np.column_stack([gx.ravel(), gy.ravel()])
+            true = bias.from_map(frame.from_map(map_xy, frame.h0_m, crs)[:, :2])
+            map_T_world = np.linalg.lstsq(np.column_stack([true, np.ones(len(true))]), map_xy, rcond=None)[0].T
+            image = renderer.render_top_down(map_T_world, corner, px, (w, h), sensor.sun_azimuth_deg,
+                                             sensor.sun_elevation_deg, heights_m)
+            seen = np.isfinite(image)
+            dn = np.clip(np.rint(np.nan_to_num(image) * 255.0 + rng.normal(0.0, ORTHO_NOISE_DN, image.shape)), 1, 255)
+            out[r0:r0 + h, c0:c0 + w] = np.where(seen, dn, 0).astype(np.uint8)
+    return replace(raster, values=out)
 
 
 def _frame_name(site: int, camera: str, pan_rad: float, tilt_rad: float) -> str:

@@ -1,7 +1,8 @@
 """An image folder's site panoramas into the back-end's panorama and HRC observations: every
 site's features (frontend/panorama.py), its tie points to the last few sites (frontend/ties.py)
 predicted by the stereo VO between the two sites and its covariance (what the `vo`
-configuration knows there), and its features found in its HRC frames (frontend/hrc.py)."""
+configuration knows there), its features found in its HRC frames (frontend/hrc.py) and, when
+the traverse has an orbital orthoimage, its ground seen from above (frontend/dense_stereo.py)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import numpy as np
 
 from ..config import FrontendConfig
 from ..errors import InputError
+from ..frontend.dense_stereo import ground_patch
 from ..frontend.hrc_matching import HrcMatcher, HrcMatches, hrc_footprints
 from ..frontend.motion import VoMotions
 from ..frontend.panorama import PanoramaMatcher, PanoramaView, SitePanorama
@@ -103,6 +105,8 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
     ties = TieMatcher(rig, obs.traverse.image_noise_px)
     hrc_matcher = HrcMatcher(rig) if read_hrc is not None and rig.hrc is not None else None
     hrc_images = images_by_stop(obs, "hrc")
+    # the ground from above, for the orbital kind to correlate with an orthoimage: 1-2 s a site
+    orthoimage = any(m.orthoimage is not None for m in obs.traverse.measurements.get("orbital", ()))
     recent: list[SitePanorama] = []
     stops = list(stops)
     for done, (stop, images) in enumerate(by_stop.items()):
@@ -125,9 +129,10 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
             hrc = [hrc_matcher(site, im.pan_rad, im.tilt_rad, image) for im, image in
                    _readable(hrc_images.get(stop, ()), read_hrc, "HRC frame", skip_bad_frames, report)]
             report.hrc[stop] = hrc
+        ground = ground_patch(views, rig.wac, rig.baseline_m) if orthoimage and views else None
         stops[stop] = replace(stops[stop], site_id=site.site, panorama=tuple(
             PanoramaFrame(v.pan_rad, v.tilt_rad, v.observations) for v in site.views),
-            hrc=tuple(HrcFrame(m.pan_rad, m.tilt_rad, m.track_ids, m.uv) for m in hrc))
+            hrc=tuple(HrcFrame(m.pan_rad, m.tilt_rad, m.track_ids, m.uv) for m in hrc), ground=ground)
         recent = (recent + [site])[-vo.estimator.sites.memory:]
         report.sites.append(_without_images(site))
         if progress is not None:

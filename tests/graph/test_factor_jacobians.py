@@ -156,6 +156,10 @@ def test_orbital_registration_on_pose_map_bias_and_shared_errors_jacobian(bias, 
     for key in keys:
         values.insert(key, rng.normal(0.0, 0.3, 4))
     _check(f, values)
+    # an orthoimage's registration measures east and north only: those rows of the same factor
+    horizontal = orbital_factor(0, 1, np.array([5.0, -0.8]), (a @ a.T)[:2, :2] + np.eye(2) * 0.01, keys, (0, 1))
+    _check(horizontal, values)
+    np.testing.assert_allclose(horizontal.unwhitenedError(values), f.unwhitenedError(values)[:2], atol=1e-12)
     if shared:  # the errors add to the prediction: moving one by d moves the error by d
         moved = gtsam.Values(values)
         moved.update(keys[0], values.atVector(keys[0]) + np.array([0.1, -0.2, 0.05, 0.001]))

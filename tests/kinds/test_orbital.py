@@ -247,3 +247,57 @@ def test_rerun_shows_the_orthoimage_on_the_dtm_and_as_the_2d_map(mars_traverse, 
     assert image.size > 10_000
     path = array(rec.latest("/orbital_map/vo_sites_orbital", "LineStrips2D:strips")[0])
     assert len(path) == len(traverse.stops) and path.min() >= 0
+
+
+@pytest.mark.slow
+def test_neighbouring_registrations_share_an_error_so_the_bias_averages_less(mars_traverse, mars_scenario, mars_run):
+    """With neighbour_correlation 0.25 (a moving average of order one), N registrations in a row
+    tell the map bias what N / 1.5 independent ones would: its sigma east and north grows by
+    up to sqrt(1.5) = 1.22 against independent registrations (less, as the VO and the prior
+    also bound it), the rotation's hardly (the prior holds it). Every registration but the
+    first of a chain shares its predecessor's error."""
+    traverse, truth = mars_traverse
+    settings = mars_scenario.estimator.orbital
+    assert settings.neighbour_correlation == 0.25
+    independent_estimator = mars_scenario.estimator.model_copy(
+        update={"orbital": settings.model_copy(update={"neighbour_correlation": 0.0})})
+    independent = run_traverse(traverse, truth, independent_estimator, 7, RunOptions(configs=(ORBITAL,)))
+    shared = mars_run.configurations[ORBITAL].counters
+    alone = independent.configurations[ORBITAL].counters
+    assert shared["orbital_registrations_used"] == alone["orbital_registrations_used"] >= 6
+    ratio = np.array(shared["orbital_bias_sigma"][0]) / np.array(alone["orbital_bias_sigma"][0])
+    assert np.all(1.05 < ratio[:2]) and np.all(ratio[:2] < 1.23), ratio
+    assert 0.99 < ratio[3] < 1.05, ratio
+
+
+@pytest.mark.slow
+def test_a_sites_ground_from_above_is_found_in_the_orthoimage_and_used(mars_traverse, mars_scenario):
+    """Each site given the ground the map's orthoimage shows around it (as an image folder's
+    dense stereo would give it, here made from the orthoimage with grey-level noise): the kind
+    correlates it, adds an east-north factor per site, and its errors against the truth hold."""
+    from pancam_graph.records import GroundPatch
+
+    traverse, truth = mars_traverse
+    ortho = traverse.measurements["orbital"][0].orthoimage  # 1 m pixels in this fixture
+    bias = _true_bias(truth)
+    frame = traverse.origin
+    rng = np.random.default_rng(5)
+    g = np.arange(-30.0, 30.0, 0.5)
+    stops = list(traverse.stops)
+    for stop in (s for s in stops if s.is_site):
+        world_T_body = truth.world_T_body[stop.index]
+        xy = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2) + world_T_body[:2, 3]
+        world = np.column_stack([xy, truth.terrain(xy)])
+        grey = ortho.at(frame.to_map(np.column_stack([MapBias(bias[0], bias[1], bias[3]).to_map(xy), world[:, 2]])))
+        body = (world - world_T_body[:3, 3]) @ world_T_body[:3, :3]
+        seen = np.isfinite(grey)
+        stops[stop.index] = dataclasses.replace(stop, ground=GroundPatch(
+            body[seen].astype(np.float32), (grey[seen] + rng.normal(0.0, 3.0, seen.sum())).astype(np.float32),
+            np.full(seen.sum(), 8, np.int32), 0.5))
+    with_ground = dataclasses.replace(traverse, stops=tuple(stops))
+    counters = _run_orbital(with_ground, truth, mars_scenario).counters
+    sites = sum(s.is_site for s in traverse.stops)
+    assert counters["orbital_ortho_registrations_used"] >= sites - 1, counters["orbital_failed_stops"]
+    assert counters["orbital_ortho_error_median_m"] < 0.3  # measured: 0.10 m (1 m pixels)
+    assert 0.2 < counters["orbital_ortho_nees_mean"] < 3.0  # 2 dof; measured 0.70 (the 0.2 m floor)
+    assert np.all(np.abs(counters["orbital_bias_error_sigmas"][0]) < 3.0)
