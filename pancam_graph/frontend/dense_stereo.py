@@ -127,7 +127,10 @@ def ground_patch(views: Sequence, camera: Camera, baseline_m: float, max_range_m
     if not positions or not sum(len(p) for p in positions):
         return None
     points, grey = np.vstack(positions), np.concatenate(greys)
-    cells, index = np.unique(np.floor(points[:, :2] / cell_m).astype(np.int64), axis=0, return_inverse=True)
+    ij = np.floor(points[:, :2] / cell_m).astype(np.int64)
+    ij -= ij.min(axis=0)
+    # one integer per cell: np.unique on rows sorts them as structured records, ten times slower
+    cells, index = np.unique(ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1], return_inverse=True)
     count = np.bincount(index, minlength=len(cells))
     mean = np.column_stack([np.bincount(index, points[:, k], len(cells)) for k in range(3)]) / count[:, None]
     return GroundPatch(mean.astype(np.float32), (np.bincount(index, grey, len(cells)) / count).astype(np.float32),
