@@ -34,9 +34,6 @@ def dense_points(left: np.ndarray, right: np.ndarray, camera: Camera, baseline_m
                  max_range_m: float = 40.0) -> np.ndarray:
     """Points (N, 3) in the rectified left camera's frame from one rectified pair, out to
     `max_range_m` along the optical axis."""
-    if left.dtype != np.uint8 or right.dtype != np.uint8 or left.ndim != 2 or left.shape != right.shape:
-        raise FrontendError(f"dense stereo needs two 8-bit grey images of one size, not {left.dtype} {left.shape} "
-                            f"and {right.dtype} {right.shape}")
     disparity, least, _ = _disparity(left, right, camera, baseline_m, max_range_m)
     rows, cols = np.mgrid[GRID_PX // 2:disparity.shape[0]:GRID_PX, GRID_PX // 2:disparity.shape[1]:GRID_PX]
     points = _triangulated(disparity, rows, cols, least, camera, baseline_m)
