@@ -125,7 +125,6 @@ def orbital_factor(stop: int, map_index: int, measured: np.ndarray, covariance: 
 class _Neighbour:
     """A map's last registration: where its site is and the error the next one may share."""
 
-    stop: int
     position: np.ndarray  # east, north (m) as estimated then
     shared_key: int
 
@@ -347,7 +346,7 @@ class Orbital(Kind):
             prior = gtsam.noiseModel.Gaussian.Covariance(rho * registration.covariance)
             smoother.add(gtsam.PriorFactorVector(key, np.zeros(4), prior))
             self.shared_errors.append(key)
-            self._last[m] = _Neighbour(stop, pose.translation()[:2], key)
+            self._last[m] = _Neighbour(pose.translation()[:2], key)
             shared = (*earlier, key)
         own = (1.0 - rho * len(shared)) * registration.covariance
         arguments = (stop, m, registration.measurement, own, shared)
