@@ -2,8 +2,8 @@
 
 Method: triangulate the previous stop's matches (seed eq. 2.28), estimate the motion by
 3-D to 2-D PnP with RANSAC (OpenCV), then refine it by a bundle adjustment over the two
-stops (GTSAM stereo factors, previous pose held fixed) whose marginal gives the 6x6
-covariance of the relative pose. Outliers left after RANSAC are removed by a chi-square
+stops (two_stop_adjustment.py: GTSAM's stereo factors' system, previous pose held fixed)
+whose marginal gives the 6x6 covariance of the relative pose. Outliers left after RANSAC are removed by a chi-square
 test on the bundle-adjustment residuals.
 """
 
@@ -17,14 +17,13 @@ import numpy as np
 
 from .. import chi2
 from ..config import EstimatorConfig
-from ..graph import noise
-from ..graph.keys import L, X
 from ..records import StereoObservations, Traverse
 from ..rig import Rig, triangulate_rectified, triangulation_covariance
+from .two_stop_adjustment import StereoIntrinsics, adjust_two_stops
 
 _CHI2_6DOF_99 = chi2.quantile(0.99, 6)  # a point's two stereo residuals (2 x 3 px components): outlier gate
 _CHI2_3DOF_999 = chi2.quantile(0.999, 3)  # a point's two triangulations (3-D difference): re-admission gate
-# A step whose two-stop adjustment GTSAM cannot solve (a landmark placed where the system is
+# A step whose two-stop adjustment cannot be solved (a landmark placed where the system is
 # nearly singular) is a VO failure like any other: the motion bridges it.
 _INDETERMINATE = "two-stop adjustment indeterminate"
 
@@ -61,9 +60,8 @@ class StereoVO:
 
     def __post_init__(self) -> None:
         self.left_T_body = self.body_T_left.inverse()
-        self.calibration = self.rig.stereo_calibration()
+        self.intrinsics = StereoIntrinsics.of(self.rig.stereo_calibration())
         self.K = self.rig.wac.matrix()
-        self.noise = noise.stereo_pixels(self.pixel_sigma)
         self.ransac_px = max(self.ransac_px, 4.0 * self.pixel_sigma)
 
     @classmethod
@@ -118,13 +116,19 @@ class StereoVO:
         # grows with range squared: it rejects most distant features however good they are. Judge
         # every match again at the refined pose, by how well its two triangulations agree given
         # their covariances, and re-solve with all that pass (the seed's error model, eq. 3.3).
+        # A re-admitted mismatch can still wreck the re-solve (one with a fraction of a pixel of
+        # disparity now, whose range error hides it): then the matches the first solve kept.
         agree = self._consistent(a, b, p_prev, pose)
-        inl = np.flatnonzero(agree) if agree.sum() >= keep.sum() else inl[keep]
-        pose, cov, keep = self._bundle_adjust(a[inl], b[inl], p_prev[inl], pose)
-        if pose is None:
+        first = inl[keep]
+        for inl in ([np.flatnonzero(agree), first] if agree.sum() >= keep.sum() else [first]):
+            refined, cov, keep = self._bundle_adjust(a[inl], b[inl], p_prev[inl], pose)
+            if refined is not None and keep.sum() >= self.min_inliers:
+                break
+        if refined is None:
             return VoResult(False, None, None, matches, len(inl), _INDETERMINATE)
         if keep.sum() < self.min_inliers:
             return VoResult(False, None, None, matches, int(keep.sum()), "too few inliers after BA")
+        pose = refined
         if keep.sum() < len(keep):
             pose, cov, _ = self._bundle_adjust(a[inl][keep], b[inl][keep], p_prev[inl][keep], pose)
             if pose is None:
@@ -162,35 +166,9 @@ class StereoVO:
 
     def _bundle_adjust(self, a, b, p_prev_cam, guess: gtsam.Pose3, covariance: bool = True):
         """(pose, its 6x6 covariance or None without `covariance`, which matches pass the outlier gate);
-        (None, None, None) when GTSAM finds the two-stop system indeterminate."""
-        graph = gtsam.NonlinearFactorGraph()
-        values = gtsam.Values()
-        # A tight prior rather than a hard equality: Marginals needs an ordinary Gaussian system.
-        graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-9)))
-        values.insert(X(0), gtsam.Pose3())
-        values.insert(X(1), guess)
-        for j in range(len(a)):
-            graph.add(gtsam.GenericStereoFactor3D(
-                gtsam.StereoPoint2(*a[j]), self.noise, X(0), L(j), self.calibration, self.body_T_left))
-            graph.add(gtsam.GenericStereoFactor3D(
-                gtsam.StereoPoint2(*b[j]), self.noise, X(1), L(j), self.calibration, self.body_T_left))
-            values.insert(L(j), self.body_T_left.transformFrom(p_prev_cam[j]))
-        # The landmarks first, then the poses: the Schur complement, without COLAMD every iteration.
-        ordering = gtsam.Ordering()
-        for j in range(len(a)):
-            ordering.push_back(L(j))
-        ordering.push_back(X(0))
-        ordering.push_back(X(1))
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(15)
-        params.setOrdering(ordering)
-        try:
-            result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-            cov = gtsam.Marginals(graph, result).marginalCovariance(X(1)) if covariance else None
-        except RuntimeError:  # GTSAM's IndeterminateLinearSystemException: a point it cannot place
+        (None, None, None) when the two-stop system is indeterminate."""
+        solution = adjust_two_stops(a, b, p_prev_cam, guess, self.intrinsics, self.body_T_left, self.pixel_sigma,
+                                    covariance)
+        if solution is None:
             return None, None, None
-        # Whitened residual of each stereo pair of factors: index 1 + 2j and 2 + 2j.
-        err = np.array([graph.at(1 + 2 * j).error(result) + graph.at(2 + 2 * j).error(result)
-                        for j in range(len(a))])
-        keep = 2.0 * err < _CHI2_6DOF_99
-        return result.atPose3(X(1)), cov, keep
+        return solution.prev_T_curr, solution.covariance, solution.point_chi2 < _CHI2_6DOF_99

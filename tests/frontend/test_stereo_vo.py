@@ -60,15 +60,33 @@ def test_vo_without_matches_reports_failure(short_scenario):
     assert not r.ok and "matches" in r.reason
 
 
-def test_a_step_gtsam_cannot_solve_is_a_vo_failure_and_the_run_bridges_it():
-    """denver_trail seed 116, stop 313: the two-stop adjustment is indeterminate (GTSAM raised
-    from the VO worker and ended the whole run); it is a failed step, bridged like the others."""
+def test_a_readmitted_mismatch_that_wrecks_the_resolve_falls_back_to_the_first_matches():
+    """denver_trail seed 116, stop 313: a mismatch re-admitted by the triangulation test (0.6 px
+    of disparity at the current stop, its range error hides it) wrecked the re-solve (GTSAM
+    called it indeterminate; 2 inliers were left). The matches the first solve kept give the
+    step, and it agrees with the truth within its covariance."""
     from pancam_graph.config import load_scenario, resolve_scenario
 
     scenario = load_scenario(resolve_scenario("denver_trail"))
-    traverse, _ = simulate(scenario, 116)
+    traverse, truth = simulate(scenario, 116)
     vo = StereoVO.for_traverse(traverse, scenario.estimator)
     result = vo.estimate(traverse.stops[312].stereo, traverse.stops[313].stereo)
+    assert result.ok and result.inliers >= 50
+    true = gtsam.Pose3(truth.world_T_body[312]).between(gtsam.Pose3(truth.world_T_body[313]))
+    e = true.localCoordinates(result.prev_T_curr)
+    assert e @ np.linalg.solve(result.covariance, e) < THREE_SIGMA_6DOF
+
+
+def test_an_indeterminate_adjustment_is_a_vo_failure_and_the_run_bridges_it(short_scenario, monkeypatch):
+    """A two-stop adjustment that cannot be solved (a point behind a camera, a singular block)
+    is a failed step, bridged like the others: not an error that ends the run."""
+    from pancam_graph.frontend import stereo_vo
+
+    traverse, _ = simulate(short_scenario, 0)
+    vo = StereoVO.for_traverse(traverse)
+    assert vo.estimate(traverse.stops[0].stereo, traverse.stops[1].stereo).ok
+    monkeypatch.setattr(stereo_vo, "adjust_two_stops", lambda *args, **kwargs: None)
+    result = vo.estimate(traverse.stops[0].stereo, traverse.stops[1].stereo)
     assert not result.ok and result.reason == "two-stop adjustment indeterminate"
-    motion = motion_between(vo, traverse.stops[312], traverse.stops[313], None, traverse.wheel_slip)
+    motion = motion_between(vo, traverse.stops[0], traverse.stops[1], None, traverse.wheel_slip)
     assert motion.bridged and motion.source != "vo"
