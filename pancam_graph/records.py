@@ -8,7 +8,7 @@ travels separately (`GroundTruth`) and is used only for evaluation.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
@@ -156,6 +156,14 @@ class Traverse:
         if self.body_T_nav_left is not None:
             return gtsam.Pose3(self.body_T_nav_left)
         return self.rig.body_T_left(0.0, self.traverse_tilt_rad)
+
+    def keeping(self, stop_fields: set[str]) -> Traverse:
+        """The traverse with only these of its stops' image records (`stereo`, `panorama`, `hrc`,
+        `ground`): what a worker process running some configurations on given motions reads."""
+        empty = StereoObservations.empty()
+        cleared = {"stereo": empty, "panorama": (), "hrc": (), "ground": None}
+        cleared = {name: value for name, value in cleared.items() if name not in stop_fields}
+        return replace(self, stops=tuple(replace(stop, **cleared) for stop in self.stops))
 
     @property
     def gps_fixes(self) -> tuple[GpsFix, ...]:

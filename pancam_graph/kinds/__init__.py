@@ -45,6 +45,11 @@ def relative_cost(kinds: list[str]) -> float:
     return 1.0 + sum(KINDS[k].cost for k in kinds)
 
 
+def stop_records(kinds: list[str]) -> set[str]:
+    """The stops' image records a configuration reads besides the stereo VO's (Kind.stop_records)."""
+    return set().union(*(KINDS[k].stop_records for k in kinds))
+
+
 def configuration_problem(kinds: list[str]) -> str | None:
     """Why a list of kinds is not a configuration, or None."""
     unknown = [k for k in kinds if k not in KINDS]
@@ -72,4 +77,4 @@ def unavailable(kinds: list[str], traverse: Traverse) -> str | None:
 
 
 __all__ = ["COUNTER_DEFAULTS", "KINDS", "STEP_COUNTERS", "Kind", "absolute", "configuration_problem", "relative_cost",
-           "unavailable", "uses_vo"]
+           "stop_records", "unavailable", "uses_vo"]

@@ -76,6 +76,9 @@ class Kind:
     needs: ClassVar[dict[str, str]] = {}  # kinds it hooks into, which a configuration must have too: why
     absolute: ClassVar[bool] = False  # an absolute position (bounds the uncertainty: GPS)
     cost: ClassVar[float] = 0.0  # time per stop it adds, relative to plain VO's (balances groups of configurations)
+    # The stops' image records it reads (Stop.panorama, .hrc, .ground): a worker process running
+    # configurations without it is sent a traverse without them.
+    stop_records: ClassVar[frozenset[str]] = frozenset()
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)

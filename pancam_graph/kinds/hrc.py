@@ -33,6 +33,7 @@ class Hrc(Kind):
     Settings = HrcSettings
 
     records = "HRC frames"
+    stop_records = frozenset({"hrc"})
 
     @staticmethod
     def has_records(traverse: Traverse) -> bool:

@@ -178,6 +178,7 @@ class Orbital(Kind):
     order = 8
     absolute = True
     cost = 0.5
+    stop_records = frozenset({"ground"})
     Settings = OrbitalSettings
     Sensor = OrbitalSensor
     step_counters = {"orbital_registrations": 0, "orbital_refused": 0}

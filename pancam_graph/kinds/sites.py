@@ -63,6 +63,7 @@ class Sites(Kind):
     name = "sites"
     order = 3
     cost = 3.0
+    stop_records = frozenset({"panorama"})
     step_counters = {"new_landmarks": 0, "rejected_ties": 0}
     counter_defaults = {"landmarks": 0, "rejected_tie_points": 0, "rejected_tie_views": 0}
     Settings = SitesSettings

@@ -24,7 +24,7 @@ from dataclasses import replace
 from ..errors import GraphError
 from ..frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_from
 from ..frontend.vo_ahead import BLOCK_STOPS, VoAhead
-from ..kinds import uses_vo
+from ..kinds import stop_records, uses_vo
 from ..processes import process_context
 from ..records import Traverse
 from .group import GroupJob, GroupOutcome, ProgressCallback, new_state, run_group
@@ -57,8 +57,8 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
         def submit(g: int, motions: list[Motion | None], vo_s: float) -> None:
             state = resume[g] if resume and g < len(resume) else None
             part = save.part(g) if save is not None else None
-            futures[g] = pool.submit(_run_group_in_worker, replace(job, configs=groups[g]), g, state, motions,
-                                     dr_motions, vo_s, part, start)
+            futures[g] = pool.submit(_run_group_in_worker, _job_of(job, groups[g]), g, state, motions, dr_motions,
+                                     vo_s, part, start)
 
         for g, configs in enumerate(groups):
             if not _uses_vo(configs):
@@ -79,6 +79,14 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
         done[-1] = 1  # when one group failed or the run was interrupted, the others stop at their next stop
         pool.shutdown(wait=True, cancel_futures=True)
         memory.stop()
+
+
+def _job_of(job: GroupJob, configs: dict[str, list[str]]) -> GroupJob:
+    """A group's job, its traverse without the image records its configurations do not read:
+    the motions are given, so no stereo, and no panoramas without sites. Less to pickle and to
+    hold in the worker (long_traverse's stereo and panoramas are 42 of its 48 MB pickled)."""
+    records = stop_records([kind for kinds in configs.values() for kind in kinds])
+    return replace(job, configs=configs, traverse=job.traverse.keeping(records))
 
 
 def _uses_vo(configs: dict[str, list[str]]) -> bool:

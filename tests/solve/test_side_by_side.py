@@ -81,3 +81,24 @@ def test_a_run_checkpointed_in_groups_resumes_to_the_same_estimate(short_trail, 
     # and in this process, one group after the other
     inputs, states = read_checkpoint(tmp_path)
     _assert_same(whole, _run(inputs.data, RunOptions(), resume=states))
+
+
+def test_a_group_is_sent_only_the_image_records_it_reads(short_trail):
+    """The motions are given to a worker, so it gets no stereo; panoramas and HRC frames only
+    with the kinds that read them. (That the estimates do not change is the test above.)"""
+    from pancam_graph.solve.group import GroupJob
+    from pancam_graph.solve.side_by_side import _job_of
+
+    job = GroupJob(short_trail.traverse, short_trail.truth, short_trail.estimator, 0, SIDE_BY_SIDE, (), {})
+    sites = [s for s in short_trail.traverse.stops if s.is_site]
+    assert sites and all(s.panorama and s.hrc for s in sites)
+    dr = _job_of(job, {"dead_reckoning": ["dead_reckoning"], "dead_reckoning_gps": ["dead_reckoning", "gps"]})
+    with_sites = _job_of(job, {"vo_sites": ["vo", "sites"]})
+    with_hrc = _job_of(job, {"vo_sites_hrc": ["vo", "sites", "hrc"]})
+    for g in (dr, with_sites, with_hrc):
+        assert all(len(s.stereo.track_ids) == 0 for s in g.traverse.stops)
+        assert g.traverse.gps_fixes == short_trail.traverse.gps_fixes
+        assert [s.dead_reckoning for s in g.traverse.stops] == [s.dead_reckoning for s in short_trail.traverse.stops]
+    assert not any(s.panorama or s.hrc for s in dr.traverse.stops)
+    assert all(s.panorama and not s.hrc for s in with_sites.traverse.stops if s.is_site)
+    assert all(s.panorama and s.hrc for s in with_hrc.traverse.stops if s.is_site)
