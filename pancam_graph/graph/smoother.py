@@ -310,7 +310,7 @@ class Smoother:
         values.insert(self.frozen)
         return values
 
-    def marginals_at(self, values: gtsam.Values, keys: list[int]) -> dict[int, np.ndarray]:
+    def marginals_at(self, values: gtsam.Values, keys: list[int], factorization: str = "QR") -> dict[int, np.ndarray]:
         """Marginal covariances (tangent spaces) of `keys` from this smoother's graph linearized
         at `values` and never relinearized (the bound at the truth), through the same window: a
         variable that left it has the marginal it had as it left, the others the window's at the
@@ -319,9 +319,10 @@ class Smoother:
         all of it.
 
         The updates are replayed one window step at a time: variables leave by steps, so each
-        step's first update is where they do."""
+        step's first update is where they do. `factorization`: "QR", or "CHOLESKY" (faster,
+        where an absolute reference bounds the graph; see the class docstring)."""
         params = gtsam.ISAM2Params()
-        params.setFactorization("QR")  # see the class docstring
+        params.setFactorization(factorization)
         params.enableRelinearization = False
         isam = gtsam.IncrementalFixedLagSmoother(self.window_m, params)
         wanted = set(keys)

@@ -14,6 +14,7 @@ from pancam_graph.evaluation.consistency import (
     monte_carlo_summary,
     nees_along_run,
 )
+from pancam_graph.errors import GraphError
 from pancam_graph.graph.keys import X
 from pancam_graph.graph.smoother import RelinearizeThresholds, Smoother
 from pancam_graph.solve.results import metrics_document
@@ -39,6 +40,22 @@ def test_crlb_of_a_chain_is_the_sum_of_its_step_variances():
     covs = crlb_position_covariances(smoother, [0, 1, 2, 3], truth, {})
     for k in range(4):
         assert covs[k] == pytest.approx((0.01 + k * 0.0004) * np.eye(3), rel=1e-6)
+    # with the smoother's Cholesky (GPS runs), the same bound; where Cholesky fails, QR's
+    smoother.factorization = "CHOLESKY"
+    np.testing.assert_allclose(crlb_position_covariances(smoother, [0, 1, 2, 3], truth, {}), covs, rtol=1e-9)
+    asked = []
+    real = Smoother.marginals_at
+
+    def cholesky_fails(self, values, keys, factorization="QR"):
+        asked.append(factorization)
+        if factorization == "CHOLESKY":
+            raise GraphError("indeterminate")
+        return real(self, values, keys, factorization)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(Smoother, "marginals_at", cholesky_fails)
+        np.testing.assert_allclose(crlb_position_covariances(smoother, [0, 1, 2, 3], truth, {}), covs, rtol=1e-9)
+    assert asked == ["CHOLESKY", "QR"]
 
 
 def test_anees_tells_right_from_overconfident_covariances():
