@@ -74,13 +74,14 @@ def bench_runs(scenario: str, seed: int | None = None, seeds: int = 1, rerun: bo
     # the first seed's cost along the path: flat, or growing with the traverse?
     report["isam2_update_ms_per_km"] = cost_along(results[0], 1000.0)
     distance = results[0].reference_distance()
-    report["peak_rss_mb_along_path"] = [{"at_m": round(float(distance[k]), 1), "peak_rss_mb": round(mb, 1)}
-                                        for k, mb in memory_along(results[0])]
+    report["rss_mb_along_path"] = {group: [{"at_m": round(float(distance[k]), 1), "rss_mb": round(mb, 1)}
+                                           for k, mb in samples]
+                                   for group, samples in memory_along(results[0]).items()}
     if plot is not None:
         from .viz.plots import plot_cost_along
 
         try:
-            plot_cost_along(report["isam2_update_ms_per_km"], report["peak_rss_mb_along_path"],
+            plot_cost_along(report["isam2_update_ms_per_km"], report["rss_mb_along_path"],
                             f"{sc.name} seed {first}", plot)
         except OSError as exc:
             raise ResultsError(f"--plot {plot}: cannot write it: {exc.strerror}") from None

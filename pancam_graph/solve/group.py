@@ -23,7 +23,7 @@ from ..kinds import absolute
 from ..records import GpsFix, GroundTruth, Traverse
 from .listener import NullListener, RunListener
 from .localizer import Localizer, StepResult
-from .memory import peak_rss_mb, pss_mb, release_memory, settle_garbage_collector
+from .memory import pss_mb, release_memory, rss_mb, settle_garbage_collector
 from .results import ConfigurationResult, ProcessUse, RunOptions
 from .state import CHECKPOINT_EVERY_STOPS, Checkpoints, RunState
 
@@ -118,7 +118,7 @@ def new_state(job: GroupJob) -> RunState:
 
 
 def _sample_memory(state: RunState, stop: int) -> None:
-    state.memory_mb.append((stop, peak_rss_mb()))
+    state.memory_mb.append((stop, rss_mb()))
     state.peak_pss_mb = max(state.peak_pss_mb, pss_mb() or 0.0)
 
 

@@ -104,8 +104,8 @@ class ConfigurationResult:
 @dataclass(frozen=True)
 class ProcessUse:
     """A group of configurations and the process that ran it: which configurations, for how
-    long (s, from its first stop to its configurations evaluated) and the process's peak
-    resident memory, (stop, MB) at the run's checkpoints (a process may run several groups),
+    long (s, from its first stop to its configurations evaluated) and the process's resident
+    memory, (stop, MB) at the run's checkpoints (a process may run several groups),
     and its largest proportional set size (shared pages counted as its share; None: unknown)."""
 
     label: str
@@ -193,22 +193,11 @@ def cost_along(result: RunResult, window_m: float = 1000.0) -> dict[str, list[di
     return out
 
 
-def memory_along(result: RunResult) -> list[tuple[int, float]]:
-    """(stop, MB): at each checkpoint, the peak resident memory so far of the processes that
-    ran the configurations, summed (each at its latest sample by then)."""
-    by_pid: dict[int, dict[int, float]] = {}
-    for p in result.processes:  # a process's peak never falls: its later group's samples add to its earlier's
-        by_pid.setdefault(p.pid, {}).update(p.memory_mb)
-    per_process = [samples for samples in by_pid.values() if samples]
-    stops = sorted({k for samples in per_process for k in samples})
-    out = []
-    for k in stops:
-        total = 0.0
-        for samples in per_process:
-            before = [stop for stop in samples if stop <= k]
-            total += samples[max(before)] if before else 0.0
-        out.append((k, total))
-    return out
+def memory_along(result: RunResult) -> dict[str, list[tuple[int, float]]]:
+    """Each group of configurations' process: (stop, its resident memory in MB) at each
+    checkpoint. Flat after the first window is a run that keeps nothing per stop in memory."""
+    return {f"{p.label}: {', '.join(p.configurations)}": list(p.memory_mb) for p in result.processes
+            if p.memory_mb}
 
 
 # metrics.json's layout: every command that writes one (run, eval) writes this version; a reader

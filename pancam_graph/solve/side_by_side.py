@@ -17,7 +17,8 @@ from __future__ import annotations
 import os
 import threading
 import time
-from concurrent.futures import FIRST_EXCEPTION, Future, ProcessPoolExecutor, wait
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import replace
 
@@ -63,15 +64,24 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
         for g, configs in enumerate(groups):
             if not _uses_vo(configs):
                 submit(g, list(dr_motions), 0.0)
-        if len(futures) < len(groups):
-            motions, vo_s = _vo_motions(job, resume, known, pool, progress)
-            for g, configs in enumerate(groups):
-                if _uses_vo(configs):
-                    submit(g, motions, vo_s)
-        ordered = [futures[g] for g in range(len(groups))]
-        release_memory()  # the jobs' pickles (the traverse, once per group) are the workers' now
-        _wait(ordered, groups, done, n, progress)
-        return [f.result() for f in ordered]
+        waiting = [g for g, configs in enumerate(groups) if _uses_vo(configs)]
+        motions, vo_s = _vo_motions(job, resume, known, pool, progress) if waiting else ([], 0.0)
+
+        def submit_to_free_workers() -> None:
+            # A job waiting in the pool's queue is held pickled (its traverse) in this process
+            # until a worker takes it: submit one only when a worker is free.
+            submitted = False
+            while waiting and sum(not f.done() for f in futures.values()) < workers:
+                submit(waiting.pop(0), motions, vo_s)
+                submitted = True
+            if submitted:
+                release_memory()  # the job's pickle is the worker's now
+
+        _wait(futures, len(groups), submit_to_free_workers, done, n, progress)
+        for f in futures.values():  # the first group that failed, before any that never started
+            if f.done() and f.exception() is not None:
+                f.result()
+        return [futures[g].result() for g in range(len(groups))]
     except BrokenProcessPool as exc:
         raise GraphError(f"a process running configurations stopped unexpectedly (killed, or out of memory?): "
                          f"{exc}") from None
@@ -122,17 +132,20 @@ def _vo_motions(job: GroupJob, resume: list[RunState] | None, known: VoMotions |
     return motions, time.perf_counter() - t0
 
 
-def _wait(futures: list[Future], groups: list[dict[str, list[str]]], done, n: int,
+def _wait(futures: dict[int, Future], count: int, refill: Callable[[], None], done, n: int,
           progress: ProgressCallback | None) -> None:
-    """Until every group is done; the first to fail stops the wait (its error is raised by
-    its result)."""
-    pending = set(futures)
-    while pending:
-        finished, pending = wait(pending, timeout=0.5, return_when=FIRST_EXCEPTION)
+    """Until all `count` groups are submitted (`refill` submits to free workers) and done; the
+    first to fail stops the wait (its error is raised by its result)."""
+    while True:
+        refill()
+        running = [f for f in futures.values() if not f.done()]
+        if not running and len(futures) == count:
+            return
+        finished, _ = wait(running, timeout=0.5, return_when=FIRST_COMPLETED)
         if any(f.exception() is not None for f in finished):
             return
         if progress is not None:
-            progress(f"stops ({len(groups)} groups side by side)", min(done[:-1]), n)
+            progress(f"stops ({count} groups side by side)", min(done[:-1]), n)
 
 
 class MemoryWatch:

@@ -27,7 +27,7 @@ class RunState:
     steps: dict[str, list[StepResult]]
     vo_s: float = 0.0
     elapsed_s: float = 0.0  # wall time spent on the run before this state
-    memory_mb: list[tuple[int, float]] = field(default_factory=list)  # (stop, peak RSS of the process) at checkpoints
+    memory_mb: list[tuple[int, float]] = field(default_factory=list)  # (stop, the process's resident MB) at checkpoints
     peak_pss_mb: float = 0.0  # the process's largest proportional set size seen at checkpoints
 
 

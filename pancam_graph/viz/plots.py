@@ -189,9 +189,10 @@ def evaluation_plot(evaluation: Evaluation, path: Path) -> None:
     _save(fig, path)
 
 
-def plot_cost_along(per_km: dict[str, list[dict]], memory: list[dict], title: str, path: Path) -> None:
+def plot_cost_along(per_km: dict[str, list[dict]], memory: dict[str, list[dict]], title: str, path: Path) -> None:
     """bench's cost against distance: each configuration's iSAM2 update median (line) and p99
-    (dashed) per window of path, and the process's peak memory along the path. Flat is bounded."""
+    (dashed) per window of path, and each group of configurations' process's resident memory
+    along the path. Flat is bounded."""
     fig, (ax, mem) = plt.subplots(2, 1, figsize=(9, 7), dpi=110, sharex=True, height_ratios=[2, 1])
     for name, windows in per_km.items():
         km = [(w["from_m"] + 500.0) / 1000.0 for w in windows]
@@ -200,7 +201,7 @@ def plot_cost_along(per_km: dict[str, list[dict]], memory: list[dict], title: st
         ax.plot(km, [w["p99"] for w in windows], "--", color=colour, alpha=0.6)
     ax.set_yscale("log")
     _label(ax, "", "iSAM2 update per stop (ms)", f"{title}: cost along the traverse (dashed: p99)")
-    mem.plot([m["at_m"] / 1000.0 for m in memory], [m["peak_rss_mb"] for m in memory], color="k",
-             label="peak resident memory so far")
-    _label(mem, "distance along the path (km)", "peak RSS (MB)", "")
+    for group, samples in memory.items():
+        mem.plot([m["at_m"] / 1000.0 for m in samples], [m["rss_mb"] for m in samples], label=group)
+    _label(mem, "distance along the path (km)", "resident memory (MB)", "")
     _save(fig, path)

@@ -162,9 +162,9 @@ def test_bench_prints_json(tmp_path):
     assert memory["pss"]["sum"] >= memory["pss"]["this process"] > 0 and memory["at_once"] > 0
     # cost along the path, per 1 km window (short_trail: one window holding every stop's update)
     assert [w["updates"] for w in report["isam2_update_ms_per_km"]["vo"]] == [report["stops"][0]]
-    along = report["peak_rss_mb_along_path"]
+    (along,) = report["rss_mb_along_path"].values()  # short_trail runs in one process, one group
     assert len(along) >= 2 and along[-1]["at_m"] > along[0]["at_m"]
-    assert along[-1]["peak_rss_mb"] >= along[0]["peak_rss_mb"] > 0
+    assert all(100 < m["rss_mb"] < 4000 for m in along)
     assert (tmp_path / "cost.png").stat().st_size > 10_000
 
 

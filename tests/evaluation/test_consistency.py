@@ -5,6 +5,7 @@ import gtsam
 import numpy as np
 import pytest
 
+from pancam_graph.errors import GraphError
 from pancam_graph.evaluation.consistency import (
     NEES_BOUND_99,
     anees_band,
@@ -14,7 +15,6 @@ from pancam_graph.evaluation.consistency import (
     monte_carlo_summary,
     nees_along_run,
 )
-from pancam_graph.errors import GraphError
 from pancam_graph.graph.keys import X
 from pancam_graph.graph.smoother import RelinearizeThresholds, Smoother
 from pancam_graph.solve.results import metrics_document

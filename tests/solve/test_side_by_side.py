@@ -102,3 +102,47 @@ def test_a_group_is_sent_only_the_image_records_it_reads(short_trail):
     assert not any(s.panorama or s.hrc for s in dr.traverse.stops)
     assert all(s.panorama and not s.hrc for s in with_sites.traverse.stops if s.is_site)
     assert all(s.panorama and s.hrc for s in with_hrc.traverse.stops if s.is_site)
+
+
+def _three_groups_on_two_workers(failing):
+    """Three groups waited for by side_by_side._wait on two "workers" (a pool of three threads:
+    the refill must hold back): the futures it submitted and the most that ran at once."""
+    import threading
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    from pancam_graph.solve.side_by_side import _wait
+
+    running, most, lock = [0], [0], threading.Lock()
+
+    def group(fail: bool) -> str:
+        with lock:
+            running[0] += 1
+            most[0] = max(most[0], running[0])
+        time.sleep(0.01 if fail else 0.2)  # the failure comes first
+        with lock:
+            running[0] -= 1
+        if fail:
+            raise RuntimeError("group failed")
+        return "ok"
+
+    futures, waiting = {}, [0, 1, 2]
+    with ThreadPoolExecutor(3) as pool:
+        def refill():
+            while waiting and sum(not f.done() for f in futures.values()) < 2:
+                g = waiting.pop(0)
+                futures[g] = pool.submit(group, g == failing)
+
+        _wait(futures, 3, refill, [0, 0, 0, 0], 10, None)
+    return futures, most[0]
+
+
+def test_groups_wait_for_a_free_worker_and_a_failure_stops_the_wait():
+    """A group's job is submitted only when a worker is free (a queued job is held pickled in
+    the run's process); the first group that fails ends the wait before the rest start."""
+    futures, most = _three_groups_on_two_workers(None)
+    assert len(futures) == 3 and most == 2 and all(f.result() == "ok" for f in futures.values())
+    futures, most = _three_groups_on_two_workers(0)
+    assert sorted(futures) == [0, 1] and most == 2
+    with pytest.raises(RuntimeError, match="group failed"):
+        futures[0].result()
