@@ -11,13 +11,13 @@ import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 from urllib.parse import quote
 
-import rerun as rr
-
 from ..errors import ViewerUnavailable
-from .rerun_scene import APP_ID
+
+if TYPE_CHECKING:  # rerun is imported when a recording opens: 0.25 s a run without one
+    import rerun as rr
 
 DEFAULT_VIEWER_MEMORY = "25%"  # of system RAM; the viewer drops the oldest data beyond it
 GRPC_PORT, WEB_VIEWER_PORT = 9876, 9090  # rerun's own defaults: served there while they are free
@@ -85,6 +85,10 @@ class OpenRecording:
 def open_recording(target: RerunTarget, name: str, on_viewer: Callable[[str], None] | None = None) -> OpenRecording:
     """The recording stream to `target`; a served one's web viewer address goes to `on_viewer`
     as soon as it is up."""
+    import rerun as rr
+
+    from .rerun_scene import APP_ID
+
     stream = rr.RecordingStream(APP_ID, recording_id=str(uuid.uuid4()))
     stream.send_recording_name(name)
     served = viewer = server = None
