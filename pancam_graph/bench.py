@@ -119,9 +119,10 @@ def bench_runs(scenario: str, seed: int | None = None, seeds: int = 1, rerun: bo
 
 def _peak_memory(result) -> dict[str, dict[str, float]]:
     """Peak memory (MB): the most the run's processes held at once (sampled), and each
-    process's own peak and their sum: this one, and those that ran groups of configurations
-    side by side. Resident set size counts the pages the workers share (the fork server's
-    imports) in each; the proportional set size (sampled at checkpoints) counts each its share."""
+    process's own peak and their sum: this one's (its peak so far), and those that ran groups
+    of configurations side by side (the most they held at their checkpoints). Resident set
+    size counts the pages the workers share (the fork server's imports) in each; the
+    proportional set size (sampled at checkpoints) counts each its share."""
     from .solve.memory import pss_mb
 
     rss = {"this process": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}

@@ -2,9 +2,9 @@
 
 Method: triangulate the previous stop's matches (seed eq. 2.28), estimate the motion by
 3-D to 2-D PnP with RANSAC (OpenCV), then refine it by a bundle adjustment over the two
-stops (two_stop_adjustment.py: GTSAM's stereo factors' system, previous pose held fixed)
-whose marginal gives the 6x6 covariance of the relative pose. Outliers left after RANSAC are removed by a chi-square
-test on the bundle-adjustment residuals.
+stops (two_stop_adjustment.py: the system of GTSAM's stereo factors, previous pose held
+fixed) whose marginal gives the 6x6 covariance of the relative pose. Outliers left after
+RANSAC are removed by a chi-square test on the bundle-adjustment residuals.
 """
 
 from __future__ import annotations
