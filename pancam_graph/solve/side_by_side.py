@@ -81,7 +81,10 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
         for f in futures.values():  # the first group that failed, before any that never started
             if f.done() and f.exception() is not None:
                 f.result()
-        return [futures[g].result() for g in range(len(groups))]
+        outcomes = [futures[g].result() for g in range(len(groups))]
+        for configs, outcome in zip(groups, outcomes, strict=True):  # the motions each group was fed
+            outcome.motions = motions if _uses_vo(configs) else list(dr_motions)
+        return outcomes
     except BrokenProcessPool as exc:
         raise GraphError(f"a process running configurations stopped unexpectedly (killed, or out of memory?): "
                          f"{exc}") from None
@@ -137,13 +140,13 @@ def _wait(futures: dict[int, Future], count: int, refill: Callable[[], None], do
     """Until all `count` groups are submitted (`refill` submits to free workers) and done; the
     first to fail stops the wait (its error is raised by its result)."""
     while True:
+        if any(f.done() and f.exception() is not None for f in futures.values()):
+            return  # before submitting more: a group may fail between two looks
         refill()
         running = [f for f in futures.values() if not f.done()]
         if not running and len(futures) == count:
             return
-        finished, _ = wait(running, timeout=0.5, return_when=FIRST_COMPLETED)
-        if any(f.exception() is not None for f in finished):
-            return
+        wait(running, timeout=0.5, return_when=FIRST_COMPLETED)
         if progress is not None:
             progress(f"stops ({count} groups side by side)", min(done[:-1]), n)
 
@@ -223,4 +226,6 @@ def _run_group_in_worker(job: GroupJob, index: int, state: RunState | None, moti
         if stage == "stops" and _stops_done is not None:
             _stops_done[index] = k
 
-    return run_group(job, state, None, save, progress, None, start, f"group {index + 1}")
+    outcome = run_group(job, state, None, save, progress, None, start, f"group {index + 1}")
+    outcome.motions = []  # the run's process has them: a traverse's worth of motions not sent back
+    return outcome
