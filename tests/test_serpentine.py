@@ -5,6 +5,7 @@ import tomllib
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from pancam_graph.config import Scenario, Serpentine, dump_scenario, load_scenario, resolve_scenario
 from pancam_graph.errors import ConfigError
@@ -34,7 +35,7 @@ def test_round_trip_through_run_toml_and_conflicting_waypoints_refused():
     assert "waypoints" in data["path"] and "serpentine" in data["path"]
     assert Scenario.model_validate(data).path == scenario.path
     data["path"]["waypoints"][5][0] += 1.0
-    with pytest.raises(Exception, match="waypoints and sharp_turns or a serpentine, not both"):
+    with pytest.raises(ValidationError, match="waypoints and sharp_turns or a serpentine, not both"):
         Scenario.model_validate(data)
 
 

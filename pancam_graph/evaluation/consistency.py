@@ -34,16 +34,10 @@ def crlb_position_covariances(smoother: Smoother, stops: list[int], world_T_body
         values.insert(X(k), gtsam.Pose3(pose))
     for track, point in landmarks.items():
         values.insert(L(track), np.asarray(point, dtype=float))
-    keys = [X(k) for k in stops]
-    try:  # the estimator's own factorization: Cholesky where GPS bounds it (a fifth faster), else QR
-        marginals = smoother.marginals_at(values, keys, smoother.factorization)
+    try:
+        marginals = smoother.marginals_at(values, [X(k) for k in stops])
     except GraphError as exc:
-        if smoother.factorization == "QR":
-            raise EvaluationError(f"CRLB: the graph at ground truth cannot be inverted: {exc}") from None
-        try:
-            marginals = smoother.marginals_at(values, keys, "QR")
-        except GraphError as exc:
-            raise EvaluationError(f"CRLB: the graph at ground truth cannot be inverted: {exc}") from None
+        raise EvaluationError(f"CRLB: the graph at ground truth cannot be inverted: {exc}") from None
     rot = world_T_body[:, :3, :3]
     return rot @ np.stack([marginals[X(k)] for k in stops])[:, 3:, 3:] @ rot.transpose(0, 2, 1)
 

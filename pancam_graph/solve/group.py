@@ -24,7 +24,7 @@ from ..kinds import absolute
 from ..records import GpsFix, GroundTruth, Traverse
 from .listener import NullListener, RunListener
 from .localizer import Localizer, StepResult
-from .memory import pss_mb, release_memory, rss_mb, settle_garbage_collector
+from .memory import peak_rss_mb, pss_mb, release_memory, rss_mb, settle_garbage_collector
 from .results import ConfigurationResult, ProcessUse, RunOptions
 from .state import CHECKPOINT_EVERY_STOPS, Checkpoints, RunState
 
@@ -127,7 +127,7 @@ _pss_read_at = -math.inf  # this process's last read (time.monotonic)
 def _sample_memory(state: RunState, stop: int, last: bool = False) -> None:
     """The process's resident memory at this stop, and its PSS every PSS_EVERY_S (and `last`)."""
     global _pss_read_at
-    state.memory_mb.append((stop, rss_mb()))
+    state.memory_mb.append((stop, rss_mb() or peak_rss_mb()))
     now = time.monotonic()
     if last or now - _pss_read_at >= PSS_EVERY_S:
         _pss_read_at = now

@@ -16,13 +16,14 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def rss_mb() -> float:
-    """This process's resident memory now (Linux; elsewhere its peak so far)."""
+def rss_mb(pid: int | None = None) -> float | None:
+    """The resident memory now of process `pid` (default: this one); None where the kernel does
+    not say (not Linux) or the process has gone."""
     try:
-        with open("/proc/self/statm") as f:
+        with open(f"/proc/{pid or 'self'}/statm") as f:
             return int(f.read().split()[1]) * _PAGE_MB
     except (OSError, ValueError, IndexError):
-        return peak_rss_mb()
+        return None
 
 
 def settle_garbage_collector() -> None:

@@ -29,7 +29,7 @@ from ..kinds import stop_records, uses_vo
 from ..processes import process_context
 from ..records import Traverse
 from .group import GroupJob, GroupOutcome, ProgressCallback, new_state, run_group
-from .memory import release_memory
+from .memory import release_memory, rss_mb
 from .state import Checkpoints, RunState
 
 _stops_done = None  # in a worker: the shared count of stops each group has stepped, then "stop now"
@@ -67,23 +67,17 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
         waiting = [g for g, configs in enumerate(groups) if _uses_vo(configs)]
         motions, vo_s = _vo_motions(job, resume, known, pool, progress) if waiting else ([], 0.0)
 
-        def submit_to_free_workers() -> None:
-            # A job waiting in the pool's queue is held pickled (its traverse) in this process
-            # until a worker takes it: submit one only when a worker is free.
-            submitted = False
-            while waiting and sum(not f.done() for f in futures.values()) < workers:
-                submit(waiting.pop(0), motions, vo_s)
-                submitted = True
-            if submitted:
-                release_memory()  # the job's pickle is the worker's now
+        def submit_with_motions(g: int) -> None:
+            submit(g, motions, vo_s)
+            release_memory()  # the job's pickle is the worker's now
 
-        _wait(futures, len(groups), submit_to_free_workers, done, n, progress)
+        _wait(futures, waiting, submit_with_motions, workers, done, n, progress)
         for f in futures.values():  # the first group that failed, before any that never started
             if f.done() and f.exception() is not None:
                 f.result()
         outcomes = [futures[g].result() for g in range(len(groups))]
         for configs, outcome in zip(groups, outcomes, strict=True):  # the motions each group was fed
-            outcome.motions = motions if _uses_vo(configs) else list(dr_motions)
+            outcome.motions = motions if _uses_vo(configs) else dr_motions
         return outcomes
     except BrokenProcessPool as exc:
         raise GraphError(f"a process running configurations stopped unexpectedly (killed, or out of memory?): "
@@ -135,20 +129,23 @@ def _vo_motions(job: GroupJob, resume: list[RunState] | None, known: VoMotions |
     return motions, time.perf_counter() - t0
 
 
-def _wait(futures: dict[int, Future], count: int, refill: Callable[[], None], done, n: int,
-          progress: ProgressCallback | None) -> None:
-    """Until all `count` groups are submitted (`refill` submits to free workers) and done; the
-    first to fail stops the wait (its error is raised by its result)."""
+def _wait(futures: dict[int, Future], waiting: list[int], submit: Callable[[int], None], workers: int, done,
+          n: int, progress: ProgressCallback | None) -> None:
+    """Until every group has run: the `waiting` ones submitted one at a time as a worker comes
+    free (a job queued in the pool is held pickled, its traverse, in this process); the first
+    to fail stops the wait before another is submitted (its error is raised by its result)."""
     while True:
         if any(f.done() and f.exception() is not None for f in futures.values()):
-            return  # before submitting more: a group may fail between two looks
-        refill()
+            return
         running = [f for f in futures.values() if not f.done()]
-        if not running and len(futures) == count:
+        if waiting and len(running) < workers:
+            submit(waiting.pop(0))
+            continue  # look for a failure again before the next
+        if not running:
             return
         wait(running, timeout=0.5, return_when=FIRST_COMPLETED)
         if progress is not None:
-            progress(f"stops ({count} groups side by side)", min(done[:-1]), n)
+            progress(f"stops ({len(futures) + len(waiting)} groups side by side)", min(done[:-1]), n)
 
 
 class MemoryWatch:
@@ -171,15 +168,9 @@ class MemoryWatch:
             self._thread.join()
 
     def _sample(self, pids) -> None:
-        page_mb = os.sysconf("SC_PAGE_SIZE") / 2**20
         while not self._stopped.wait(0.25):
-            total = 0.0
-            for pid in [os.getpid(), *(p for p in pids[:] if p)]:
-                try:
-                    with open(f"/proc/{pid}/statm") as f:
-                        total += int(f.read().split()[1]) * page_mb
-                except (OSError, ValueError, IndexError):  # not Linux, or the worker has gone
-                    continue
+            # None: not Linux, or the worker has gone
+            total = sum(rss_mb(pid) or 0.0 for pid in [os.getpid(), *(p for p in pids[:] if p)])
             if total:
                 self.peak_mb = max(self.peak_mb or 0.0, total)
 

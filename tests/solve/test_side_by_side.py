@@ -106,34 +106,38 @@ def test_a_group_is_sent_only_the_image_records_it_reads(short_trail):
 
 def _three_groups_on_two_workers(failing):
     """Three groups waited for by side_by_side._wait on two "workers" (a pool of three threads:
-    the refill must hold back): the futures it submitted and the most that ran at once."""
+    the wait must hold back): the futures it submitted and the most that ran at once. A failing
+    group fails once the second group has started, and the others run until the wait is over:
+    no timing decides the order."""
     import threading
-    import time
     from concurrent.futures import ThreadPoolExecutor
 
     from pancam_graph.solve.side_by_side import _wait
 
     running, most, lock = [0], [0], threading.Lock()
+    second_started, waited = threading.Event(), threading.Event()
 
-    def group(fail: bool) -> str:
+    def group(g: int) -> str:
         with lock:
             running[0] += 1
             most[0] = max(most[0], running[0])
-        time.sleep(0.01 if fail else 0.2)  # the failure comes first
+        if g == 1:
+            second_started.set()
+        if g == failing:
+            second_started.wait(10.0)
+            raise RuntimeError("group failed")
+        waited.wait(0.05 if failing is None else 10.0)
         with lock:
             running[0] -= 1
-        if fail:
-            raise RuntimeError("group failed")
         return "ok"
 
-    futures, waiting = {}, [0, 1, 2]
+    futures = {}
     with ThreadPoolExecutor(3) as pool:
-        def refill():
-            while waiting and sum(not f.done() for f in futures.values()) < 2:
-                g = waiting.pop(0)
-                futures[g] = pool.submit(group, g == failing)
+        def submit(g: int) -> None:
+            futures[g] = pool.submit(group, g)
 
-        _wait(futures, 3, refill, [0, 0, 0, 0], 10, None)
+        _wait(futures, [0, 1, 2], submit, 2, [0, 0, 0, 0], 10, None)
+        waited.set()
     return futures, most[0]
 
 
