@@ -4,6 +4,7 @@ its updates for batch polishing, the bounds and checkpoints."""
 from __future__ import annotations
 
 import time
+from array import array
 from collections import OrderedDict
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -79,8 +80,11 @@ class Smoother:
         self._followers: dict[int, list[int]] = {}  # key in the window -> keys that leave with it
         self._leader: dict[int, int] = {}  # and back
         self.frozen = gtsam.Values()  # marginalized variables as they stood when they left the window
-        # the marginal covariance of each pose variable (X) as it left, with its frozen estimate
-        self.left_covariance: dict[int, np.ndarray] = {}
+        # the translation block (body frame, m^2) of each pose variable's (X) marginal covariance
+        # as it left, with its frozen estimate (left_position_covariance): nine numbers a row, as
+        # a traverse's worth are kept (a 3x3 array each was ~450 bytes a pose)
+        self._left_rows: dict[int, int] = {}  # key -> its row
+        self._left_covariances = array("d")
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
         self._new_rebuild: dict[int, Rebuild] = {}
@@ -194,8 +198,8 @@ class Smoother:
         return stamps, leaving
 
     def _freeze(self, leaving: list[int]) -> None:
-        """The leaving variables' estimates into `frozen`, and the poses' marginal covariances
-        into `left_covariance`, while iSAM2 still has them."""
+        """The leaving variables' estimates into `frozen`, and the poses' marginal position
+        covariances into `left_position_covariance`, while iSAM2 still has them."""
         if not leaving:
             return
         try:
@@ -203,9 +207,19 @@ class Smoother:
             self.frozen.insert_or_assign(isam2.calculateEstimate(leaving))
             for key in leaving:
                 if gtsam.Symbol(key).chr() == _POSE_CHR:
-                    self.left_covariance[key] = isam2.marginalCovariance(key)
+                    self._left_rows[key] = len(self._left_covariances) // 9  # frozen again after a replay: a new row
+                    # GTSAM's tangent space: rotation first
+                    self._left_covariances.extend(isam2.marginalCovariance(key)[3:, 3:].ravel())
         except RuntimeError as exc:
             raise GraphError(f"iSAM2 estimate of the variables leaving the window failed: {exc}") from None
+
+    def left_position_covariance(self, key: int) -> np.ndarray | None:
+        """The 3x3 translation block (body frame, m^2) of a pose's marginal covariance as it left
+        the window; None while it is in it."""
+        row = self._left_rows.get(key)
+        if row is None:
+            return None
+        return np.array(self._left_covariances[9 * row:9 * row + 9]).reshape(3, 3)
 
     # -- checkpoints ---------------------------------------------------------------------------
 

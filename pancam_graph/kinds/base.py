@@ -24,6 +24,8 @@ import numpy as np
 from ..records import GroundTruth, Stop, Traverse
 from ..sections import Section
 
+NO_TIE_LINKS = np.zeros((0, 2), dtype=np.int64)  # (track, site stop) rows: a kind that ties nothing
+
 _REGISTRY: dict[str, type[Kind]] = {}
 
 
@@ -165,9 +167,9 @@ class Kind:
         """The landmark variables it made (track ids)."""
         return set()
 
-    def tie_links(self) -> list[tuple[int, int]]:
-        """(track, site stop) of each tie it made, for plots and rerun."""
-        return []
+    def tie_links(self) -> np.ndarray:
+        """(K, 2) (track, site stop) of each tie it made, for plots and rerun."""
+        return NO_TIE_LINKS
 
 
 class RowError(ValueError):

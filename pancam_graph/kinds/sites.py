@@ -8,6 +8,7 @@ bearing-range factor from the site that first triangulated it.
 
 from __future__ import annotations
 
+from array import array
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 from typing import Literal
@@ -89,7 +90,9 @@ class Sites(Kind):
         self.stereo_calibration = self.rig.stereo_calibration()
         self.sites: list[SiteObservations] = []
         self.landmark_ids: set[int] = set()
-        self.landmark_sites: dict[int, list[int]] = defaultdict(list)  # track -> site stops seeing it
+        # (track, site stop) of every stereo view of a landmark, as they came: two columns, not a
+        # list a landmark (long_traverse's vo_sites: 61,360 views of 30,010 landmarks)
+        self._view_tracks, self._view_stops = array("q"), array("q")
         self.references: dict[int, LandmarkReference] = {}
         self._relative_cache: dict[tuple[int, int], RelativePose] = {}  # these two: one site's step
         self._site_poses: dict[int, gtsam.Pose3] = {}
@@ -188,7 +191,8 @@ class Sites(Kind):
             added += 1
         # Landmarks already in the graph (tied earlier) seen again from here, unless they left
         # the window; a landmark that did is forgotten (no factor will touch it again).
-        for track in sorted(current.stereo.keys() & (self.landmark_ids - set(tracks))):
+        tied_now = set(tracks)  # (the landmarks' set is a traverse's worth: not copied at every site)
+        for track in sorted(t for t in current.stereo.keys() if t in self.landmark_ids and t not in tied_now):
             if track in self.references:
                 self._add_observations(current, track, gated=True)
         self.references = {t: r for t, r in self.references.items() if self.loc.smoother.live(L(t))}
@@ -213,16 +217,20 @@ class Sites(Kind):
             self.loc.smoother.add(factors.stereo(site.stop, track, uvv, self.stereo_calibration, mount,
                                                  self.tie_noise))
         if stereo:
-            self.landmark_sites[track].append(site.stop)
+            self._view_tracks.append(track)
+            self._view_stops.append(site.stop)
         if self.hrc is not None:
             self.hrc.add_views(site, track, self.site_pose(site.stop))
 
     def landmarks(self) -> set[int]:
         return self.landmark_ids
 
-    def tie_links(self) -> list[tuple[int, int]]:
-        """(track, site stop) for every landmark and every site whose panorama observed it."""
-        return [(track, stop) for track in sorted(self.landmark_sites) for stop in self.landmark_sites[track]]
+    def tie_links(self) -> np.ndarray:
+        """(track, site stop) for every landmark and every site whose panorama observed it, by
+        track and then as the sites came."""
+        tracks = np.frombuffer(self._view_tracks, dtype=np.int64)
+        order = np.argsort(tracks, kind="stable")
+        return np.column_stack([tracks[order], np.frombuffer(self._view_stops, dtype=np.int64)[order]])
 
     def counters(self) -> dict:
         return {"landmarks": len(self.landmark_ids), "rejected_tie_points": self.rejected_ties,

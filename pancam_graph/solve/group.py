@@ -23,10 +23,11 @@ from ..frontend.vo_ahead import VoAhead
 from ..kinds import absolute
 from ..records import GpsFix, GroundTruth, Traverse
 from .listener import NullListener, RunListener
-from .localizer import Localizer, StepResult
+from .localizer import Localizer
 from .memory import peak_rss_mb, pss_mb, release_memory, rss_mb, settle_garbage_collector
 from .results import ConfigurationResult, ProcessUse, RunOptions
 from .state import CHECKPOINT_EVERY_STOPS, Checkpoints, RunState
+from .step_table import StepTable
 
 ProgressCallback = Callable[[str, int, int], None]
 
@@ -115,7 +116,7 @@ def run_group(job: GroupJob, state: RunState | None, known: VoMotions | None, sa
 def new_state(job: GroupJob) -> RunState:
     localizers = {name: Localizer(job.traverse, kinds, job.estimator, seed=job.seed)
                   for name, kinds in job.configs.items()}
-    return RunState(0, localizers, [None], [None], {name: [] for name in localizers})
+    return RunState(0, localizers, [None], [None], {name: StepTable() for name in localizers})
 
 
 # Reading /proc/self/smaps_rollup (the PSS) costs 5-13 ms at 0.4-1 GB resident; at every
@@ -167,7 +168,7 @@ def _step_through(traverse: Traverse, state: RunState, vo_motion: Callable[[int,
     state.next_stop = n
 
 
-def _configuration_result(job: GroupJob, name: str, localizer: Localizer, steps: list[StepResult],
+def _configuration_result(job: GroupJob, name: str, localizer: Localizer, steps: StepTable,
                           progress: ProgressCallback | None, vo_inliers: np.ndarray) -> ConfigurationResult:
     """A configuration's final estimate, its covariances, and its metrics against the
     reference (each stop's NEES too), the bound (CRLB) and GPS."""

@@ -16,7 +16,7 @@ from ..graph import factors
 from ..graph.keys import L, T, X
 from ..graph.smoother import RelinearizeThresholds, Smoother, poses_array
 from ..kinds import KINDS, STEP_COUNTERS, Kind, absolute, uses_vo
-from ..kinds.base import StepCounts
+from ..kinds.base import NO_TIE_LINKS, StepCounts
 from ..records import GroundTruth, Stop, Traverse
 
 # (key_a, key_b, a_T_b, covariance) -> factor
@@ -200,20 +200,21 @@ class Localizer:
         estimate never saw)."""
         out = []
         for k in self.stops:
-            cov = self.smoother.left_covariance.get(X(k))
+            cov = self.smoother.left_position_covariance(X(k))
             if cov is None:
                 out.append(self.position_covariance(k))
                 continue
             rot = self.smoother.pose(X(k)).rotation().matrix()
-            out.append(rot @ cov[3:, 3:] @ rot.T)
+            out.append(rot @ cov @ rot.T)
         return np.stack(out)
 
     @property
     def landmarks(self) -> set[int]:
         return set().union(*(kind.landmarks() for kind in self.kinds.values()))
 
-    def tie_links(self) -> list[tuple[int, int]]:
-        return [link for kind in self.kinds.values() for link in kind.tie_links()]
+    def tie_links(self) -> np.ndarray:
+        """(K, 2) (track, site stop): every kind's ties."""
+        return np.concatenate([NO_TIE_LINKS, *(kind.tie_links() for kind in self.kinds.values())])
 
     def true_values(self, truth: GroundTruth) -> gtsam.Values | None:
         """True values of the variables that are not stop poses or landmarks (for the CRLB): the

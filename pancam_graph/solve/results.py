@@ -16,7 +16,8 @@ from ..frontend.motion import Motion, VoMotions
 from ..kinds import COUNTER_DEFAULTS
 from ..records import GpsFix, GroundTruth, Traverse
 from ..source_options import SourceOptions
-from .localizer import InterpolatedPose, StepResult
+from .localizer import InterpolatedPose
+from .step_table import StepTable
 
 
 @dataclass(frozen=True)
@@ -70,10 +71,10 @@ class ConfigurationResult:
     kinds: tuple[str, ...]
     world_T_body: np.ndarray  # (N, 4, 4)
     position_covariance: np.ndarray  # (N, 3, 3) world-frame marginal of each position, m^2 (iSAM2)
-    steps: list[StepResult]  # one per stop
+    steps: StepTable  # one per stop
     landmark_ids: np.ndarray  # (M,)
     landmark_positions: np.ndarray  # (M, 3) final landmark estimates, world
-    tie_links: list[tuple[int, int]]  # (track, site stop)
+    tie_links: np.ndarray  # (K, 2) int: (track, site stop)
     counters: dict  # what each kind did (kinds/*.counters)
     interpolated: list[InterpolatedPose]
     solver: str
@@ -86,7 +87,7 @@ class ConfigurationResult:
     @property
     def update_ms(self) -> np.ndarray:
         """Wall time of each stop's iSAM2 update."""
-        return np.array([s.update_ms for s in self.steps])
+        return self.steps.update_ms
 
     @property
     def landmarks(self) -> int:
@@ -185,7 +186,7 @@ def cost_along(result: RunResult, window_m: float = 1000.0) -> dict[str, list[di
     distance = result.reference_distance()
     out = {}
     for name, c in result.configurations.items():
-        stops = np.array([s.stop for s in c.steps], dtype=int)
+        stops = c.steps.stops
         window = (distance[stops] // window_m).astype(int)
         ms = c.update_ms
         out[name] = [{"from_m": w * window_m, "updates": int((window == w).sum()), **percentiles(ms[window == w])}

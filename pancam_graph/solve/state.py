@@ -8,7 +8,8 @@ from pathlib import Path
 from typing import Protocol
 
 from ..frontend.motion import Motion
-from .localizer import Localizer, StepResult
+from .localizer import Localizer
+from .step_table import StepTable
 
 CHECKPOINT_EVERY_STOPS = 25  # checkpoints (and listeners' flushes) at every site and at least this often
 
@@ -24,7 +25,7 @@ class RunState:
     localizers: dict[str, Localizer]
     motions: list[Motion | None]
     dr_motions: list[Motion | None]
-    steps: dict[str, list[StepResult]]
+    steps: dict[str, StepTable]
     vo_s: float = 0.0
     elapsed_s: float = 0.0  # wall time spent on the run before this state
     memory_mb: list[tuple[int, float]] = field(default_factory=list)  # (stop, the process's resident MB) at checkpoints

@@ -248,7 +248,7 @@ def write_run(result: RunResult, folder: Path) -> None:
                   [(s.index, *(f"{v:.9g}" for v in cov[_UPPER])) for s, cov in zip(stops, c.position_covariance,
                                                                                  strict=True)])
         sites_of: dict[int, list[int]] = {}
-        for track, stop in c.tie_links:
+        for track, stop in np.asarray(c.tie_links).tolist():
             sites_of.setdefault(track, []).append(stop)
         write_csv(folder / f"landmarks_{name}.csv", ["track", "x_m", "y_m", "z_m", "site_stops"],
                   [(int(t), *(f"{v:.6f}" for v in p), " ".join(map(str, sites_of.get(int(t), []))))
@@ -273,7 +273,7 @@ class SavedConfiguration:
     counts: dict[str, np.ndarray]  # (N,) each kind's per-stop counter in steps.csv, by name (NaN: none)
     landmark_ids: np.ndarray  # (M,)
     landmark_positions: np.ndarray  # (M, 3)
-    tie_links: list[tuple[int, int]]
+    tie_links: np.ndarray  # (K, 2) int: (track, site stop)
 
 
 @dataclass(frozen=True)
@@ -346,7 +346,8 @@ def read_run(folder: Path) -> SavedRun:
         mine = [r for r in steps if r["config"] == name]
         lm_rows = _read_csv(folder / f"landmarks_{name}.csv", ["track", "x_m", "y_m", "z_m", "site_stops"])
         ids = np.array([int(r.number("track")) for r in lm_rows], dtype=np.int64)
-        links = [(int(r.number("track")), int(s)) for r in lm_rows for s in r["site_stops"].split()]
+        links = np.array([(int(r.number("track")), int(s)) for r in lm_rows for s in r["site_stops"].split()],
+                         dtype=np.int64).reshape(-1, 2)
         configurations[name] = SavedConfiguration(
             name=name,
             world_T_body=poses,

@@ -148,6 +148,19 @@ def test_the_bayes_tree_stops_growing():
     for k in range(3000):
         np.testing.assert_allclose(smoother.pose(X(k)).matrix(), expected.matrix(), atol=1e-6)
         expected = expected.compose(step)
+    # and each pose that left has its position marginal as it left: in a chain, what the prior
+    # and the steps before it give, as GTSAM's batch marginals of the first 300 poses say
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 0.01)))
+    values.insert(X(0), gtsam.Pose3())
+    for k in range(1, 300):
+        graph.add(gtsam.BetweenFactorPose3(X(k - 1), X(k), step, gtsam.noiseModel.Isotropic.Sigma(6, 0.01)))
+        values.insert(X(k), values.atPose3(X(k - 1)).compose(step))
+    batch = gtsam.Marginals(graph, values)
+    for k in (0, 1, 150, 299):
+        np.testing.assert_allclose(smoother.left_position_covariance(X(k)), batch.marginalCovariance(X(k))[3:, 3:],
+                                   rtol=1e-6, atol=1e-12)
+    assert smoother.left_position_covariance(X(2999)) is None  # in the window: iSAM2 has its marginal
 
 
 def test_vo_ahead_in_a_second_process_gives_the_vo_of_this_one(short_scenario, trail):
