@@ -42,8 +42,10 @@ def _traverse_pixels(png: bytes) -> int:
 def test_the_printed_url_shows_the_traverse_live_in_a_headless_browser(tmp_path):
     playwright = pytest.importorskip("playwright.sync_api", reason="playwright is in the [dev] extra")
     out = tmp_path / "res"
-    # 10 km of dead reckoning: solving takes half a minute, time for the page to load and show it
-    run, url = serve_run("long_traverse", "--configs", "dead_reckoning", "--one-process", "--out", str(out))
+    # 50 km of dead reckoning: the run takes over a minute (73 s alone without the viewer), time for
+    # the page to load and show it while the run goes on. long_traverse's 10 km took 15 s, and
+    # under the suite's load the page was slower than that once.
+    run, url = serve_run("mission_traverse", "--configs", "dead_reckoning", "--one-process", "--out", str(out))
     try:
         with playwright.sync_playwright() as p:
             browser = p.chromium.launch(executable_path=CHROMIUM, args=BROWSER_ARGS)
