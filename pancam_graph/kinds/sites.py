@@ -47,6 +47,38 @@ class LandmarkReference:
     point: SitePoint
 
 
+class TrackIds:
+    """The tracks made landmarks over the whole traverse (one may not be made again): the latest
+    in a set, the others in a sorted array, 8 bytes each. As one set of Python ints they held
+    about 1 KB a stop of long_traverse's vo_sites and full (tracemalloc)."""
+
+    MERGE_AT = 4096  # tracks in the set before they go into the array
+
+    def __init__(self) -> None:
+        self._latest: set[int] = set()
+        self._merged = np.zeros(0, dtype=np.int64)
+
+    def add(self, track: int) -> None:
+        self._latest.add(track)
+        if len(self._latest) >= self.MERGE_AT:
+            self._merged = np.union1d(self._merged, np.fromiter(self._latest, np.int64, len(self._latest)))
+            self._latest = set()
+
+    def __contains__(self, track: int) -> bool:
+        return track in self._latest or bool(np.isin(track, self._merged))
+
+    def not_in(self, tracks: set[int]) -> list[int]:
+        """Those of `tracks` that are not landmark tracks."""
+        fresh = np.fromiter(tracks - self._latest, np.int64)
+        return fresh[~np.isin(fresh, self._merged)].tolist()
+
+    def __len__(self) -> int:
+        return len(self._latest) + len(self._merged)
+
+    def as_set(self) -> set[int]:
+        return self._latest | set(self._merged.tolist())
+
+
 class SitesSettings(Section):
     """[estimator.sites]"""
 
@@ -89,7 +121,7 @@ class Sites(Kind):
                                       est.kernel_k(settings.kernel))
         self.stereo_calibration = self.rig.stereo_calibration()
         self.sites: list[SiteObservations] = []
-        self.landmark_ids: set[int] = set()
+        self.landmark_ids = TrackIds()
         # (track, site stop) of every stereo view of a landmark, as they came: two columns, not a
         # list a landmark (long_traverse's vo_sites: 61,360 views of 30,010 landmarks)
         self._view_tracks, self._view_stops = array("q"), array("q")
@@ -160,9 +192,8 @@ class Sites(Kind):
         recent = [site for site in self.sites[-self.memory:] if self.loc.smoother.live(X(site.stop))]
         candidates: dict[int, SiteObservations] = {}
         for earlier in recent:
-            for track in earlier.stereo.keys() & current.stereo.keys():
-                if track not in self.landmark_ids:
-                    candidates.setdefault(track, earlier)
+            for track in self.landmark_ids.not_in(earlier.stereo.keys() & current.stereo.keys()):
+                candidates.setdefault(track, earlier)
         tracks = sorted(candidates)
         if len(tracks) > self.tie_points_per_site:
             tracks = sorted(self.loc.rng.choice(tracks, self.tie_points_per_site, replace=False).tolist())
@@ -191,10 +222,10 @@ class Sites(Kind):
             added += 1
         # Landmarks already in the graph (tied earlier) seen again from here, unless they left
         # the window; a landmark that did is forgotten (no factor will touch it again).
-        tied_now = set(tracks)  # (the landmarks' set is a traverse's worth: not copied at every site)
-        for track in sorted(t for t in current.stereo.keys() if t in self.landmark_ids and t not in tied_now):
-            if track in self.references:
-                self._add_observations(current, track, gated=True)
+        # (the landmarks in the window are those with a reference)
+        tied_now = set(tracks)
+        for track in sorted(t for t in current.stereo.keys() if t in self.references and t not in tied_now):
+            self._add_observations(current, track, gated=True)
         self.references = {t: r for t, r in self.references.items() if self.loc.smoother.live(L(t))}
 
         self.rejected_ties += rejected
@@ -223,7 +254,7 @@ class Sites(Kind):
             self.hrc.add_views(site, track, self.site_pose(site.stop))
 
     def landmarks(self) -> set[int]:
-        return self.landmark_ids
+        return self.landmark_ids.as_set()
 
     def tie_links(self) -> np.ndarray:
         """(track, site stop) for every landmark and every site whose panorama observed it, by
