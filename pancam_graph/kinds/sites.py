@@ -65,12 +65,17 @@ class TrackIds:
             self._latest = set()
 
     def __contains__(self, track: int) -> bool:
-        return track in self._latest or bool(np.isin(track, self._merged))
+        return track in self._latest or bool(self._in_merged(np.array([track], np.int64))[0])
 
     def not_in(self, tracks: set[int]) -> list[int]:
         """Those of `tracks` that are not landmark tracks."""
         fresh = np.fromiter(tracks - self._latest, np.int64)
-        return fresh[~np.isin(fresh, self._merged)].tolist()
+        return fresh[~self._in_merged(fresh)].tolist()
+
+    def _in_merged(self, tracks: np.ndarray) -> np.ndarray:
+        # a binary search in the sorted array (np.isin would sort it again at every call)
+        at = np.minimum(np.searchsorted(self._merged, tracks), max(len(self._merged) - 1, 0))
+        return (self._merged[at] == tracks) if len(self._merged) else np.zeros(len(tracks), bool)
 
     def __len__(self) -> int:
         return len(self._latest) + len(self._merged)
