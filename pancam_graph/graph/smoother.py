@@ -82,7 +82,8 @@ class Smoother:
         self.frozen = gtsam.Values()  # marginalized variables as they stood when they left the window
         # the translation block (body frame, m^2) of each pose variable's (X) marginal covariance
         # as it left, with its frozen estimate (left_position_covariance): nine numbers a row, as
-        # a traverse's worth are kept (a 3x3 array each was ~450 bytes a pose)
+        # a traverse's worth are kept (tracemalloc, long_traverse: about 140 bytes a pose with
+        # its row's dict entry; a 6x6 array in a dict was about 200)
         self._left_rows: dict[int, int] = {}  # key -> its row
         self._left_covariances = array("d")
         self._new_factors = gtsam.NonlinearFactorGraph()

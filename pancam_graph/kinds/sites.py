@@ -74,8 +74,10 @@ class TrackIds:
 
     def _in_merged(self, tracks: np.ndarray) -> np.ndarray:
         # a binary search in the sorted array (np.isin would sort it again at every call)
-        at = np.minimum(np.searchsorted(self._merged, tracks), max(len(self._merged) - 1, 0))
-        return (self._merged[at] == tracks) if len(self._merged) else np.zeros(len(tracks), bool)
+        at = np.searchsorted(self._merged, tracks)
+        found = at < len(self._merged)
+        found[found] = self._merged[at[found]] == tracks[found]
+        return found
 
     def __len__(self) -> int:
         return len(self._latest) + len(self._merged)
@@ -226,8 +228,8 @@ class Sites(Kind):
             self._add_observations(current, track, gated=False)
             added += 1
         # Landmarks already in the graph (tied earlier) seen again from here, unless they left
-        # the window; a landmark that did is forgotten (no factor will touch it again).
-        # (the landmarks in the window are those with a reference)
+        # the window (those in it are those with a reference); a landmark that did is forgotten
+        # (no factor will touch it again).
         tied_now = set(tracks)
         for track in sorted(t for t in current.stereo.keys() if t in self.references and t not in tied_now):
             self._add_observations(current, track, gated=True)

@@ -1,6 +1,6 @@
 """One configuration's per-stop update results, kept as columns.
 
-A StepResult per stop holds an object, a dict and a few numbers: about 230 bytes a stop and
+A StepResult per stop holds an object, a dict and a few numbers: about 250 bytes a stop and
 configuration (tracemalloc, long_traverse), and the run's process holds every configuration's
 for the whole traverse (mission_traverse: 33,589 stops, six configurations). As columns it is
 the 8 bytes of each number.

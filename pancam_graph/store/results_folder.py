@@ -248,7 +248,7 @@ def write_run(result: RunResult, folder: Path) -> None:
                   [(s.index, *(f"{v:.9g}" for v in cov[_UPPER])) for s, cov in zip(stops, c.position_covariance,
                                                                                  strict=True)])
         sites_of: dict[int, list[int]] = {}
-        for track, stop in np.asarray(c.tie_links).tolist():
+        for track, stop in c.tie_links.tolist():
             sites_of.setdefault(track, []).append(stop)
         write_csv(folder / f"landmarks_{name}.csv", ["track", "x_m", "y_m", "z_m", "site_stops"],
                   [(int(t), *(f"{v:.6f}" for v in p), " ".join(map(str, sites_of.get(int(t), []))))

@@ -50,7 +50,7 @@ def replay(run: SavedRun, rec: rr.RecordingStream) -> None:
             rgb = scene.colour(name)
             rec.log(scene.estimate_path(name, "landmarks"), rr.Points3D(c.landmark_positions, radii=0.12, colors=rgb),
                     static=True)
-            sites = {k: positions[k] for k in set(np.asarray(c.tie_links)[:, 1].tolist())}
+            sites = {k: positions[k] for k in set(c.tie_links[:, 1].tolist())}
             rec.log(scene.estimate_path(name, "ties"), rr.LineStrips3D(
                 scene.tie_strips(c.tie_links, c.landmark_ids, c.landmark_positions, sites),
                 radii=rr.Radius.ui_points(0.5), colors=(*rgb, scene.TIE_ALPHA)), static=True)

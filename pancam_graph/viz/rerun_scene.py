@@ -293,8 +293,7 @@ def tie_strips(links: np.ndarray, landmark_ids: np.ndarray, landmarks: np.ndarra
     """A segment from each site to each landmark it tied, (N, 2, 3): one array, not a list of
     small ones, which rerun converts 40x slower."""
     index = {int(t): i for i, t in enumerate(landmark_ids)}
-    pairs = [(index[track], stop) for track, stop in np.asarray(links).reshape(-1, 2).tolist()
-             if track in index and stop in site_positions]
+    pairs = [(index[track], stop) for track, stop in links.tolist() if track in index and stop in site_positions]
     if not pairs:
         return np.zeros((0, 2, 3), dtype=np.float32)
     rows, stops = zip(*pairs, strict=True)
