@@ -15,21 +15,26 @@ order, the same updates (group.run_group is the loop either way).
 from __future__ import annotations
 
 import os
+import pickle
+import tempfile
 import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from pathlib import Path
 
-from ..errors import GraphError
+import numpy as np
+
+from ..errors import GraphError, WriteFailed
 from ..frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_from
 from ..frontend.vo_ahead import BLOCK_STOPS, VoAhead
 from ..kinds import stop_records, uses_vo
 from ..processes import process_context
 from ..records import Traverse
 from .group import GroupJob, GroupOutcome, ProgressCallback, new_state, run_group
-from .memory import release_memory, rss_mb
+from .memory import rss_mb
 from .state import Checkpoints, RunState
 
 _stops_done = None  # in a worker: the shared count of stops each group has stepped, then "stop now"
@@ -51,6 +56,7 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
     pool = ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker,
                                initargs=(done, pids, os.getpid()))
     memory.watch(pids)
+    handover = Handover()
     try:
         dr_motions = dead_reckoning_motions(job.traverse)
         futures: dict[int, Future] = {}
@@ -58,8 +64,10 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
         def submit(g: int, motions: list[Motion | None], vo_s: float) -> None:
             state = resume[g] if resume and g < len(resume) else None
             part = save.part(g) if save is not None else None
-            futures[g] = pool.submit(_run_group_in_worker, _job_of(job, groups[g]), g, state, motions, dr_motions,
-                                     vo_s, part, start)
+            # a group whose configurations all take the VO's motions reads no dead reckoning
+            reads_dr = not all(uses_vo(kinds) for kinds in groups[g].values())
+            inputs = GroupInputs(_job_of(job, groups[g]), state, motions, dr_motions if reads_dr else [None], vo_s)
+            futures[g] = pool.submit(_run_group_in_worker, handover.write(f"group-{g}", inputs), g, part, start)
 
         for g, configs in enumerate(groups):
             if not _uses_vo(configs):
@@ -69,7 +77,6 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
 
         def submit_with_motions(g: int) -> None:
             submit(g, motions, vo_s)
-            release_memory()  # the job's pickle is the worker's now
 
         _wait(futures, waiting, submit_with_motions, workers, done, n, progress)
         for f in futures.values():  # the first group that failed, before any that never started
@@ -86,6 +93,81 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
         done[-1] = 1  # when one group failed or the run was interrupted, the others stop at their next stop
         pool.shutdown(wait=True, cancel_futures=True)
         memory.stop()
+        handover.cleanup()
+
+
+@dataclass
+class GroupInputs:
+    """What a worker needs to run a group: its job, its saved state (when resumed) and the
+    motions."""
+
+    job: GroupJob
+    state: RunState | None
+    motions: list[Motion | None]
+    dr_motions: list[Motion | None]
+    vo_s: float
+
+
+MAPPED_BYTES = 1 << 20  # an input array this large is mapped from one file by every worker
+
+
+class Handover:
+    """Groups' inputs handed to their workers in files: not through the pool's queue, whose
+    feeder thread keeps the last message it pickled until the next one (long_traverse: a group
+    with sites pickles to about 50 MB, held in the run's process for the rest of the run). Each
+    large array (the truth's landmarks: 53 MB on mission_traverse) is written once and mapped
+    read-only by every worker that reads it, one copy in the page cache instead of one in each
+    process."""
+
+    def __init__(self):
+        self._folder = tempfile.TemporaryDirectory(prefix="pancam_graph_groups_")
+        self.folder = Path(self._folder.name)
+        # by id; the array is held too, so that no other object takes its id meanwhile
+        self._arrays: dict[int, tuple[np.ndarray, Path]] = {}
+
+    def write(self, name: str, inputs: GroupInputs) -> Path:
+        path = self.folder / f"{name}.pickle"
+        try:
+            with open(path, "wb") as f:  # pickled in frames straight to the file, never whole in memory
+                _HandoverPickler(f, self).dump(inputs)
+        except OSError as exc:
+            raise WriteFailed(f"{path}: cannot hand a group of configurations its inputs: {exc.strerror} (the "
+                              "system's temporary folder; TMPDIR chooses another)") from None
+        return path
+
+    def array_file(self, array: np.ndarray) -> Path:
+        if id(array) not in self._arrays:
+            path = self.folder / f"array-{len(self._arrays)}.npy"
+            np.save(path, array, allow_pickle=False)
+            self._arrays[id(array)] = (array, path)
+        return self._arrays[id(array)][1]
+
+    def cleanup(self) -> None:
+        self._arrays.clear()
+        self._folder.cleanup()  # a worker's mapping outlives the file's name
+
+
+class _HandoverPickler(pickle.Pickler):
+    def __init__(self, file, handover: Handover):
+        super().__init__(file, protocol=pickle.HIGHEST_PROTOCOL)
+        self.handover = handover
+
+    def reducer_override(self, obj):
+        if type(obj) is np.ndarray and obj.nbytes >= MAPPED_BYTES and not obj.dtype.hasobject:
+            return _mapped_array, (str(self.handover.array_file(obj)),)
+        return NotImplemented
+
+
+def _mapped_array(path: str) -> np.ndarray:
+    return np.asarray(np.load(path, mmap_mode="r"))  # read-only: a write into an input raises
+
+
+def read_inputs(path: Path) -> GroupInputs:
+    """A group's inputs in its worker; the file goes (its arrays stay until the run ends)."""
+    with open(path, "rb") as f:
+        inputs = pickle.load(f)
+    path.unlink()
+    return inputs
 
 
 def _job_of(job: GroupJob, configs: dict[str, list[str]]) -> GroupJob:
@@ -203,14 +285,17 @@ def _stop_if_the_run_stopped() -> None:
         os._exit(1)
 
 
-def _run_group_in_worker(job: GroupJob, index: int, state: RunState | None, motions: list[Motion | None],
-                         dr_motions: list[Motion | None], vo_s: float, save: Checkpoints | None,
-                         start: float) -> GroupOutcome:
+def _run_group_in_worker(inputs_path: Path, index: int, save: Checkpoints | None, start: float) -> GroupOutcome:
+    inputs = read_inputs(inputs_path)
+    job, state, motions = inputs.job, inputs.state, inputs.motions
+    if save is not None:
+        save.refer_to(job.traverse, job.truth)
     if state is None:
         state = new_state(job)
-        state.dr_motions, state.vo_s = dr_motions, vo_s
+        state.dr_motions, state.vo_s = inputs.dr_motions, inputs.vo_s
     if len(state.motions) < len(motions):  # a saved group has the motions up to its stop
         state.motions.extend(motions[len(state.motions):])
+    del inputs, motions
 
     def progress(stage: str, k: int, total: int) -> None:
         _stop_if_the_run_stopped()

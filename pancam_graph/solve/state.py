@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Protocol
 
 from ..frontend.motion import Motion
+from ..records import GroundTruth, Traverse
 from .localizer import Localizer
 from .step_table import StepTable
 
@@ -39,6 +40,9 @@ class Checkpoints(Protocol):
 
     def part(self, index: int) -> Checkpoints:
         """The writer of group `index` when groups run side by side."""
+
+    def refer_to(self, traverse: Traverse, truth: GroundTruth | None) -> None:
+        """Name these (a group process's own) in the states instead of saving them."""
 
     def log_folder(self, configuration: str) -> Path:
         """Where a configuration's smoother keeps its update log (the saved states refer to it)."""

@@ -12,18 +12,19 @@ built. Saving costs time that grows with the graph, so a state is saved at most 
 from __future__ import annotations
 
 import copy
-import io
 import pickle
 import shutil
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 from ..atomic import write_atomically
 from ..errors import ResultsError, WriteFailed
 
 if TYPE_CHECKING:
+    from ..records import GroundTruth, Traverse
     from ..solve.results import RunOptions, SourceData
     from ..solve.state import RunState
 
@@ -55,7 +56,7 @@ class CheckpointWriter:
         self.folder = Path(folder) / CHECKPOINT_DIR
         self.state_file = STATE_FILE
         self.parts: list[str] = []  # the state files of the groups handed out by `part`
-        self.shared = _shared(inputs)
+        self.shared = _named(inputs.data.traverse, inputs.data.truth)
         self.min_interval_s = min_interval_s
         self.max_overhead = max_overhead
         self.saves = 0
@@ -67,7 +68,7 @@ class CheckpointWriter:
         except OSError as exc:
             raise ResultsError(f"{self.folder}: cannot create the checkpoint folder: {exc.strerror}") from None
         if not resumed:
-            _write_atomically(self.folder / INPUTS_FILE, _dumps(inputs, {}))
+            _write_atomically(self.folder / INPUTS_FILE, lambda f: _Pickler(f, {}).dump(inputs))
 
     def __call__(self, state: RunState) -> None:
         since = time.perf_counter() - self._last_end
@@ -77,7 +78,12 @@ class CheckpointWriter:
         # the stop first, in plain text: whoever must say where the run would go on reads just that
         # (a group's process saves its own states; the run's process only reads them)
         header = f"{STATE_HEADER} {state.next_stop}\n".encode()
-        _write_atomically(self.folder / self.state_file, header + _dumps(state, self.shared))
+
+        def write(f) -> None:
+            f.write(header)
+            _Pickler(f, self.shared).dump(state)
+
+        _write_atomically(self.folder / self.state_file, write)
         self._last_end = time.perf_counter()
         self._last_cost = self._last_end - start
         self.saves += 1
@@ -91,6 +97,17 @@ class CheckpointWriter:
         writer.parts = []
         self.parts.append(writer.state_file)
         return writer
+
+    def __getstate__(self) -> dict[str, Any]:
+        # A group's writer goes to its process without the inputs: that process names its own
+        # traverse (refer_to); sent along, they were the whole traverse again in every worker.
+        return {**self.__dict__, "shared": {}}
+
+    def refer_to(self, traverse: Traverse, truth: GroundTruth | None) -> None:
+        """Name `traverse` (a group process's own, without the image records it does not read)
+        and its stops and `truth` in the states, as the inputs name theirs: a resumed run finds
+        them in the inputs."""
+        self.shared = _named(traverse, truth)
 
     def log_folder(self, configuration: str) -> Path:
         """Where a configuration's smoother writes its update log, which the states refer to."""
@@ -117,7 +134,7 @@ def read_checkpoint(folder: Path) -> tuple[RunInputs, list[RunState]]:
     inputs = _loads(inputs_path, {})
     if not isinstance(inputs, RunInputs) or inputs.format != FORMAT:
         raise ResultsError(f"{inputs_path}: not a checkpoint of this version of pancam-graph")
-    shared = _shared(inputs)
+    shared = _named(inputs.data.traverse, inputs.data.truth)
     return inputs, [_loads(path, shared, header=True) for path in state_paths]
 
 
@@ -126,11 +143,10 @@ def remove_checkpoint(folder: Path) -> None:
     shutil.rmtree(Path(folder) / CHECKPOINT_DIR, ignore_errors=True)
 
 
-def _shared(inputs: RunInputs) -> dict[str, Any]:
+def _named(traverse: Traverse, truth: GroundTruth | None) -> dict[str, Any]:
     """The input objects a state refers to, by name."""
-    data = inputs.data
-    named: dict[str, Any] = {"traverse": data.traverse, "truth": data.truth}
-    for k, stop in enumerate(data.traverse.stops):
+    named: dict[str, Any] = {"traverse": traverse, "truth": truth}
+    for k, stop in enumerate(traverse.stops):
         named[f"stop/{k}"] = stop
     return {name: obj for name, obj in named.items() if obj is not None}
 
@@ -154,12 +170,6 @@ class _Unpickler(pickle.Unpickler):
             return self._shared[pid]
         except KeyError:
             raise pickle.UnpicklingError(f"refers to {pid!r}, which the run's inputs do not have") from None
-
-
-def _dumps(obj, shared: dict[str, Any]) -> bytes:
-    buffer = io.BytesIO()
-    _Pickler(buffer, shared).dump(obj)
-    return buffer.getvalue()
 
 
 def saved_stop(path: Path) -> int | None:
@@ -188,8 +198,10 @@ def _loads(path: Path, shared: dict[str, Any], header: bool = False):
         raise ResultsError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {exc})") from None
 
 
-def _write_atomically(path: Path, payload: bytes) -> None:
+def _write_atomically(path: Path, write: Callable[[BinaryIO], None]) -> None:
+    """`write` streams the pickle into the file: never whole in memory (pickling to bytes held
+    the state twice at each save, and left the heap as large)."""
     try:
-        write_atomically(path, lambda f: f.write(payload))
+        write_atomically(path, write)
     except OSError as exc:
         raise WriteFailed(f"{path}: cannot write the checkpoint: {exc.strerror}") from None

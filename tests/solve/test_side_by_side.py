@@ -150,3 +150,41 @@ def test_groups_wait_for_a_free_worker_and_a_failure_stops_the_wait():
     assert sorted(futures) == [0, 1] and most == 2
     with pytest.raises(RuntimeError, match="group failed"):
         futures[0].result()
+
+
+def test_a_group_is_handed_its_inputs_in_a_file_with_large_arrays_mapped_once(short_trail):
+    """Not through the pool's queue (whose feeder thread kept the last pickle); an array of a
+    megabyte or more is written once for every group and mapped read-only by each worker."""
+    import dataclasses
+
+    from pancam_graph.solve.group import GroupJob
+    from pancam_graph.solve.side_by_side import GroupInputs, Handover, read_inputs
+
+    landmarks = np.arange(300_000, dtype=float).reshape(-1, 3)  # 2.4 MB
+    truth = dataclasses.replace(short_trail.truth, landmarks=landmarks)
+    job = GroupJob(short_trail.traverse, truth, short_trail.estimator, 0, SIDE_BY_SIDE, (), {})
+    handover = Handover()
+    try:
+        first = handover.write("first", GroupInputs(job, None, [None], [None], 0.0))
+        second = handover.write("second", GroupInputs(job, None, [None], [None], 0.0))
+        assert len(list(handover.folder.glob("*.npy"))) == 1  # the same array, written once
+        assert second.stat().st_size < landmarks.nbytes / 2
+        got = read_inputs(first)
+        assert not first.exists() and second.exists()
+        np.testing.assert_array_equal(got.job.truth.landmarks, landmarks)
+        assert not got.job.truth.landmarks.flags.writeable and not got.job.truth.landmarks.flags.owndata
+        assert len(got.job.traverse.stops) == len(short_trail.traverse.stops)
+    finally:
+        handover.cleanup()
+    assert not handover.folder.exists()
+
+
+def test_a_groups_checkpoint_writer_travels_without_the_inputs(short_trail, tmp_path):
+    """The writer a worker gets names its own traverse (refer_to); it used to carry the run's
+    whole traverse, stereo and all, to every worker."""
+    import pickle
+
+    writer = CheckpointWriter(tmp_path, RunInputs(short_trail, SIDE_BY_SIDE), min_interval_s=0)
+    part = writer.part(1)
+    assert len(pickle.dumps(part)) < 2_000 < len(pickle.dumps(short_trail.traverse))
+    assert writer.shared  # the run's own writer still names the inputs
