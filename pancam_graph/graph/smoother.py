@@ -222,6 +222,13 @@ class Smoother:
             return None
         return np.array(self._left_covariances[9 * row:9 * row + 9]).reshape(3, 3)
 
+    def release_solver(self) -> None:
+        """Let iSAM2 (the window's Bayes tree) go once the estimate and covariances are taken:
+        the bound's replay (`marginals_at`) builds a window of its own from the update log, and
+        would otherwise come on top of every live one. Nothing but `marginals_at` may be asked
+        after this."""
+        self.isam = None
+
     # -- checkpoints ---------------------------------------------------------------------------
 
     def __getstate__(self) -> dict:

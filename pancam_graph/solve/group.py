@@ -23,7 +23,7 @@ from ..frontend.vo_ahead import VoAhead
 from ..kinds import absolute
 from ..records import GpsFix, GroundTruth, Traverse
 from .listener import NullListener, RunListener
-from .localizer import Localizer
+from .localizer import Localizer, Snapshot
 from .memory import peak_rss_mb, pss_mb, release_memory, rss_mb, settle_garbage_collector
 from .results import ConfigurationResult, ProcessUse, RunOptions
 from .state import CHECKPOINT_EVERY_STOPS, Checkpoints, RunState
@@ -99,13 +99,18 @@ def run_group(job: GroupJob, state: RunState | None, known: VoMotions | None, sa
             ahead.close()
     results = {}
     inliers = np.array([-1 if m is None else m.vo_inliers for m in state.motions])  # one motion per stop
-    for name in list(state.localizers):
+    # every configuration's estimate first, each solver let go as it is taken: the bounds' replays
+    # then come one at a time on top of none (long_traverse: a group's end +89 -> +39 MB)
+    finished = {}
+    for name, localizer in state.localizers.items():
         if progress is not None:
             progress(f"finishing {name}", 0, 1)
-        localizer = state.localizers[name]
-        results[name] = _configuration_result(job, name, localizer, state.steps[name], progress,
+        finished[name] = _finish(job, localizer)
+    for name in list(state.localizers):
+        localizer = state.localizers.pop(name)
+        results[name] = _configuration_result(job, name, localizer, finished.pop(name), state.steps[name], progress,
                                               inliers if localizer.uses_vo else np.full(n, -1))
-        del state.localizers[name]  # its graphs are no more use: their memory goes to the next one's bounds
+        del localizer  # its graphs are no more use: their memory goes to the next one's bound
         release_memory()
     _sample_memory(state, n - 1, last=True)
     use = ProcessUse(label, os.getpid(), tuple(results), time.perf_counter() - began,
@@ -171,17 +176,35 @@ def _step_through(traverse: Traverse, state: RunState, vo_motion: Callable[[int,
     state.next_stop = n
 
 
-def _configuration_result(job: GroupJob, name: str, localizer: Localizer, steps: StepTable,
+@dataclass(frozen=True)
+class Finished:
+    """What a configuration's results take from its live solver."""
+
+    final: Snapshot
+    covariance: np.ndarray  # (N, 3, 3) position covariances, world frame
+    counters: dict  # the kinds' counters and their own variables against the truth
+
+
+def _finish(job: GroupJob, localizer: Localizer) -> Finished:
+    """The final estimate, its covariances and the kinds' variables against the truth; then the
+    solver is let go (Smoother.release_solver)."""
+    localizer.finish()
+    final = localizer.final(batch=job.options.batch)
+    covariance = localizer.position_covariances()
+    counters = {**localizer.counters(), **(localizer.against_truth(job.truth) if job.truth is not None else {})}
+    localizer.smoother.release_solver()
+    return Finished(final, covariance, counters)
+
+
+def _configuration_result(job: GroupJob, name: str, localizer: Localizer, finished: Finished, steps: StepTable,
                           progress: ProgressCallback | None, vo_inliers: np.ndarray) -> ConfigurationResult:
     """A configuration's final estimate, its covariances, and its metrics against the
     reference (each stop's NEES too), the bound (CRLB) and GPS."""
     traverse, truth = job.traverse, job.truth
-    localizer.finish()
-    final = localizer.final(batch=job.options.batch)
+    final, covariance = finished.final, finished.covariance
     poses = final.world_T_body
     alignment = "none" if absolute(localizer.kind_names) else "se3"  # in the world frame as it stands
     metrics = consistency_result = along = None
-    covariance = localizer.position_covariances()
     if truth is not None:
         metrics = compare(poses[:, :3, 3], truth.positions, alignment, poses, truth.world_T_body)
         along = nees_along_run(poses[:, :3, 3], truth.positions, covariance, vo_inliers)
@@ -205,7 +228,7 @@ def _configuration_result(job: GroupJob, name: str, localizer: Localizer, steps:
         landmark_ids=final.landmark_ids,
         landmark_positions=final.landmarks,
         tie_links=localizer.tie_links(),
-        counters={**localizer.counters(), **(localizer.against_truth(truth) if truth is not None else {})},
+        counters=finished.counters,
         interpolated=list(localizer.interpolated),
         solver="isam2+batch_lm" if job.options.batch else "isam2",
         metrics=metrics,
