@@ -28,6 +28,7 @@ from .memory import peak_rss_mb, pss_mb, release_memory, rss_mb, settle_garbage_
 from .results import ConfigurationResult, ProcessUse, RunOptions
 from .state import CHECKPOINT_EVERY_STOPS, Checkpoints, RunState
 from .step_table import StepTable
+from .stop_records import StopRecords
 
 ProgressCallback = Callable[[str, int, int], None]
 
@@ -59,10 +60,11 @@ class GroupOutcome:
 
 def run_group(job: GroupJob, state: RunState | None, known: VoMotions | None, save: Checkpoints | None,
               progress: ProgressCallback | None, listener: RunListener | None, start: float,
-              label: str = "run") -> GroupOutcome:
+              label: str = "run", records: StopRecords | None = None) -> GroupOutcome:
     """A group's configurations stop by stop in this process, then evaluated. Motions the
     state does not have are estimated as the stops come (`known`: a source's; else the VO,
-    ahead in a second process on long traverses when the options allow one)."""
+    ahead in a second process on long traverses when the options allow one). `records`: the
+    stops' image records, when the traverse's stops come without them (a worker's)."""
     began, began_cpu = time.perf_counter(), time.process_time()
     traverse, slip = job.traverse, job.traverse.wheel_slip
     state = state or new_state(job)
@@ -92,7 +94,7 @@ def run_group(job: GroupJob, state: RunState | None, known: VoMotions | None, sa
     listener.start(traverse, job.truth, state.localizers)
     settle_garbage_collector()
     try:
-        _step_through(traverse, state, vo_motion if any_vo else None, save, progress, listener, start)
+        _step_through(traverse, state, vo_motion if any_vo else None, save, progress, listener, start, records)
     finally:
         gc.unfreeze()
         if ahead is not None:
@@ -142,7 +144,7 @@ def _sample_memory(state: RunState, stop: int, last: bool = False) -> None:
 
 def _step_through(traverse: Traverse, state: RunState, vo_motion: Callable[[int, Motion | None], Motion] | None,
                   save: Checkpoints | None, progress: ProgressCallback | None, listener: RunListener,
-                  start: float) -> None:
+                  start: float, records: StopRecords | None = None) -> None:
     """Feed the state's localizers every stop from `state.next_stop` on; a stop's motion is
     estimated here unless the state has it already."""
     n = len(traverse.stops)
@@ -152,7 +154,7 @@ def _step_through(traverse: Traverse, state: RunState, vo_motion: Callable[[int,
     # (33,589 motions of about 1.2 KB on mission_traverse).
     needs_dr = vo_motion is None or not all(loc.uses_vo for loc in state.localizers.values())
     for k in range(state.next_stop, n):
-        stop = traverse.stops[k]
+        stop = traverse.stops[k] if records is None else records.attach(k, traverse.stops[k])
         if needs_dr and k > 0 and len(dr_motions) <= k:
             dr_motions.append(dead_reckoning_motion(stop, dr_motions[-1], slip))
         if k > 0 and len(motions) <= k:

@@ -36,6 +36,7 @@ from ..records import Traverse
 from .group import GroupJob, GroupOutcome, ProgressCallback, new_state, run_group
 from .memory import rss_mb
 from .state import Checkpoints, RunState
+from .stop_records import StopRecords
 
 _stops_done = None  # in a worker: the shared count of stops each group has stepped, then "stop now"
 _run_pid = 0  # in a worker: the process it works for
@@ -66,7 +67,10 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
             part = save.part(g) if save is not None else None
             # a group whose configurations all take the VO's motions reads no dead reckoning
             reads_dr = not all(uses_vo(kinds) for kinds in groups[g].values())
-            inputs = GroupInputs(_job_of(job, groups[g]), state, motions, dr_motions if reads_dr else [None], vo_s)
+            fields = stop_records([kind for kinds in groups[g].values() for kind in kinds])
+            records = handover.records(f"group-{g}", job.traverse, fields) if fields else None
+            inputs = GroupInputs(_job_of(job, groups[g]), state, motions, dr_motions if reads_dr else [None], vo_s,
+                                 records)
             futures[g] = pool.submit(_run_group_in_worker, handover.write(f"group-{g}", inputs), g, part, start)
 
         for g, configs in enumerate(groups):
@@ -106,6 +110,7 @@ class GroupInputs:
     motions: list[Motion | None]
     dr_motions: list[Motion | None]
     vo_s: float
+    records: StopRecords | None = None  # the image records its configurations read, a stop at a time
 
 
 MAPPED_BYTES = 1 << 20  # an input array this large is mapped from one file by every worker
@@ -134,6 +139,14 @@ class Handover:
             raise WriteFailed(f"{path}: cannot hand a group of configurations its inputs: {exc.strerror} (the "
                               "system's temporary folder; TMPDIR chooses another)") from None
         return path
+
+    def records(self, name: str, traverse: Traverse, fields: set[str]) -> StopRecords:
+        path = self.folder / f"{name}-records.pickle"
+        try:
+            return StopRecords.write(path, traverse, fields)
+        except OSError as exc:
+            raise WriteFailed(f"{path}: cannot hand a group of configurations its image records: {exc.strerror} "
+                              "(the system's temporary folder; TMPDIR chooses another)") from None
 
     def array_file(self, array: np.ndarray) -> Path:
         if id(array) not in self._arrays:
@@ -171,11 +184,11 @@ def read_inputs(path: Path) -> GroupInputs:
 
 
 def _job_of(job: GroupJob, configs: dict[str, list[str]]) -> GroupJob:
-    """A group's job, its traverse without the image records its configurations do not read:
-    the motions are given, so no stereo, and no panoramas without sites. Less to pickle and to
-    hold in the worker (long_traverse's stereo and panoramas are 42 of its 48 MB pickled)."""
-    records = stop_records([kind for kinds in configs.values() for kind in kinds])
-    return replace(job, configs=configs, traverse=job.traverse.keeping(records))
+    """A group's job, its traverse without image records: the motions are given, so no stereo,
+    and the panoramas, HRC frames and ground patches its configurations read come a stop at a
+    time (StopRecords). Less to pickle and to hold in the worker (long_traverse's stereo and
+    panoramas are 42 of its 48 MB pickled)."""
+    return replace(job, configs=configs, traverse=job.traverse.keeping(set()))
 
 
 def _uses_vo(configs: dict[str, list[str]]) -> bool:
@@ -287,7 +300,7 @@ def _stop_if_the_run_stopped() -> None:
 
 def _run_group_in_worker(inputs_path: Path, index: int, save: Checkpoints | None, start: float) -> GroupOutcome:
     inputs = read_inputs(inputs_path)
-    job, state, motions = inputs.job, inputs.state, inputs.motions
+    job, state, motions, records = inputs.job, inputs.state, inputs.motions, inputs.records
     if save is not None:
         save.refer_to(job.traverse, job.truth)
     if state is None:
@@ -302,6 +315,6 @@ def _run_group_in_worker(inputs_path: Path, index: int, save: Checkpoints | None
         if stage == "stops" and _stops_done is not None:
             _stops_done[index] = k
 
-    outcome = run_group(job, state, None, save, progress, None, start, f"group {index + 1}")
+    outcome = run_group(job, state, None, save, progress, None, start, f"group {index + 1}", records)
     outcome.motions = []  # the run's process has them: a traverse's worth of motions not sent back
     return outcome

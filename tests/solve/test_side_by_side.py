@@ -83,25 +83,44 @@ def test_a_run_checkpointed_in_groups_resumes_to_the_same_estimate(short_trail, 
     _assert_same(whole, _run(inputs.data, RunOptions(), resume=states))
 
 
-def test_a_group_is_sent_only_the_image_records_it_reads(short_trail):
+def _same_frames(a, b) -> bool:
+    """Panorama or HRC frames equal, their arrays compared as arrays."""
+    def flat(frame):
+        obs = getattr(frame, "observations", frame)
+        arrays = [np.asarray(getattr(obs, f)).tolist() for f in ("track_ids", "uvv", "uv") if hasattr(obs, f)]
+        return [frame.pan_rad, frame.tilt_rad, *arrays]
+    return len(a) == len(b) and all(flat(x) == flat(y) for x, y in zip(a, b, strict=True))
+
+
+def test_a_group_is_sent_only_the_image_records_it_reads(short_trail, tmp_path):
     """The motions are given to a worker, so it gets no stereo; panoramas and HRC frames only
-    with the kinds that read them. (That the estimates do not change is the test above.)"""
+    with the kinds that read them, in a file read a stop at a time. (That the estimates do not
+    change is the test above.)"""
+    from pancam_graph.kinds import stop_records
     from pancam_graph.solve.group import GroupJob
     from pancam_graph.solve.side_by_side import _job_of
+    from pancam_graph.solve.stop_records import StopRecords
 
-    job = GroupJob(short_trail.traverse, short_trail.truth, short_trail.estimator, 0, SIDE_BY_SIDE, (), {})
-    sites = [s for s in short_trail.traverse.stops if s.is_site]
-    assert sites and all(s.panorama and s.hrc for s in sites)
-    dr = _job_of(job, {"dead_reckoning": ["dead_reckoning"], "dead_reckoning_gps": ["dead_reckoning", "gps"]})
-    with_sites = _job_of(job, {"vo_sites": ["vo", "sites"]})
-    with_hrc = _job_of(job, {"vo_sites_hrc": ["vo", "sites", "hrc"]})
-    for g in (dr, with_sites, with_hrc):
-        assert all(len(s.stereo.track_ids) == 0 for s in g.traverse.stops)
-        assert g.traverse.gps_fixes == short_trail.traverse.gps_fixes
-        assert [s.dead_reckoning for s in g.traverse.stops] == [s.dead_reckoning for s in short_trail.traverse.stops]
-    assert not any(s.panorama or s.hrc for s in dr.traverse.stops)
-    assert all(s.panorama and not s.hrc for s in with_sites.traverse.stops if s.is_site)
-    assert all(s.panorama and s.hrc for s in with_hrc.traverse.stops if s.is_site)
+    traverse = short_trail.traverse
+    job = GroupJob(traverse, short_trail.truth, short_trail.estimator, 0, SIDE_BY_SIDE, (), {})
+    sites = [k for k, s in enumerate(traverse.stops) if s.is_site]
+    assert sites and all(traverse.stops[k].panorama and traverse.stops[k].hrc for k in sites)
+    group = _job_of(job, {"vo_sites_hrc": ["vo", "sites", "hrc"]})
+    assert all(len(s.stereo.track_ids) == 0 and not s.panorama and not s.hrc for s in group.traverse.stops)
+    assert group.traverse.gps_fixes == traverse.gps_fixes
+    assert [s.dead_reckoning for s in group.traverse.stops] == [s.dead_reckoning for s in traverse.stops]
+
+    assert stop_records(["dead_reckoning", "gps"]) == set()  # the dead-reckoning group gets no file
+    with_sites = StopRecords.write(tmp_path / "sites", traverse, stop_records(["vo", "sites"]))
+    with_hrc = StopRecords.write(tmp_path / "hrc", traverse, stop_records(["vo", "sites", "hrc"]))
+    assert sorted(with_sites.offsets) == sorted(with_hrc.offsets) == sites
+    for k in sites:
+        bare = group.traverse.stops[k]
+        a, b = with_sites.attach(k, bare), with_hrc.attach(k, bare)
+        assert _same_frames(a.panorama, traverse.stops[k].panorama) and not a.hrc
+        assert _same_frames(b.panorama, traverse.stops[k].panorama) and _same_frames(b.hrc, traverse.stops[k].hrc)
+        assert a.index == k and a.dead_reckoning is bare.dead_reckoning
+    assert with_sites.attach(sites[0] + 1, group.traverse.stops[sites[0] + 1]) is group.traverse.stops[sites[0] + 1]
 
 
 def _three_groups_on_two_workers(failing):
