@@ -125,7 +125,7 @@ class Handover:
     process."""
 
     def __init__(self):
-        self._folder = tempfile.TemporaryDirectory(prefix="pancam_graph_groups_")
+        self._folder = tempfile.TemporaryDirectory(prefix="pancam_graph_groups_", ignore_cleanup_errors=True)
         self.folder = Path(self._folder.name)
         # by id; the array is held too, so that no other object takes its id meanwhile
         self._arrays: dict[int, tuple[np.ndarray, Path]] = {}
