@@ -16,7 +16,11 @@ from ..errors import GraphError
 from .keys import E, L, S, T, X, subset
 from .update_log import Rebuild, UpdateLog, picklable, with_scalars
 
-WINDOW_STEPS = 4  # the window moves in steps of a quarter of its length
+# The window moves in steps of half its length. Each step's update re-eliminates the window
+# (30-180 ms for `full` on mission_traverse): with quarters there were four a km, and the
+# 99th percentile of a km's updates was one of them in 1-3 of its 51 km (31-41 ms); with
+# halves there are two a km and every km's p99 was at most 14 ms (docs/performance.md).
+WINDOW_STEPS = 2
 _POSE_CHR = gtsam.Symbol(X(0)).chr()
 
 
@@ -159,7 +163,7 @@ class Smoother:
         return elapsed
 
     def _stamp(self) -> float:
-        """The clock in steps of a quarter of the window: variables leave in batches, one step's
+        """The clock in steps of half the window: variables leave in batches, one step's
         worth at a time. A marginalizing update costs more than an ordinary one, and more the
         larger the window (GTSAM orders every variable of the window anew for it)."""
         if not np.isfinite(self.window_m):

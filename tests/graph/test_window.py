@@ -142,7 +142,7 @@ def test_the_bayes_tree_stops_growing():
         smoother.add(gtsam.BetweenFactorPose3(X(k - 1), X(k), step, gtsam.noiseModel.Isotropic.Sigma(6, 0.01)))
         smoother.update()
         sizes.append(smoother.isam.getISAM2().size())
-    assert max(sizes) <= 100 + 25 + 1  # the window moves in steps of a quarter
+    assert max(sizes) <= 100 + 50 + 1  # the window moves in steps of half its length
     # a chain: what left is exactly where the whole chain would put it (no later factor moves it)
     expected = gtsam.Pose3()
     for k in range(3000):
@@ -179,15 +179,24 @@ def test_vo_ahead_in_a_second_process_gives_the_vo_of_this_one(short_scenario, t
         ahead.close()
 
 
+def _tied(loc, a: int, b: int) -> bool:
+    """Whether a landmark has views from both site stops a and b."""
+    links = loc.tie_links()
+    return bool(set(links[links[:, 1] == a, 0]) & set(links[links[:, 1] == b, 0]))
+
+
 def test_a_site_that_leaves_the_window_at_the_next_site_is_not_searched_for_ties(short_scenario, trail):
-    """With a 45 m window the earlier site leaves in the update that puts the new site's pose
-    in the Bayes tree, before the tie gate asks for the two sites' joint marginal."""
+    """With a 40 m window (steps of 20 m) the first site leaves in the update that puts the
+    second site's pose in the Bayes tree, before the tie gate asks for the two sites' joint
+    marginal: no landmark ties them, while later sites still tie. With 50 m they tie."""
     traverse, truth, motions = trail
+    assert [s.index for s in traverse.stops if s.is_site][:2] == [0, 40]
     kinds = ["vo", "sites", "gps"]
-    narrow = _solve(_localizer(short_scenario, traverse, kinds, 45.0), traverse, motions)
+    narrow = _solve(_localizer(short_scenario, traverse, kinds, 40.0), traverse, motions)
     wider = _solve(_localizer(short_scenario, traverse, kinds, 50.0), traverse, motions)
-    assert len(narrow.landmarks) == 0 < len(wider.landmarks)
-    assert _position_rmse(narrow, truth) < 0.3  # m: VO and GPS alone
+    assert not _tied(narrow, 0, 40) and narrow.landmarks
+    assert _tied(wider, 0, 40)
+    assert _position_rmse(narrow, truth) < 0.3  # m
 
 
 def _chain(factorization: str, n: int = 200) -> Smoother:
