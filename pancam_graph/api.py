@@ -195,7 +195,6 @@ def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, ta
     from .solve.pipeline import run_traverse
     from .store.checkpoint import CheckpointWriter, RunInputs, remove_checkpoint
     from .store.results_folder import results_folder, write_run
-    from .viz.report import write_report
 
     out = out or default_out(data)
     recording = checkpoints = None
@@ -222,6 +221,9 @@ def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, ta
                                       save=checkpoints, resume=states, vo_motions=data.vo_motions,
                                       # the wall time counts the source's reading (an image source's front-end)
                                       started=None if states else time.perf_counter() - data.load_s)
+                # the report's plotting imports matplotlib (27 MB resident): not while the groups run
+                from .viz.report import write_report
+
                 with writing(folder, "the results"):
                     write_run(result, folder)
                     report = write_report(result, folder, figures)
