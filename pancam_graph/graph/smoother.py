@@ -19,7 +19,8 @@ from .update_log import Rebuild, UpdateLog, picklable, with_scalars
 # The window moves in steps of half its length. Each step's update re-eliminates the window
 # (30-180 ms for `full` on mission_traverse): with quarters there were four a km, and the
 # 99th percentile of a km's updates was one of them in 1-3 of its 51 km (31-41 ms); with
-# halves there are two a km and every km's p99 was at most 14 ms (docs/performance.md).
+# halves there are two a km and every km's p99 was at most 14, 18 and 19 ms in three runs
+# (docs/performance.md).
 WINDOW_STEPS = 2
 _POSE_CHR = gtsam.Symbol(X(0)).chr()
 

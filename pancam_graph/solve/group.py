@@ -151,7 +151,7 @@ def _step_through(traverse: Traverse, state: RunState, vo_motion: Callable[[int,
     slip = traverse.wheel_slip
     motions, dr_motions, steps = state.motions, state.dr_motions, state.steps
     # A group whose configurations all take the VO's motions reads no dead reckoning: none is kept
-    # (33,589 motions of about 1.2 KB on mission_traverse).
+    # (mission_traverse: 33,589 motions, 40 MB pickled).
     needs_dr = vo_motion is None or not all(loc.uses_vo for loc in state.localizers.values())
     for k in range(state.next_stop, n):
         stop = traverse.stops[k] if records is None else records.attach(k, traverse.stops[k])

@@ -27,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import GraphError, WriteFailed
+from ..atomic import writing
+from ..errors import GraphError
 from ..frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_from
 from ..frontend.vo_ahead import BLOCK_STOPS, VoAhead
 from ..kinds import stop_records, uses_vo
@@ -130,23 +131,18 @@ class Handover:
         # by id; the array is held too, so that no other object takes its id meanwhile
         self._arrays: dict[int, tuple[np.ndarray, Path]] = {}
 
+    WHAT = "a group's inputs for its worker (in the system's temporary folder; TMPDIR chooses another)"
+
     def write(self, name: str, inputs: GroupInputs) -> Path:
         path = self.folder / f"{name}.pickle"
-        try:
-            with open(path, "wb") as f:  # pickled in frames straight to the file, never whole in memory
-                _HandoverPickler(f, self).dump(inputs)
-        except OSError as exc:
-            raise WriteFailed(f"{path}: cannot hand a group of configurations its inputs: {exc.strerror} (the "
-                              "system's temporary folder; TMPDIR chooses another)") from None
+        with writing(path, self.WHAT), open(path, "wb") as f:  # pickled in frames straight to the file
+            _HandoverPickler(f, self).dump(inputs)
         return path
 
     def records(self, name: str, traverse: Traverse, fields: set[str]) -> StopRecords:
         path = self.folder / f"{name}-records.pickle"
-        try:
+        with writing(path, self.WHAT):
             return StopRecords.write(path, traverse, fields)
-        except OSError as exc:
-            raise WriteFailed(f"{path}: cannot hand a group of configurations its image records: {exc.strerror} "
-                              "(the system's temporary folder; TMPDIR chooses another)") from None
 
     def array_file(self, array: np.ndarray) -> Path:
         if id(array) not in self._arrays:
@@ -308,7 +304,6 @@ def _run_group_in_worker(inputs_path: Path, index: int, save: Checkpoints | None
         state.dr_motions, state.vo_s = inputs.dr_motions, inputs.vo_s
     if len(state.motions) < len(motions):  # a saved group has the motions up to its stop
         state.motions.extend(motions[len(state.motions):])
-    del inputs, motions
 
     def progress(stage: str, k: int, total: int) -> None:
         _stop_if_the_run_stopped()
