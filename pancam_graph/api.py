@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 from .atomic import writing
 from .errors import ConfigError, FrameError, GeodesyError, RunInterrupted, ViewerUnavailable
 from .evaluation.evaluate import Evaluation
-from .processes import cores, start_process_server
+from .processes import cores, hold_malloc_thresholds, start_process_server
 from .records import Traverse
 from .solve.group import ProgressCallback
 from .solve.results import RunOptions, RunResult, SourceData
@@ -145,6 +145,7 @@ def run(source: str | Path = "denver_trail", *, out: Path | str | None = None, s
     `vo_error_model`: the VO error model instead of the source's own (config.VO_ERROR_MODELS)."""
     from .solve.pipeline import select_configurations
 
+    hold_malloc_thresholds()
     out = Path(out) if out is not None else None
     options = RunOptions(seed=seed, configs=configs, batch=batch, processes=processes or cores(),
                          vo_error_model=vo_error_model)
@@ -181,6 +182,7 @@ def resume(point: ResumePoint | Path | str, *, processes: int | None = None, rer
     own staging folder."""
     if not isinstance(point, ResumePoint):
         point = resume_point(point)
+    hold_malloc_thresholds()
     options = point.options if processes is None else dataclasses.replace(point.options, processes=processes)
     if options.processes > 1:
         start_process_server()

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from .config import load_scenario, resolve_scenario
 from .errors import ConfigError, ResultsError
-from .processes import cores, start_process_server
+from .processes import cores, hold_malloc_thresholds, start_process_server
 from .solve.group import ProgressCallback
 
 
@@ -38,6 +38,7 @@ def bench_runs(scenario: str, seed: int | None = None, seeds: int = 1, rerun: bo
 
     seeds = max(seeds, monte_carlo)
     load_before = os.getloadavg()
+    hold_malloc_thresholds()  # as a run does
     sc = _load(scenario)
     first = sc.seed if seed is None else seed
     results, walls, recorded_walls = [], [], []

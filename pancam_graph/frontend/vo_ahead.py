@@ -20,7 +20,7 @@ import numpy as np
 
 from ..config import EstimatorConfig
 from ..errors import FrontendError
-from ..processes import cores, process_context
+from ..processes import cores, hold_malloc_thresholds, process_context
 from ..records import StereoObservations, Traverse
 from ..rig import Rig
 from .stereo_vo import StereoVO, VoResult
@@ -71,7 +71,8 @@ class VoAhead:
         self.stops = traverse.stops
         self.next = max(first, 1)
         self.own_pool = pool is None
-        self.pool = ProcessPoolExecutor(1, mp_context=process_context()) if pool is None else pool
+        self.pool = ProcessPoolExecutor(1, mp_context=process_context(),
+                                                initializer=hold_malloc_thresholds) if pool is None else pool
         setup = VoSetup.of(traverse, estimator)
         self.blocks: deque[tuple[int, Future]] = deque()
         for start in range(self.next, len(self.stops), BLOCK_STOPS):

@@ -32,7 +32,7 @@ from ..errors import GraphError
 from ..frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_from
 from ..frontend.vo_ahead import BLOCK_STOPS, VoAhead
 from ..kinds import stop_records, uses_vo
-from ..processes import process_context
+from ..processes import hold_malloc_thresholds, process_context
 from ..records import Traverse
 from .group import GroupJob, GroupOutcome, ProgressCallback, new_state, run_group
 from .memory import rss_mb
@@ -269,6 +269,7 @@ class MemoryWatch:
 def _start_worker(done, pids, run_pid: int) -> None:
     global _stops_done, _run_pid
     _stops_done, _run_pid = done, run_pid
+    hold_malloc_thresholds()
     with pids.get_lock():
         free = list(pids[:]).index(0)
         pids[free] = os.getpid()
