@@ -85,13 +85,17 @@ def check_out(out: Path | None, option: str = "--out") -> None:
 
 
 def open_data(source: str | Path, options: SourceOptions = SourceOptions(), out: Path | None = None,
-              progress: ProgressCallback | None = None, vo_error_model: str | None = None) -> SourceData:
+              progress: ProgressCallback | None = None, vo_error_model: str | None = None,
+              processes: int | None = None) -> SourceData:
     """Read a source (an image source runs the front-end over every frame). A bad frame that
     stops the front-end leaves what it tracked before as an observation folder in
     <out>.partial/observations, and the FrameError says so. `vo_error_model`: the VO error model
-    to use instead of the source's own (config.VO_ERROR_MODELS)."""
+    to use instead of the source's own (config.VO_ERROR_MODELS). `processes`: the run's (default
+    every core); with more than one, a simulation runs in a process of its own
+    (processes.call_apart)."""
+    hold_malloc_thresholds()  # before the source's allocations
     try:
-        data = open_source(str(source), options, progress)
+        data = open_source(str(source), options, progress, apart=(processes or cores()) > 1)
     except FrameError as exc:
         raise _kept_frontend_work(exc, out) from None
     return _with_vo_error_model(data, vo_error_model)
@@ -154,7 +158,8 @@ def run(source: str | Path = "denver_trail", *, out: Path | str | None = None, s
     check_out(out)
     source_options = source_options or SourceOptions(seed=seed)
     data = _with_vo_error_model(opened, vo_error_model) if opened else open_data(source, source_options, out,
-                                                                                   progress, vo_error_model)
+                                                                                   progress, vo_error_model,
+                                                                                   options.processes)
     select_configurations(data.estimator, data.traverse, options.configs)  # before anything is written
     return _run_into_folder(data, options, out, rerun, checkpoint_every_s, figures, progress, on_viewer=on_viewer)
 

@@ -103,6 +103,11 @@ class PathConfig(_Strict):
             return {**data, "waypoints": waypoints, "sharp_turns": turns}
         return data
 
+    @property
+    def length_m(self) -> float:
+        """The waypoints' polyline length."""
+        return sum(math.dist(a, b) for a, b in zip(self.waypoints, self.waypoints[1:], strict=False))
+
     @model_validator(mode="after")
     def _check(self) -> PathConfig:
         if len(self.waypoints) < 2:

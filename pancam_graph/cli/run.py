@@ -149,7 +149,7 @@ def run_command(
         api.check_out(out)
         data = with_progress(Path(source).name or source, quiet,
                               lambda report: api.open_data(source, source_options, out, report,
-                                                           vo_error_model=vo_error_model))
+                                                           vo_error_model=vo_error_model, processes=processes))
         from ..solve.pipeline import select_configurations
 
         select_configurations(data.estimator, data.traverse, names)  # before anything is written

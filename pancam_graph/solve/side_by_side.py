@@ -32,7 +32,7 @@ from ..errors import GraphError
 from ..frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_from
 from ..frontend.vo_ahead import BLOCK_STOPS, VoAhead
 from ..kinds import stop_records, uses_vo
-from ..processes import hold_malloc_thresholds, process_context
+from ..processes import hold_malloc_thresholds, process_context, release_mapped_pages
 from ..records import Traverse
 from .group import GroupJob, GroupOutcome, ProgressCallback, new_state, run_group
 from .memory import rss_mb
@@ -73,6 +73,8 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
             inputs = GroupInputs(_job_of(job, groups[g]), state, motions, dr_motions if reads_dr else [None], vo_s,
                                  records)
             futures[g] = pool.submit(_run_group_in_worker, handover.write(f"group-{g}", inputs), g, part, start)
+            if len(futures) == len(groups):  # the stops' observations are all handed out
+                release_mapped_pages()
 
         for g, configs in enumerate(groups):
             if not _uses_vo(configs):

@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 from ..errors import ConfigError
+from ..processes import call_apart
 from ..solve.results import SourceData
 from ..source_options import SourceOptions
 from .recorded import is_kitti_drive
@@ -37,14 +38,23 @@ def source_kind(text: str) -> str:
 
 
 def open_source(text: str, options: SourceOptions = SourceOptions(),
-                progress: ProgressCallback | None = None) -> SourceData:
+                progress: ProgressCallback | None = None, apart: bool = False) -> SourceData:
     """The source named by `text`, loaded (images: the front-end runs over every frame,
-    reporting to `progress`). An option the source does not take is an error."""
+    reporting to `progress`). An option the source does not take is an error. `apart`: a
+    source that pays for it (`Source.apart`) is loaded in a process of its own (processes.call_apart)."""
     start = time.perf_counter()
     source = source_for(text)
     options.check(source.name, source.takes)
-    data = source.load(text, options, progress)
+    if apart and source.apart(text):
+        data = call_apart(_load, source.name, text, options)
+    else:
+        data = source.load(text, options, progress)
     return dataclasses.replace(data, load_s=time.perf_counter() - start)
+
+
+def _load(name: str, text: str, options: SourceOptions) -> SourceData:
+    """Source `name`'s data for `text` (in a process of its own: a source's `load` does not pickle)."""
+    return next(s for s in SOURCES if s.name == name).load(text, options, None)
 
 
 __all__ = ["SOURCES", "Source", "SourceData", "SourceOptions", "open_source", "source_for", "source_kind"]

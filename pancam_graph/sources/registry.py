@@ -25,6 +25,10 @@ class Source:
     matches: Callable[[Path], bool]
     load: Callable[[str, SourceOptions, ProgressCallback | None], SourceData]
     describes: str  # what it is, for the message when nothing matches
+    # Whether to load this in a process of its own when the run has more than one
+    # (processes.call_apart): loading it reports no progress and leaves behind nothing the run
+    # needs (a long simulation).
+    apart: Callable[[str], bool] = lambda text: False
 
 
 def frontend_for(options: SourceOptions) -> FrontendConfig | None:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..config import load_scenario, resolve_scenario
-from ..solve.pipeline import simulated
+from ..solve.pipeline import simulated, worth_simulating_apart
 from ..solve.results import SourceData
 from .registry import Source
 
@@ -17,4 +17,5 @@ def load(name_or_path: str, seed: int | None = None) -> SourceData:
 # Last: whatever is not a folder of another kind is a scenario name or file (config says which).
 SOURCES = (Source("scenario", 100, frozenset({"seed"}), lambda path: not path.is_dir(),
                   lambda text, options, progress: load(text, options.seed),
-                  "a bundled scenario name or a scenario TOML file"),)
+                  "a bundled scenario name or a scenario TOML file",
+                  lambda text: worth_simulating_apart(load_scenario(resolve_scenario(text)))),)
