@@ -6,8 +6,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Literal
 
+import gtsam
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 Alignment = Literal["none", "se3", "yaw"]
 GPS_REFERENCE_STEP_M = 20.0  # a GPS track's length is measured through fixes this far apart
@@ -81,8 +81,9 @@ def align(est: np.ndarray, ref: np.ndarray, kind: Alignment) -> tuple[np.ndarray
 
 
 def rotation_angle_deg(rot: np.ndarray) -> float:
-    """Angle of a rotation matrix by its log map (arccos of the trace loses small angles)."""
-    return float(np.degrees(Rotation.from_matrix(rot).magnitude()))
+    """Angle of a rotation matrix by its log map (arccos of the trace loses small angles).
+    GTSAM's, not scipy's Rotation: scipy.spatial would add 12 MB to every worker process."""
+    return float(np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(gtsam.Rot3(rot)))))
 
 
 def relative_pose_error(est: np.ndarray, ref: np.ndarray, delta_m: float, tolerance: float = 0.1
