@@ -10,6 +10,7 @@ start prior fixes the gauge of both the estimate and the bound.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 
 import gtsam
@@ -17,7 +18,7 @@ import numpy as np
 
 from .. import chi2
 from ..errors import EvaluationError, GraphError
-from ..graph.keys import L, X
+from ..graph.keys import L, X, subset
 from ..graph.smoother import Smoother
 
 POSITION_DOF = 3
@@ -25,21 +26,39 @@ NEES_BOUND_99 = float(chi2.quantile(0.99, POSITION_DOF))  # a position's 99 % el
 
 
 def crlb_position_covariances(smoother: Smoother, stops: list[int], world_T_body: np.ndarray,
-                              landmarks: dict[int, np.ndarray], extra: gtsam.Values | None = None) -> np.ndarray:
+                              landmarks: Mapping[int, np.ndarray] | np.ndarray,
+                              extra: gtsam.Values | None = None) -> np.ndarray:
     """(N, 3, 3) world-frame position covariances of X(stop) from the smoother's graph linearized
     at the truth, through its window: `world_T_body` (N, 4, 4) for `stops`, `landmarks` track ->
-    true position, `extra` the true values of any other variable."""
-    values = gtsam.Values() if extra is None else gtsam.Values(extra)
-    for k, pose in zip(stops, world_T_body, strict=True):
-        values.insert(X(k), gtsam.Pose3(pose))
-    for track, point in landmarks.items():
-        values.insert(L(track), np.asarray(point, dtype=float))
+    true position (a mapping, or an array indexed by track), `extra` the true values of any
+    other variable. The true values are made as the replay inserts its variables, not all at
+    once (mission_traverse: 33,589 poses and every landmark a group saw)."""
+    at_stop = {k: i for i, k in enumerate(stops)}
+    extra = gtsam.Values() if extra is None else extra
+
+    def true_values(keys: list[int]) -> gtsam.Values:
+        out = subset(extra, [key for key in keys if extra.exists(key)])
+        for key in keys:
+            if extra.exists(key):
+                continue
+            symbol = gtsam.Symbol(key)
+            if symbol.chr() == _POSE and symbol.index() in at_stop:
+                out.insert(key, gtsam.Pose3(world_T_body[at_stop[symbol.index()]]))
+            elif symbol.chr() == _LANDMARK:
+                out.insert(key, np.asarray(landmarks[symbol.index()], dtype=float))
+            else:
+                raise ValueError(f"no true value of {symbol}")
+        return out
+
     try:
-        marginals = smoother.marginals_at(values, [X(k) for k in stops])
+        marginals = smoother.marginals_at(true_values, [X(k) for k in stops])
     except GraphError as exc:
         raise EvaluationError(f"CRLB: the graph at ground truth cannot be inverted: {exc}") from None
     rot = world_T_body[:, :3, :3]
     return rot @ np.stack([marginals[X(k)] for k in stops])[:, 3:, 3:] @ rot.transpose(0, 2, 1)
+
+
+_POSE, _LANDMARK = gtsam.Symbol(X(0)).chr(), gtsam.Symbol(L(0)).chr()
 
 
 @dataclass(frozen=True)

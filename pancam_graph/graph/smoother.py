@@ -6,14 +6,14 @@ from __future__ import annotations
 import time
 from array import array
 from collections import OrderedDict
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 
 from ..errors import GraphError
-from .keys import E, L, S, T, X, subset
+from .keys import E, L, S, T, X
 from .update_log import Rebuild, UpdateLog, picklable, with_scalars
 
 # The window moves in steps of half its length. Each step's update re-eliminates the window
@@ -337,13 +337,13 @@ class Smoother:
         values.insert(self.frozen)
         return values
 
-    def marginals_at(self, values: gtsam.Values, keys: list[int]) -> dict[int, np.ndarray]:
+    def marginals_at(self, values: Callable[[list[int]], gtsam.Values], keys: list[int]) -> dict[int, np.ndarray]:
         """Marginal covariances (tangent spaces) of `keys` from this smoother's graph linearized
-        at `values` and never relinearized (the bound at the truth), through the same window: a
-        variable that left it has the marginal it had as it left, the others the window's at the
-        end. That is the bound for the estimate this smoother gives (frozen as it left, which
-        what came after never reached), and it holds a window of the traverse in memory, not
-        all of it.
+        at `values` (given the keys a step inserts, their values) and never relinearized (the
+        bound at the truth), through the same window: a variable that left it has the marginal
+        it had as it left, the others the window's at the end. That is the bound for the
+        estimate this smoother gives (frozen as it left, which what came after never reached),
+        and it holds a window of the traverse in memory, not all of it.
 
         The updates are replayed one window step at a time: variables leave by steps, so each
         step's first update is where they do. Factorized as this smoother's updates are:
@@ -356,7 +356,8 @@ class Smoother:
                 raise
             return self._marginals_at(values, keys, "QR")
 
-    def _marginals_at(self, values: gtsam.Values, keys: list[int], factorization: str) -> dict[int, np.ndarray]:
+    def _marginals_at(self, values: Callable[[list[int]], gtsam.Values], keys: list[int], factorization: str
+                      ) -> dict[int, np.ndarray]:
         params = gtsam.ISAM2Params()
         params.setFactorization(factorization)
         params.enableRelinearization = False
@@ -374,7 +375,7 @@ class Smoother:
                         out[key] = isam.getISAM2().marginalCovariance(key)
                     del clock[key]
                 clock.update(stamps)
-                isam.update(factors, subset(values, inserted), stamps)
+                isam.update(factors, values(inserted), stamps)
             except (RuntimeError, ValueError) as exc:
                 raise GraphError(f"marginals at the given values failed (update log from factor {start}): "
                                  f"{exc}") from None

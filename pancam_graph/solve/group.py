@@ -217,7 +217,7 @@ def _configuration_result(job: GroupJob, name: str, localizer: Localizer, finish
             if progress is not None:
                 progress(f"CRLB of {name}", 0, 1)
             crlb = crlb_position_covariances(localizer.smoother, localizer.stops, truth.world_T_body,
-                                             {j: truth.landmarks[j] for j in localizer.landmarks}, extra)
+                                             truth.landmarks, extra)
             consistency_result = consistency(poses[:, :3, 3], truth.positions, covariance, crlb)
     elif traverse.gps_fixes:  # no truth: the fixes are the reference
         along = nees_against_gps(traverse, poses, covariance, vo_inliers)
