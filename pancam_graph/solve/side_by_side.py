@@ -32,7 +32,7 @@ from ..errors import GraphError
 from ..frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_from
 from ..frontend.vo_ahead import BLOCK_STOPS, VoAhead
 from ..kinds import stop_records, uses_vo
-from ..processes import hold_malloc_thresholds, process_context, release_mapped_pages
+from ..processes import give_back_memory, hold_malloc_thresholds, process_context
 from ..records import Traverse
 from .group import GroupJob, GroupOutcome, ProgressCallback, new_state, run_group
 from .memory import rss_mb
@@ -64,6 +64,7 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
         futures: dict[int, Future] = {}
 
         def submit(g: int, motions: list[Motion | None], vo_s: float) -> None:
+            nonlocal dr_motions
             state = resume[g] if resume and g < len(resume) else None
             part = save.part(g) if save is not None else None
             # a group whose configurations all take the VO's motions reads no dead reckoning
@@ -73,8 +74,9 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
             inputs = GroupInputs(_job_of(job, groups[g]), state, motions, dr_motions if reads_dr else [None], vo_s,
                                  records)
             futures[g] = pool.submit(_run_group_in_worker, handover.write(f"group-{g}", inputs), g, part, start)
-            if len(futures) == len(groups):  # the stops' observations are all handed out
-                release_mapped_pages()
+            if len(futures) == len(groups) and any(_uses_vo(configs) for configs in groups):
+                dr_motions = None  # the groups have them; the run's are the VO's (33,589 of each: 40 MB)
+            give_back_memory()  # what writing the inputs read of the source's mapped arrays
 
         for g, configs in enumerate(groups):
             if not _uses_vo(configs):
@@ -91,7 +93,7 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
                 f.result()
         outcomes = [futures[g].result() for g in range(len(groups))]
         for configs, outcome in zip(groups, outcomes, strict=True):  # the motions each group was fed
-            outcome.motions = motions if _uses_vo(configs) else dr_motions
+            outcome.motions = motions if _uses_vo(configs) else dr_motions or []
         return outcomes
     except BrokenProcessPool as exc:
         raise GraphError(f"a process running configurations stopped unexpectedly (killed, or out of memory?): "
@@ -201,6 +203,9 @@ def dead_reckoning_motions(traverse: Traverse) -> list[Motion | None]:
     return motions
 
 
+GIVE_BACK_STOPS = 2048
+
+
 def _vo_motions(job: GroupJob, resume: list[RunState] | None, known: VoMotions | None, pool: ProcessPoolExecutor,
                 progress: ProgressCallback | None) -> tuple[list[Motion | None], float]:
     """Every stop's VO motion (bridged where VO fails) and the seconds it took: from a saved
@@ -219,6 +224,8 @@ def _vo_motions(job: GroupJob, resume: list[RunState] | None, known: VoMotions |
         motions.append(motion_from(ahead.result(k), traverse.stops[k], motions[-1], slip))
         if progress is not None and (k % BLOCK_STOPS == 0 or k == n - 1):
             progress("stereo VO", k, n - 1)
+        if k % GIVE_BACK_STOPS == 0:  # the stereo observations sent so far (mapped: sent, they are read)
+            give_back_memory()
     return motions, time.perf_counter() - t0
 
 
