@@ -71,8 +71,9 @@ class VoAhead:
         self.stops = traverse.stops
         self.next = max(first, 1)
         self.own_pool = pool is None
-        self.pool = ProcessPoolExecutor(1, mp_context=process_context(),
-                                                initializer=hold_malloc_thresholds) if pool is None else pool
+        if pool is None:
+            pool = ProcessPoolExecutor(1, mp_context=process_context(), initializer=hold_malloc_thresholds)
+        self.pool = pool
         setup = VoSetup.of(traverse, estimator)
         self.blocks: deque[tuple[int, Future]] = deque()
         for start in range(self.next, len(self.stops), BLOCK_STOPS):

@@ -70,7 +70,7 @@ def run(scenario: Scenario, options: RunOptions = RunOptions(), progress: Progre
 # A scenario at least this long is simulated in a process of its own when the run has more than
 # one: that process waits for the fork server's imports, about 1 s (denver_trail's 0.9 km took
 # 7.6-7.8 s instead of 6.8), and gives back what the simulation leaves in memory (long_traverse's
-# 10.4 km: the run's process 369 -> 285 MB).
+# 10.4 km: the run's process 369 -> 213 MB while the groups run).
 SIMULATE_APART_M = 3000.0
 
 
