@@ -91,7 +91,7 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
         for f in futures.values():  # the first group that failed, before any that never started
             if f.done() and f.exception() is not None:
                 f.result()
-        outcomes = [futures[g].result() for g in range(len(groups))]
+        outcomes = [read_outcome(futures[g].result()) for g in range(len(groups))]
         for configs, outcome in zip(groups, outcomes, strict=True):  # the motions each group was fed
             outcome.motions = motions if _uses_vo(configs) else dr_motions or []
         return outcomes
@@ -173,6 +173,14 @@ class _HandoverPickler(pickle.Pickler):
 
 def _mapped_array(path: str) -> np.ndarray:
     return np.asarray(np.load(path, mmap_mode="r"))  # read-only: a write into an input raises
+
+
+def read_outcome(path: Path) -> GroupOutcome:
+    """A group's outcome, written by its worker; the file goes."""
+    with open(path, "rb") as f:
+        outcome = pickle.load(f)
+    path.unlink()
+    return outcome
 
 
 def read_inputs(path: Path) -> GroupInputs:
@@ -304,7 +312,7 @@ def _stop_if_the_run_stopped() -> None:
         os._exit(1)
 
 
-def _run_group_in_worker(inputs_path: Path, index: int, save: Checkpoints | None, start: float) -> GroupOutcome:
+def _run_group_in_worker(inputs_path: Path, index: int, save: Checkpoints | None, start: float) -> Path:
     inputs = read_inputs(inputs_path)
     job, state, motions, records = inputs.job, inputs.state, inputs.motions, inputs.records
     if save is not None:
@@ -322,4 +330,10 @@ def _run_group_in_worker(inputs_path: Path, index: int, save: Checkpoints | None
 
     outcome = run_group(job, state, None, save, progress, None, start, f"group {index + 1}", records)
     outcome.motions = []  # the run's process has them: a traverse's worth of motions not sent back
-    return outcome
+    # Into a file, in frames, not back through the pool's pipe, which pickles it whole into
+    # memory first: a group's results on the mission, in the worker at its end and in the run's
+    # process as it reads them.
+    path = inputs_path.with_name(f"outcome-{index}.pickle")
+    with writing(path, "a group's results for the run's process"), open(path, "wb") as f:
+        pickle.dump(outcome, f, protocol=pickle.HIGHEST_PROTOCOL)
+    return path
