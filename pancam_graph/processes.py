@@ -80,7 +80,7 @@ def call_apart(function: Callable[..., T], *args) -> T:
     The result comes back through files: its objects pickled, and the contents of its arrays
     written apart, each at an aligned offset of one file that this process maps read-only. Its
     arrays are views of that file (read-only): their pages are resident only while they are
-    read, and `give_back_memory` hands them back to the page cache."""
+    read, and `release_mapped_pages` hands them back to the page cache."""
     with tempfile.TemporaryDirectory(prefix="pancam_graph_apart_", ignore_cleanup_errors=True) as folder:
         folder = Path(folder)
         with ProcessPoolExecutor(1, mp_context=process_context(), initializer=hold_malloc_thresholds) as pool:
@@ -103,15 +103,12 @@ def _glibc() -> bool:
     return platform.system() == "Linux" and platform.libc_ver()[0] == "glibc"
 
 
-def give_back_memory() -> None:
+def release_mapped_pages() -> None:
     """Hand the pages of results read back from a process apart (`call_apart`) to the page
-    cache (the arrays stay as they are: a page read again comes back from the file), and the
-    heap's free pages to the system (glibc gives back only the top of its heap by itself)."""
+    cache: the arrays stay as they are, and a page read again comes back from the file."""
     for mapping in list(_mappings):
         if not mapping.closed and hasattr(mmap, "MADV_DONTNEED"):
             mapping.madvise(mmap.MADV_DONTNEED)
-    if _glibc():
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
 
 
 def _call_into(folder: Path, function: Callable, args: tuple) -> None:

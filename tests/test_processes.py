@@ -11,7 +11,7 @@ import pytest
 
 from pancam_graph.config import load_scenario, resolve_scenario
 from pancam_graph.errors import ConfigError
-from pancam_graph.processes import call_apart, give_back_memory
+from pancam_graph.processes import call_apart, release_mapped_pages
 from pancam_graph.solve.pipeline import RunOptions, run_traverse, simulated, worth_simulating_apart
 from pancam_graph.sources import source_for
 
@@ -37,7 +37,7 @@ def test_a_run_on_data_read_back_is_the_run_on_data_simulated_here():
     here = run_traverse(*simulated(scenario, 1)[:2], scenario.estimator, 1, RunOptions(configs=("vo_sites", "full")))
     traverse, truth, _, _ = call_apart(simulated, scenario, 1)
     assert not traverse.stops[5].stereo.uvv.flags.writeable
-    give_back_memory()  # the arrays stay what they were
+    release_mapped_pages()  # the arrays stay what they were
     apart = run_traverse(traverse, truth, scenario.estimator, 1, RunOptions(configs=("vo_sites", "full")))
     for name in ("vo_sites", "full"):
         assert np.array_equal(apart.configurations[name].world_T_body, here.configurations[name].world_T_body)

@@ -8,6 +8,8 @@ import gc
 import os
 import resource
 
+from ..processes import release_mapped_pages
+
 _PAGE_MB = os.sysconf("SC_PAGE_SIZE") / 2**20 if hasattr(os, "sysconf") else 0.0
 
 
@@ -40,7 +42,9 @@ def settle_garbage_collector() -> None:
 
 def release_memory() -> None:
     """Hand the memory of what was freed back to the system: glibc keeps it otherwise, and the
-    process's footprint stays where its largest graph left it."""
+    process's footprint stays where its largest graph left it. The pages of arrays read back
+    from a process apart go back to the page cache too (processes.release_mapped_pages)."""
+    release_mapped_pages()
     gc.collect()
     try:
         ctypes.CDLL("libc.so.6").malloc_trim(0)

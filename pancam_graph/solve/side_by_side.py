@@ -32,10 +32,10 @@ from ..errors import GraphError
 from ..frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_from
 from ..frontend.vo_ahead import BLOCK_STOPS, VoAhead
 from ..kinds import stop_records, uses_vo
-from ..processes import give_back_memory, hold_malloc_thresholds, process_context
+from ..processes import hold_malloc_thresholds, process_context, release_mapped_pages
 from ..records import Traverse
 from .group import GroupJob, GroupOutcome, ProgressCallback, new_state, run_group
-from .memory import rss_mb
+from .memory import release_memory, rss_mb
 from .state import Checkpoints, RunState
 from .stop_records import StopRecords
 
@@ -76,7 +76,7 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
             futures[g] = pool.submit(_run_group_in_worker, handover.write(f"group-{g}", inputs), g, part, start)
             if len(futures) == len(groups) and any(_uses_vo(configs) for configs in groups):
                 dr_motions = None  # the groups have them; the run's are the VO's (33,589 of each: 40 MB)
-            give_back_memory()  # what writing the inputs read of the source's mapped arrays
+            release_memory()  # what the inputs' pickling left, and read of the source's mapped arrays
 
         for g, configs in enumerate(groups):
             if not _uses_vo(configs):
@@ -91,7 +91,7 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
         for f in futures.values():  # the first group that failed, before any that never started
             if f.done() and f.exception() is not None:
                 f.result()
-        outcomes = [read_outcome(futures[g].result()) for g in range(len(groups))]
+        outcomes = [read_once(futures[g].result()) for g in range(len(groups))]
         for configs, outcome in zip(groups, outcomes, strict=True):  # the motions each group was fed
             outcome.motions = motions if _uses_vo(configs) else dr_motions or []
         return outcomes
@@ -175,20 +175,13 @@ def _mapped_array(path: str) -> np.ndarray:
     return np.asarray(np.load(path, mmap_mode="r"))  # read-only: a write into an input raises
 
 
-def read_outcome(path: Path) -> GroupOutcome:
-    """A group's outcome, written by its worker; the file goes."""
+def read_once(path: Path) -> GroupInputs | GroupOutcome:
+    """A group's inputs (in its worker) or outcome (in the run's process), read from the file
+    the other side wrote; the file goes (a mapped input array stays until the run ends)."""
     with open(path, "rb") as f:
-        outcome = pickle.load(f)
+        handed = pickle.load(f)
     path.unlink()
-    return outcome
-
-
-def read_inputs(path: Path) -> GroupInputs:
-    """A group's inputs in its worker; the file goes (its arrays stay until the run ends)."""
-    with open(path, "rb") as f:
-        inputs = pickle.load(f)
-    path.unlink()
-    return inputs
+    return handed
 
 
 def _job_of(job: GroupJob, configs: dict[str, list[str]]) -> GroupJob:
@@ -211,7 +204,10 @@ def dead_reckoning_motions(traverse: Traverse) -> list[Motion | None]:
     return motions
 
 
-GIVE_BACK_STOPS = 2048
+# Reading a stop's observations to send them maps in the pages around them too (the kernel's
+# fault-around): without a release every so often, the mission's run process had 358 MB of the
+# source's file resident by the end of the VO.
+RELEASE_EVERY_STOPS = 2048
 
 
 def _vo_motions(job: GroupJob, resume: list[RunState] | None, known: VoMotions | None, pool: ProcessPoolExecutor,
@@ -232,8 +228,8 @@ def _vo_motions(job: GroupJob, resume: list[RunState] | None, known: VoMotions |
         motions.append(motion_from(ahead.result(k), traverse.stops[k], motions[-1], slip))
         if progress is not None and (k % BLOCK_STOPS == 0 or k == n - 1):
             progress("stereo VO", k, n - 1)
-        if k % GIVE_BACK_STOPS == 0:  # the stereo observations sent so far (mapped: sent, they are read)
-            give_back_memory()
+        if k % RELEASE_EVERY_STOPS == 0:  # the stereo observations sent to the VO so far
+            release_mapped_pages()
     return motions, time.perf_counter() - t0
 
 
@@ -313,7 +309,7 @@ def _stop_if_the_run_stopped() -> None:
 
 
 def _run_group_in_worker(inputs_path: Path, index: int, save: Checkpoints | None, start: float) -> Path:
-    inputs = read_inputs(inputs_path)
+    inputs = read_once(inputs_path)
     job, state, motions, records = inputs.job, inputs.state, inputs.motions, inputs.records
     if save is not None:
         save.refer_to(job.traverse, job.truth)

@@ -177,7 +177,7 @@ def test_a_group_is_handed_its_inputs_in_a_file_with_large_arrays_mapped_once(sh
     import dataclasses
 
     from pancam_graph.solve.group import GroupJob
-    from pancam_graph.solve.side_by_side import GroupInputs, Handover, read_inputs
+    from pancam_graph.solve.side_by_side import GroupInputs, Handover, read_once
 
     landmarks = np.arange(300_000, dtype=float).reshape(-1, 3)  # 2.4 MB
     truth = dataclasses.replace(short_trail.truth, landmarks=landmarks)
@@ -188,7 +188,7 @@ def test_a_group_is_handed_its_inputs_in_a_file_with_large_arrays_mapped_once(sh
         second = handover.write("second", GroupInputs(job, None, [None], [None], 0.0))
         assert len(list(handover.folder.glob("*.npy"))) == 1  # the same array, written once
         assert second.stat().st_size < landmarks.nbytes / 2
-        got = read_inputs(first)
+        got = read_once(first)
         assert not first.exists() and second.exists()
         np.testing.assert_array_equal(got.job.truth.landmarks, landmarks)
         assert not got.job.truth.landmarks.flags.writeable and not got.job.truth.landmarks.flags.owndata
