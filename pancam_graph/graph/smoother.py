@@ -4,7 +4,6 @@ its updates for batch polishing, the bounds and checkpoints."""
 from __future__ import annotations
 
 import time
-from array import array
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -13,8 +12,9 @@ import gtsam
 import numpy as np
 
 from ..errors import GraphError
+from .frozen import FrozenRows, row_of, value_of
 from .keys import E, L, S, T, X
-from .update_log import Rebuild, UpdateLog, picklable, with_scalars
+from .update_log import Rebuild, UpdateLog
 
 # The window moves in steps of half its length. Each step's update re-eliminates the window
 # (30-180 ms for `full` on mission_traverse): with quarters there were four a km, and the
@@ -84,13 +84,10 @@ class Smoother:
         self.shared: set[int] = set()  # variables of the whole traverse (wheel slip, VO scale)
         self._followers: dict[int, list[int]] = {}  # key in the window -> keys that leave with it
         self._leader: dict[int, int] = {}  # and back
-        self.frozen = gtsam.Values()  # marginalized variables as they stood when they left the window
+        self.frozen = FrozenRows()  # marginalized variables as they stood when they left the window
         # the translation block (body frame, m^2) of each pose variable's (X) marginal covariance
-        # as it left, with its frozen estimate (left_position_covariance): nine numbers a row, as
-        # a traverse's worth are kept (tracemalloc, long_traverse: about 140 bytes a pose with
-        # its row's dict entry; a 6x6 array in a dict was about 200)
-        self._left_rows: dict[int, int] = {}  # key -> its row
-        self._left_covariances = array("d")
+        # as it left, with its frozen estimate (left_position_covariance)
+        self._left_covariances = FrozenRows()
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
         self._new_rebuild: dict[int, Rebuild] = {}
@@ -161,6 +158,8 @@ class Smoother:
                 raise GraphError(f"iSAM2 update failed {context}: {exc}") from None
         self._back_substitute()
         elapsed = (time.perf_counter() - start) * 1e3
+        self.frozen.write_full()  # no replay will freeze these again now
+        self._left_covariances.write_full()
         self.log.append(self._new_factors, self._new_values, stamps, self._new_rebuild)
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
@@ -216,22 +215,25 @@ class Smoother:
             return
         try:
             isam2 = self.isam.getISAM2()
-            self.frozen.insert_or_assign(isam2.calculateEstimate(leaving))
+            estimate = isam2.calculateEstimate(leaving)
             for key in leaving:
-                if gtsam.Symbol(key).chr() == _POSE_CHR:
-                    self._left_rows[key] = len(self._left_covariances) // 9  # frozen again after a replay: a new row
-                    # GTSAM's tangent space: rotation first
-                    self._left_covariances.extend(isam2.marginalCovariance(key)[3:, 3:].ravel())
+                self.frozen.put(key, row_of(estimate, key))
+                if gtsam.Symbol(key).chr() == _POSE_CHR:  # GTSAM's tangent space: rotation first
+                    self._left_covariances.put(key, isam2.marginalCovariance(key)[3:, 3:])
         except RuntimeError as exc:
             raise GraphError(f"iSAM2 estimate of the variables leaving the window failed: {exc}") from None
 
     def left_position_covariance(self, key: int) -> np.ndarray | None:
         """The 3x3 translation block (body frame, m^2) of a pose's marginal covariance as it left
         the window; None while it is in it."""
-        row = self._left_rows.get(key)
-        if row is None:
-            return None
-        return np.array(self._left_covariances[9 * row:9 * row + 9]).reshape(3, 3)
+        row = self._left_covariances.get(key)
+        return None if row is None else np.array(row).reshape(3, 3)
+
+    def left_position_covariances(self, keys: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        """(left, (N, 3, 3)): which of the poses left the window, and their
+        `left_position_covariance`s (zeros for the others), looked up together."""
+        left, rows = self._left_covariances.rows(keys, 9)
+        return left, rows.reshape(-1, 3, 3)
 
     def release_solver(self) -> None:
         """Let iSAM2 (the window's Bayes tree) go once the estimate and covariances are taken:
@@ -246,15 +248,11 @@ class Smoother:
         """Everything but the iSAM2 object (the update log rebuilds it). Only between updates."""
         if self._new_factors.size() or self._new_values.size():
             raise GraphError("a smoother with factors not yet updated cannot be checkpointed")
-        state = {k: v for k, v in vars(self).items() if k not in ("isam", "frozen", "_new_factors", "_new_values")}
-        state["frozen"] = picklable(self.frozen)
-        return state
+        return {k: v for k, v in vars(self).items() if k not in ("isam", "_new_factors", "_new_values")}
 
     def __setstate__(self, state: dict) -> None:
         """iSAM2 rebuilt by replaying every update."""
-        frozen = state.pop("frozen")
         vars(self).update(state)
-        self.frozen = with_scalars(*frozen)
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
         self._replay()
@@ -297,17 +295,23 @@ class Smoother:
     def _current(self, key: int, kind: str):
         """A variable's value: its initial value if not yet in iSAM2, its value when it left the
         window if it has, else the current estimate."""
-        for values in (self._new_values, self.frozen):
-            if values.exists(key):
-                return getattr(values, f"at{kind}")(key)
+        if self._new_values.exists(key):
+            return getattr(self._new_values, f"at{kind}")(key)
+        if not self._in_window_now(key):
+            row = self.frozen.get(key)
+            if row is not None:
+                return value_of(key, row)
         try:
             return getattr(self.isam, f"calculateEstimate{kind}")(key)
         except RuntimeError as exc:
             raise GraphError(f"iSAM2 estimate of {gtsam.Symbol(key).string()} failed: {exc}") from None
 
+    def _in_window_now(self, key: int) -> bool:
+        return key in self._entered or key in self._leader or key in self.shared
+
     def _in_window(self, *keys: int) -> None:
         for key in keys:
-            if self.frozen.exists(key):
+            if not self.live(key) and key in self.frozen:
                 raise GraphError(f"{gtsam.Symbol(key).string()} left the smoother's window: the rover drove "
                                  f"{self.window_m:g} m past where it entered, and it takes no factor and has no "
                                  "marginal any more")
@@ -332,16 +336,38 @@ class Smoother:
             raise GraphError(f"joint marginal covariance of {names} failed: {exc}") from None
         return np.block([[np.atleast_2d(joint.at(a, b)) for b in keys] for a in keys])
 
-    def estimate(self) -> gtsam.Values:
-        """Every variable: the window's current estimate, back-substituted in full (the per-stop
-        queries stop where the changes fall below iSAM2's wildfire threshold), and the
-        marginalized ones as they left."""
+    def window_estimate(self) -> gtsam.Values:
+        """The window's current estimate, back-substituted in full (the per-stop queries stop
+        where the changes fall below iSAM2's wildfire threshold)."""
         try:
-            values = self.isam.getISAM2().calculateBestEstimate()
+            return self.isam.getISAM2().calculateBestEstimate()
         except RuntimeError as exc:
             raise GraphError(f"iSAM2 estimate failed: {exc}") from None
-        values.insert(self.frozen)
+
+    def estimate(self) -> gtsam.Values:
+        """Every variable: the window's current estimate and the marginalized ones as they left
+        (the whole traverse's variables in one `gtsam.Values`: for the batch polish; `stacked`
+        gives a traverse's poses and points without it)."""
+        values = self.window_estimate()
+        for key, row in self.frozen.items():
+            values.insert(key, value_of(key, row))
         return values
+
+    def stacked(self, values: gtsam.Values, keys: list[int], width: int) -> np.ndarray:
+        """(N, width) rows of the variables' values (a pose: its 3x4 [R | t], row by row; a point:
+        its three coordinates): from `values` where it has them (the window's estimate, or a
+        whole one), else as they left the window."""
+        out = np.empty((len(keys), width))
+        inside = np.fromiter((values.exists(k) for k in keys), dtype=bool, count=len(keys))
+        for j in np.flatnonzero(inside):
+            out[j] = row_of(values, keys[j])
+        outside = np.flatnonzero(~inside)
+        found, rows = self.frozen.rows([keys[j] for j in outside], width)
+        if not found.all():
+            missing = keys[outside[np.flatnonzero(~found)[0]]]
+            raise GraphError(f"no estimate of {gtsam.Symbol(missing).string()}: neither in the window nor left it")
+        out[outside] = rows
+        return out
 
     def marginals_at(self, values: Callable[[list[int]], gtsam.Values], keys: list[int]) -> dict[int, np.ndarray]:
         """Marginal covariances (tangent spaces) of `keys` from this smoother's graph linearized
@@ -421,5 +447,9 @@ class Smoother:
             raise GraphError(f"batch Levenberg-Marquardt failed: {exc}") from None
 
 
-def poses_array(values: gtsam.Values, keys: list[int]) -> np.ndarray:
-    return np.stack([values.atPose3(k).matrix() for k in keys])
+def pose_matrices(rows: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) from `Smoother.stacked`'s (N, 12) pose rows."""
+    out = np.zeros((len(rows), 4, 4))
+    out[:, :3] = rows.reshape(-1, 3, 4)
+    out[:, 3, 3] = 1.0
+    return out

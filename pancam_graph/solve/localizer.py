@@ -14,7 +14,7 @@ from ..errors import ConfigError
 from ..frontend.motion import Motion
 from ..graph import factors
 from ..graph.keys import L, T, X
-from ..graph.smoother import RelinearizeThresholds, Smoother, poses_array
+from ..graph.smoother import RelinearizeThresholds, Smoother, pose_matrices
 from ..kinds import KINDS, STEP_COUNTERS, Kind, absolute, uses_vo
 from ..kinds.base import NO_TIE_LINKS, StepCounts
 from ..records import GroundTruth, Stop, Traverse
@@ -198,15 +198,16 @@ class Localizer:
         in the smoother's window; for a stop that left it, its marginal as it left, which goes
         with its estimate, frozen then (the whole graph would add what came after, which that
         estimate never saw)."""
-        out = []
-        for k in self.stops:
-            cov = self.smoother.left_position_covariance(X(k))
-            if cov is None:
-                out.append(self.position_covariance(k))
-                continue
-            rot = self.smoother.pose(X(k)).rotation().matrix()
-            out.append(rot @ cov @ rot.T)
-        return np.stack(out)
+        keys = [X(k) for k in self.stops]
+        left, body = self.smoother.left_position_covariances(keys)
+        gone = np.flatnonzero(left)
+        rotations = pose_matrices(self.smoother.stacked(gtsam.Values(), [keys[j] for j in gone], 12))[:, :3, :3]
+        out = np.empty((len(keys), 3, 3))
+        for j, rot in zip(gone, rotations, strict=True):
+            out[j] = rot @ body[j] @ rot.T
+        for j in np.flatnonzero(~left):
+            out[j] = self.position_covariance(self.stops[j])
+        return out
 
     @property
     def landmarks(self) -> set[int]:
@@ -244,14 +245,17 @@ class Localizer:
 
     def snapshot(self) -> Snapshot:
         """The current iSAM2 estimate."""
-        return self._snapshot_of(self.smoother.estimate())
+        return self._snapshot_of(self.smoother.window_estimate())
 
     def _snapshot_of(self, values: gtsam.Values) -> Snapshot:
-        poses = poses_array(values, [X(k) for k in self.stops])  # not the poses inserted between stops
+        """Every stop's pose and every landmark: from `values` (the window's, or a whole
+        estimate), the others as they left the window."""
+        # the stops' poses, not those inserted between stops
+        poses = pose_matrices(self.smoother.stacked(values, [X(k) for k in self.stops], 12))
         ids = np.array(sorted(self.landmarks), dtype=np.int64)
         # by key: GTSAM's extractPoint3 also reads every other vector as a point (the orbital
         # kind's 4-vectors, as three numbers of garbage)
-        points = np.array([values.atPoint3(L(t)) for t in ids]).reshape(-1, 3)
+        points = self.smoother.stacked(values, [L(t) for t in ids.tolist()], 3)
         return Snapshot(np.asarray(self.stops), poses, ids, points)
 
     # -- results ---------------------------------------------------------------------------
@@ -260,7 +264,5 @@ class Localizer:
         """The estimate after closing relinearization passes (and, with `batch`, Levenberg-Marquardt
         over the whole graph): poses and landmarks from the same values."""
         self.smoother.settle()
-        values = self.smoother.estimate()
-        if batch:
-            values = self.smoother.batch_polish(values)
+        values = self.smoother.batch_polish(self.smoother.estimate()) if batch else self.smoother.window_estimate()
         return self._snapshot_of(values)

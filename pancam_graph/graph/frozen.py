@@ -1,0 +1,178 @@
+"""What the smoother keeps of the variables that left its window: a row of numbers a variable
+(its estimate as it left, or its pose's marginal position covariance), the latest rows in
+memory and every `CHUNK_ROWS` of them in files mapped read-only, so the run's memory does not
+grow with the traverse (the issue's "stops that left the window stream their results to
+disk"; as a `gtsam.Values`, a pose took 192 bytes and a landmark 128, which on
+mission_traverse's groups with sites was about 1 MB a km of their growth).
+
+The files are a temporary folder's, gone with the object; a checkpoint carries their rows."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import gtsam
+import numpy as np
+
+from ..errors import GraphError
+from .keys import value_type
+
+# rows a file (a site's landmarks and poses leave together, a few thousand); the environment
+# may set it (tests)
+CHUNK_ROWS = int(os.environ.get("PANCAM_GRAPH_FROZEN_CHUNK_ROWS", "16384"))
+_SYMBOL_SHIFT = 56  # a gtsam.Symbol's character is the key's top byte
+
+
+@dataclass(frozen=True)
+class _Chunk:
+    """Rows sorted by key: row i is data[offsets[i]:offsets[i + 1]]."""
+
+    keys: np.ndarray  # (n,) int64, sorted
+    offsets: np.ndarray  # (n + 1,) int64
+    data: np.ndarray  # float64
+    ranges: dict[int, tuple[int, int]]  # symbol character -> (smallest key, largest key) with it
+
+    @classmethod
+    def of(cls, keys: np.ndarray, offsets: np.ndarray, data: np.ndarray) -> _Chunk:
+        ranges = {}
+        for symbol in np.unique(keys >> _SYMBOL_SHIFT):
+            these = keys[(keys >> _SYMBOL_SHIFT) == symbol]
+            ranges[int(symbol)] = (int(these[0]), int(these[-1]))
+        return cls(keys, offsets, data, ranges)
+
+    def find(self, key: int) -> int:
+        """The row of `key`, or -1."""
+        bounds = self.ranges.get(key >> _SYMBOL_SHIFT)
+        if bounds is None or not bounds[0] <= key <= bounds[1]:
+            return -1
+        i = int(np.searchsorted(self.keys, key))
+        return i if i < len(self.keys) and self.keys[i] == key else -1
+
+    def row(self, i: int) -> np.ndarray:
+        return self.data[self.offsets[i]:self.offsets[i + 1]]
+
+
+class FrozenRows:
+    """Rows of numbers by variable key, for variables that left the window. A key put again
+    before its rows go to a file (a replay freezing the same variables) replaces its row."""
+
+    def __init__(self) -> None:
+        self._tail: dict[int, np.ndarray] = {}
+        self._chunks: list[_Chunk] = []
+        self._temporary: tempfile.TemporaryDirectory | None = None
+
+    @property
+    def files(self) -> int:
+        """Chunks of rows written to files so far."""
+        return len(self._chunks)
+
+    def __len__(self) -> int:
+        return len(self._tail) + sum(len(c.keys) for c in self._chunks)
+
+    def put(self, key: int, row: np.ndarray) -> None:
+        self._tail[key] = np.array(row, dtype=float).ravel()
+
+    def get(self, key: int) -> np.ndarray | None:
+        row = self._tail.get(key)
+        if row is not None:
+            return row
+        for chunk in reversed(self._chunks):
+            i = chunk.find(key)
+            if i >= 0:
+                return chunk.row(i)
+        return None
+
+    def __contains__(self, key: int) -> bool:
+        return self.get(key) is not None
+
+    def items(self) -> Iterator[tuple[int, np.ndarray]]:
+        for chunk in self._chunks:
+            for i, key in enumerate(chunk.keys.tolist()):
+                yield key, chunk.row(i)
+        yield from self._tail.items()
+
+    def rows(self, keys: list[int], width: int) -> tuple[np.ndarray, np.ndarray]:
+        """(found, rows): whether each key is here and its row (rows of `width` numbers; zeros
+        where not found), looked up together."""
+        wanted = np.asarray(keys, dtype=np.int64)
+        found = np.zeros(len(wanted), dtype=bool)
+        out = np.zeros((len(wanted), width))
+        for chunk in self._chunks:
+            if not len(chunk.keys):
+                continue
+            i = np.minimum(np.searchsorted(chunk.keys, wanted), len(chunk.keys) - 1)
+            hit = (chunk.keys[i] == wanted) & ~found
+            start = chunk.offsets[i[hit]]
+            out[hit] = chunk.data[start[:, None] + np.arange(width)]
+            found |= hit
+        for j in np.flatnonzero(~found):
+            row = self._tail.get(int(wanted[j]))
+            if row is not None:
+                out[j], found[j] = row, True
+        return found, out
+
+    def write_full(self) -> None:
+        """The latest rows to a file once there are `CHUNK_ROWS` of them. Only when none will be
+        put again (after a successful update)."""
+        if len(self._tail) < CHUNK_ROWS:
+            return
+        keys = np.fromiter(self._tail, dtype=np.int64, count=len(self._tail))
+        order = np.argsort(keys)
+        rows = list(self._tail.values())
+        sizes = np.array([len(rows[i]) for i in order], dtype=np.int64)
+        offsets = np.concatenate([[0], np.cumsum(sizes)])
+        data = np.concatenate([rows[i] for i in order]) if rows else np.zeros(0)
+        self._chunks.append(self._mapped(keys[order], offsets, data))
+        self._tail = {}
+
+    def _mapped(self, keys: np.ndarray, offsets: np.ndarray, data: np.ndarray) -> _Chunk:
+        if self._temporary is None:
+            self._temporary = tempfile.TemporaryDirectory(prefix="pancam-graph-frozen-")
+        folder = Path(self._temporary.name)
+        index = len(self._chunks)
+        arrays = {}
+        try:
+            for name, array in (("keys", keys), ("offsets", offsets), ("data", data)):
+                path = folder / f"chunk-{index:05d}-{name}.npy"
+                np.save(path, array)
+                arrays[name] = np.load(path, mmap_mode="r")
+        except OSError as exc:
+            raise GraphError(f"{folder}: cannot write the rows of the variables that left the window: "
+                             f"{exc.strerror}") from None
+        return _Chunk.of(arrays["keys"], arrays["offsets"], arrays["data"])
+
+    # -- checkpoints: the rows themselves, mapped again from files of a new folder -----------
+
+    def __getstate__(self) -> dict:
+        return {"tail": self._tail,
+                "chunks": [(np.asarray(c.keys), np.asarray(c.offsets), np.asarray(c.data)) for c in self._chunks]}
+
+    def __setstate__(self, state: dict) -> None:
+        self._tail, self._chunks, self._temporary = state["tail"], [], None
+        for keys, offsets, data in state["chunks"]:
+            self._chunks.append(self._mapped(keys, offsets, data))
+
+
+# -- a variable's value as a row and back, by its kind of variable (keys.value_type) --------------
+
+def row_of(values: gtsam.Values, key: int) -> np.ndarray:
+    kind = value_type(key)
+    if kind == "Pose3":
+        return values.atPose3(key).matrix()[:3].ravel()  # rotation and translation, 3x4
+    if kind == "Double":
+        return np.array([values.atDouble(key)])
+    return np.asarray(getattr(values, f"at{kind}")(key), dtype=float)
+
+
+def value_of(key: int, row: np.ndarray):
+    """The GTSAM value (Pose3, a float, or an array for a Point3 or a Vector) of `row`."""
+    kind = value_type(key)
+    if kind == "Pose3":
+        return gtsam.Pose3(np.vstack([row.reshape(3, 4), [0.0, 0.0, 0.0, 1.0]]))
+    if kind == "Double":
+        return float(row[0])
+    return np.array(row)
