@@ -7,6 +7,7 @@ covariance when the rover has it, otherwise the previous motion with a wide cova
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from typing import Literal
 
@@ -36,6 +37,105 @@ class Motion:
     @property
     def bridged(self) -> bool:
         return self.source != "vo"
+
+
+_SOURCES = ("vo", "dead_reckoning", "constant_velocity")
+
+
+class Motions:
+    """Every stop's motion from the previous one (None for the first) as columns of numbers,
+    appended a stop at a time and read back as `Motion`s. As a list of `Motion` objects a
+    traverse's motions took 2.1 KB a stop (mission_traverse: 71 MB in each worker and in the
+    run's process); here 400 bytes, in blocks of `BLOCK` stops (a large array of a group's
+    inputs is mapped by its worker, not copied: side_by_side.Handover)."""
+
+    BLOCK = 4096
+    _WIDTH = 12 + 36  # prev_T_curr's 3x4 [R | t] row by row, then the 6x6 covariance
+
+    def __init__(self, motions: Iterable[Motion | None] = ()):
+        self._numbers: list[np.ndarray] = []  # (BLOCK, _WIDTH) float
+        self._codes: list[np.ndarray] = []  # (BLOCK, 3) int: source (-1: none), VO inliers, failure
+        self._failures: list[str] = [""]  # the VO's reasons for failing, by index
+        self._odometry: list[DeadReckoning | None] = []  # the stops' own records, not copies
+        self._n = 0
+        self.extend(motions)
+
+    def __len__(self) -> int:
+        return self._n
+
+    def append(self, motion: Motion | None) -> None:
+        block, i = divmod(self._n, self.BLOCK)
+        if block == len(self._numbers):
+            self._numbers.append(np.zeros((self.BLOCK, self._WIDTH)))
+            self._codes.append(np.zeros((self.BLOCK, 3), dtype=np.int64))
+        elif not self._numbers[block].flags.writeable:  # read back mapped from a file
+            self._numbers[block], self._codes[block] = np.array(self._numbers[block]), np.array(self._codes[block])
+        if motion is None:
+            self._codes[block][i] = (-1, 0, 0)
+            self._odometry.append(None)
+        else:
+            if motion.vo_failure not in self._failures:
+                self._failures.append(motion.vo_failure)
+            self._numbers[block][i, :12] = motion.prev_T_curr.matrix()[:3].ravel()
+            self._numbers[block][i, 12:] = np.asarray(motion.covariance).ravel()
+            self._codes[block][i] = (_SOURCES.index(motion.source), motion.vo_inliers,
+                                     self._failures.index(motion.vo_failure))
+            self._odometry.append(motion.odometry)
+        self._n += 1
+
+    def extend(self, motions: Iterable[Motion | None]) -> None:
+        for motion in motions:
+            self.append(motion)
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(self._n))]
+        if k < 0:
+            k += self._n
+        if not 0 <= k < self._n:
+            raise IndexError(f"motion {k} of {self._n}")
+        block, i = divmod(k, self.BLOCK)
+        source, inliers, failure = self._codes[block][i].tolist()
+        if source < 0:
+            return None
+        numbers = self._numbers[block][i]
+        pose = np.eye(4)
+        pose[:3] = numbers[:12].reshape(3, 4)
+        return Motion(gtsam.Pose3(pose), numbers[12:].reshape(6, 6).copy(), _SOURCES[source], inliers,
+                      self._failures[failure], self._odometry[k])
+
+    def __iter__(self) -> Iterator[Motion | None]:
+        for k in range(self._n):
+            yield self[k]
+
+    def vo_inliers(self) -> np.ndarray:
+        """(N,) the VO's inliers at each stop; -1 where there is no motion (the first stop)."""
+        codes = self._columns()[1]
+        return np.where(codes[:, 0] < 0, -1, codes[:, 1])
+
+    def _columns(self) -> tuple[np.ndarray, np.ndarray]:
+        if not self._n:
+            return np.zeros((0, self._WIDTH)), np.zeros((0, 3), dtype=np.int64)
+        return np.concatenate(self._numbers)[:self._n], np.concatenate(self._codes)[:self._n]
+
+    def __getstate__(self) -> dict:
+        numbers, codes = self._columns()
+        return {"numbers": numbers, "codes": codes, "failures": self._failures, "odometry": self._odometry}
+
+    def __setstate__(self, state: dict) -> None:
+        numbers, codes = state["numbers"], state["codes"]
+        self._n = len(codes)
+        self._failures, self._odometry = state["failures"], state["odometry"]
+        # views of what was read (a mapped array stays mapped until a block is written to)
+        self._numbers = [numbers[b:b + self.BLOCK] for b in range(0, self._n, self.BLOCK)]
+        self._codes = [codes[b:b + self.BLOCK] for b in range(0, self._n, self.BLOCK)]
+        if self._numbers and len(self._numbers[-1]) < self.BLOCK:  # the last block at its full size again
+            last = self._numbers[-1]
+            self._numbers[-1] = np.zeros((self.BLOCK, self._WIDTH))
+            self._numbers[-1][:len(last)] = last
+            tail = self._codes[-1]
+            self._codes[-1] = np.zeros((self.BLOCK, 3), dtype=np.int64)
+            self._codes[-1][:len(tail)] = tail
 
 
 @dataclass(frozen=True)

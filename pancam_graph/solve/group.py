@@ -17,10 +17,11 @@ from ..config import EstimatorConfig
 from ..evaluation.consistency import consistency, crlb_position_covariances, nees_along_run
 from ..evaluation.gps_check import evaluate_against_gps, holdout_score, nees_against_gps
 from ..evaluation.metrics import compare
-from ..frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_between, motion_from
+from ..frontend.motion import Motion, Motions, VoMotions, dead_reckoning_motion, motion_between, motion_from
 from ..frontend.stereo_vo import StereoVO
 from ..frontend.vo_ahead import VoAhead
 from ..kinds import absolute
+from ..processes import RELEASE_EVERY_STOPS, release_mapped_pages
 from ..records import GpsFix, GroundTruth, Traverse
 from .listener import NullListener, RunListener
 from .localizer import Localizer, Snapshot
@@ -53,7 +54,7 @@ class GroupOutcome:
     that ran them used."""
 
     results: dict[str, ConfigurationResult]
-    motions: list[Motion | None]
+    motions: Motions
     vo_s: float
     process: ProcessUse
 
@@ -100,7 +101,7 @@ def run_group(job: GroupJob, state: RunState | None, known: VoMotions | None, sa
         if ahead is not None:
             ahead.close()
     results = {}
-    inliers = np.array([-1 if m is None else m.vo_inliers for m in state.motions])  # one motion per stop
+    inliers = state.motions.vo_inliers()  # one motion per stop
     # every configuration's estimate first, each solver let go as it is taken: the bounds' replays
     # then come one at a time on top of none (long_traverse: a group's end +89 -> +39 MB)
     finished = {}
@@ -123,7 +124,7 @@ def run_group(job: GroupJob, state: RunState | None, known: VoMotions | None, sa
 def new_state(job: GroupJob) -> RunState:
     localizers = {name: Localizer(job.traverse, kinds, job.estimator, seed=job.seed)
                   for name, kinds in job.configs.items()}
-    return RunState(0, localizers, [None], [None], {name: StepTable() for name in localizers})
+    return RunState(0, localizers, Motions([None]), Motions([None]), {name: StepTable() for name in localizers})
 
 
 # Reading /proc/self/smaps_rollup (the PSS) costs 5-13 ms at 0.4-1 GB resident; at every
@@ -173,6 +174,8 @@ def _step_through(traverse: Traverse, state: RunState, vo_motion: Callable[[int,
             if save is not None and k + 1 < n:
                 save(state)
             listener.checkpoint(stop)
+        if (k + 1) % RELEASE_EVERY_STOPS == 0:  # the mapped inputs read so far (the motions, the source's)
+            release_mapped_pages()
         if progress is not None:
             progress("stops", k + 1, n)
     state.next_stop = n

@@ -12,7 +12,7 @@ from ..config import EstimatorConfig, Scenario
 from ..evaluation.consistency import Consistency, NeesAlongRun
 from ..evaluation.gps_check import HoldoutScore
 from ..evaluation.metrics import TrajectoryMetrics
-from ..frontend.motion import Motion, VoMotions
+from ..frontend.motion import Motions, VoMotions
 from ..kinds import COUNTER_DEFAULTS
 from ..records import GpsFix, GroundTruth, Traverse
 from ..source_options import SourceOptions
@@ -128,7 +128,7 @@ class RunResult:
     traverse: Traverse
     truth: GroundTruth | None  # None when a recorded traverse comes without a reference
     held_out_fixes: tuple[GpsFix, ...]
-    motions: list[Motion | None]
+    motions: Motions
     configurations: dict[str, ConfigurationResult]
     skipped: dict[str, str]  # defined configurations the traverse cannot feed, with the reason
     wall_s: float

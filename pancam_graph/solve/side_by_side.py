@@ -29,10 +29,10 @@ import numpy as np
 
 from ..atomic import writing
 from ..errors import GraphError
-from ..frontend.motion import Motion, VoMotions, dead_reckoning_motion, motion_from
+from ..frontend.motion import Motions, VoMotions, dead_reckoning_motion, motion_from
 from ..frontend.vo_ahead import BLOCK_STOPS, VoAhead
 from ..kinds import stop_records, uses_vo
-from ..processes import hold_malloc_thresholds, process_context, release_mapped_pages
+from ..processes import RELEASE_EVERY_STOPS, hold_malloc_thresholds, map_npy, process_context, release_mapped_pages
 from ..records import Traverse
 from .group import GroupJob, GroupOutcome, ProgressCallback, new_state, run_group
 from .memory import release_memory, rss_mb
@@ -63,7 +63,7 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
         dr_motions = dead_reckoning_motions(job.traverse)
         futures: dict[int, Future] = {}
 
-        def submit(g: int, motions: list[Motion | None], vo_s: float) -> None:
+        def submit(g: int, motions: Motions, vo_s: float) -> None:
             nonlocal dr_motions
             state = resume[g] if resume and g < len(resume) else None
             part = save.part(g) if save is not None else None
@@ -71,8 +71,8 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
             reads_dr = not all(uses_vo(kinds) for kinds in groups[g].values())
             fields = stop_records([kind for kinds in groups[g].values() for kind in kinds])
             records = handover.records(f"group-{g}", job.traverse, fields) if fields else None
-            inputs = GroupInputs(_job_of(job, groups[g]), state, motions, dr_motions if reads_dr else [None], vo_s,
-                                 records)
+            inputs = GroupInputs(_job_of(job, groups[g]), state, motions,
+                                 dr_motions if reads_dr else Motions([None]), vo_s, records)
             futures[g] = pool.submit(_run_group_in_worker, handover.write(f"group-{g}", inputs), g, part, start)
             if len(futures) == len(groups) and any(_uses_vo(configs) for configs in groups):
                 dr_motions = None  # the groups have them; the run's are the VO's (33,589 of each: 40 MB)
@@ -80,9 +80,9 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
 
         for g, configs in enumerate(groups):
             if not _uses_vo(configs):
-                submit(g, list(dr_motions), 0.0)
+                submit(g, dr_motions, 0.0)
         waiting = [g for g, configs in enumerate(groups) if _uses_vo(configs)]
-        motions, vo_s = _vo_motions(job, resume, known, pool, progress) if waiting else ([], 0.0)
+        motions, vo_s = _vo_motions(job, resume, known, pool, progress) if waiting else (Motions(), 0.0)
 
         def submit_with_motions(g: int) -> None:
             submit(g, motions, vo_s)
@@ -93,7 +93,7 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
                 f.result()
         outcomes = [read_once(futures[g].result()) for g in range(len(groups))]
         for configs, outcome in zip(groups, outcomes, strict=True):  # the motions each group was fed
-            outcome.motions = motions if _uses_vo(configs) else dr_motions or []
+            outcome.motions = motions if _uses_vo(configs) else dr_motions if dr_motions is not None else Motions()
         return outcomes
     except BrokenProcessPool as exc:
         raise GraphError(f"a process running configurations stopped unexpectedly (killed, or out of memory?): "
@@ -112,8 +112,8 @@ class GroupInputs:
 
     job: GroupJob
     state: RunState | None
-    motions: list[Motion | None]
-    dr_motions: list[Motion | None]
+    motions: Motions
+    dr_motions: Motions
     vo_s: float
     records: StopRecords | None = None  # the image records its configurations read, a stop at a time
 
@@ -172,7 +172,7 @@ class _HandoverPickler(pickle.Pickler):
 
 
 def _mapped_array(path: str) -> np.ndarray:
-    return np.asarray(np.load(path, mmap_mode="r"))  # read-only: a write into an input raises
+    return map_npy(Path(path))  # read-only: a write into an input raises
 
 
 def read_once(path: Path) -> GroupInputs | GroupOutcome:
@@ -196,22 +196,16 @@ def _uses_vo(configs: dict[str, list[str]]) -> bool:
     return any(uses_vo(kinds) for kinds in configs.values())
 
 
-def dead_reckoning_motions(traverse: Traverse) -> list[Motion | None]:
+def dead_reckoning_motions(traverse: Traverse) -> Motions:
     slip = traverse.wheel_slip
-    motions: list[Motion | None] = [None]
+    motions = Motions([None])
     for k in range(1, len(traverse.stops)):
         motions.append(dead_reckoning_motion(traverse.stops[k], motions[-1], slip))
     return motions
 
 
-# Reading a stop's observations to send them maps in the pages around them too (the kernel's
-# fault-around): without a release every so often, the mission's run process had 358 MB of the
-# source's file resident by the end of the VO.
-RELEASE_EVERY_STOPS = 2048
-
-
 def _vo_motions(job: GroupJob, resume: list[RunState] | None, known: VoMotions | None, pool: ProcessPoolExecutor,
-                progress: ProgressCallback | None) -> tuple[list[Motion | None], float]:
+                progress: ProgressCallback | None) -> tuple[Motions, float]:
     """Every stop's VO motion (bridged where VO fails) and the seconds it took: from a saved
     group with VO that has them all, from the source, or estimated in blocks over the pool."""
     traverse = job.traverse
@@ -220,10 +214,10 @@ def _vo_motions(job: GroupJob, resume: list[RunState] | None, known: VoMotions |
         if len(state.motions) == n and any(loc.uses_vo for loc in state.localizers.values()):
             return state.motions, state.vo_s
     if known is not None:
-        return list(known.motions), known.seconds
+        return Motions(known.motions), known.seconds
     t0 = time.perf_counter()
     ahead = VoAhead(traverse, job.estimator, 1, pool)
-    motions: list[Motion | None] = [None]
+    motions = Motions([None])
     for k in range(1, n):
         motions.append(motion_from(ahead.result(k), traverse.stops[k], motions[-1], slip))
         if progress is not None and (k % BLOCK_STOPS == 0 or k == n - 1):
@@ -316,8 +310,10 @@ def _run_group_in_worker(inputs_path: Path, index: int, save: Checkpoints | None
     if state is None:
         state = new_state(job)
         state.dr_motions, state.vo_s = inputs.dr_motions, inputs.vo_s
-    if len(state.motions) < len(motions):  # a saved group has the motions up to its stop
-        state.motions.extend(motions[len(state.motions):])
+        if len(motions) > len(state.motions):
+            state.motions = motions  # as read: their columns mapped, not copied
+    elif len(state.motions) < len(motions):  # a saved group has the motions up to its stop
+        state.motions.extend(motions[k] for k in range(len(state.motions), len(motions)))
 
     def progress(stage: str, k: int, total: int) -> None:
         _stop_if_the_run_stopped()
@@ -325,7 +321,7 @@ def _run_group_in_worker(inputs_path: Path, index: int, save: Checkpoints | None
             _stops_done[index] = k
 
     outcome = run_group(job, state, None, save, progress, None, start, f"group {index + 1}", records)
-    outcome.motions = []  # the run's process has them: a traverse's worth of motions not sent back
+    outcome.motions = Motions()  # the run's process has them: a traverse's worth of motions not sent back
     # Into a file, in frames, not back through the pool's pipe, which pickles it whole into
     # memory first: a group's results on the mission, in the worker at its end and in the run's
     # process as it reads them.

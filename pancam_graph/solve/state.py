@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 
-from ..frontend.motion import Motion
+from ..frontend.motion import Motions
 from ..records import GroundTruth, Traverse
 from .localizer import Localizer
 from .step_table import StepTable
@@ -24,8 +24,8 @@ class RunState:
 
     next_stop: int
     localizers: dict[str, Localizer]
-    motions: list[Motion | None]
-    dr_motions: list[Motion | None]
+    motions: Motions
+    dr_motions: Motions
     steps: dict[str, StepTable]
     vo_s: float = 0.0
     elapsed_s: float = 0.0  # wall time spent on the run before this state
