@@ -4,6 +4,7 @@ its updates for batch polishing, the bounds and checkpoints."""
 from __future__ import annotations
 
 import time
+from array import array
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -91,8 +92,9 @@ class Smoother:
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
         self._new_rebuild: dict[int, Rebuild] = {}
-        self.update_ms: list[float] = []  # wall time of each update
-        self.relinearized: list[int] = []  # variables relinearized by each update
+        # each update's wall time and the variables it relinearized (8 bytes an update, not a list's 32)
+        self.update_ms = array("d")
+        self.relinearized = array("q")
 
     def _new_isam(self) -> gtsam.IncrementalFixedLagSmoother:
         params = gtsam.ISAM2Params()

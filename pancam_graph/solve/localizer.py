@@ -3,6 +3,7 @@ one iSAM2 update out."""
 
 from __future__ import annotations
 
+from array import array
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -83,7 +84,7 @@ class Localizer:
         self.estimator = estimator
         self.smoother = smoother_for(estimator, with_gps=absolute(kinds))
         self.rng = np.random.default_rng(seed)
-        self.stops: list[int] = []
+        self.stops = array("q")  # every stop stepped: 8 bytes each, not a list's 36
         self.previous_stop: Stop | None = None
         self.bridged_stops = 0
         self.interpolated: list[InterpolatedPose] = []
@@ -256,7 +257,7 @@ class Localizer:
         # by key: GTSAM's extractPoint3 also reads every other vector as a point (the orbital
         # kind's 4-vectors, as three numbers of garbage)
         points = self.smoother.stacked(values, [L(t) for t in ids.tolist()], 3)
-        return Snapshot(np.asarray(self.stops), poses, ids, points)
+        return Snapshot(np.array(self.stops, dtype=np.int64), poses, ids, points)
 
     # -- results ---------------------------------------------------------------------------
 

@@ -35,7 +35,7 @@ def test_batch_polish_does_not_increase_graph_error(short_scenario):
 
 def test_every_stop_has_a_pose_and_sites_add_landmarks(short_scenario):
     loc, traverse, _ = _solve(short_scenario, ["vo", "sites"])
-    assert loc.stops == [s.index for s in traverse.stops]
+    assert list(loc.stops) == [s.index for s in traverse.stops]
     assert len(loc.landmarks) > 50
     # tie points only: each landmark in the graph has stereo factors from two sites or more
     poses_seeing = {}
