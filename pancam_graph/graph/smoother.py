@@ -299,7 +299,7 @@ class Smoother:
         window if it has, else the current estimate."""
         if self._new_values.exists(key):
             return getattr(self._new_values, f"at{kind}")(key)
-        if not self._in_window_now(key):
+        if not self.live(key):  # looked up in the window first: most queries are there
             row = self.frozen.get(key)
             if row is not None:
                 return value_of(key, row)
@@ -307,9 +307,6 @@ class Smoother:
             return getattr(self.isam, f"calculateEstimate{kind}")(key)
         except RuntimeError as exc:
             raise GraphError(f"iSAM2 estimate of {gtsam.Symbol(key).string()} failed: {exc}") from None
-
-    def _in_window_now(self, key: int) -> bool:
-        return key in self._entered or key in self._leader or key in self.shared
 
     def _in_window(self, *keys: int) -> None:
         for key in keys:

@@ -202,6 +202,7 @@ class Localizer:
         keys = [X(k) for k in self.stops]
         left, body = self.smoother.left_position_covariances(keys)
         gone = np.flatnonzero(left)
+        # no values given: the poses as they left, which their covariances go with
         rotations = pose_matrices(self.smoother.stacked(gtsam.Values(), [keys[j] for j in gone], 12))[:, :3, :3]
         out = np.empty((len(keys), 3, 3))
         for j, rot in zip(gone, rotations, strict=True):
