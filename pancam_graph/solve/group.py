@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import EstimatorConfig
-from ..evaluation.consistency import consistency, crlb_position_covariances, nees_along_run
+from ..evaluation.consistency import PointsByTrack, consistency, crlb_position_covariances, nees_along_run
 from ..evaluation.gps_check import evaluate_against_gps, holdout_score, nees_against_gps
 from ..evaluation.metrics import compare
 from ..frontend.motion import Motion, Motions, VoMotions, dead_reckoning_motion, motion_between, motion_from
@@ -214,13 +214,15 @@ def _configuration_result(job: GroupJob, name: str, localizer: Localizer, finish
         metrics = compare(poses[:, :3, 3], truth.positions, alignment, poses, truth.world_T_body)
         along = nees_along_run(poses[:, :3, 3], truth.positions, covariance, vo_inliers)
         extra = localizer.true_values(truth)
+        tracks = np.array(sorted(localizer.landmarks), dtype=np.int64)
         # the bound needs the truth of every variable (an observation folder may have poses only)
-        if extra is not None and all(j < len(truth.landmarks) and np.all(np.isfinite(truth.landmarks[j]))
-                                     for j in localizer.landmarks):
+        points = truth.landmarks[tracks] if not len(tracks) or tracks[-1] < len(truth.landmarks) else None
+        release_mapped_pages()  # the truth's landmarks were read through (mapped in a worker)
+        if extra is not None and points is not None and np.all(np.isfinite(points)):
             if progress is not None:
                 progress(f"CRLB of {name}", 0, 1)
             crlb = crlb_position_covariances(localizer.smoother, localizer.stops, truth.world_T_body,
-                                             truth.landmarks, extra)
+                                             PointsByTrack(tracks, points), extra)
             consistency_result = consistency(poses[:, :3, 3], truth.positions, covariance, crlb)
     elif traverse.gps_fixes:  # no truth: the fixes are the reference
         along = nees_against_gps(traverse, poses, covariance, vo_inliers)

@@ -8,6 +8,7 @@ import pytest
 from pancam_graph.errors import GraphError
 from pancam_graph.evaluation.consistency import (
     NEES_BOUND_99,
+    PointsByTrack,
     anees_band,
     consistency,
     crlb_position_covariances,
@@ -118,3 +119,15 @@ def test_run_writes_crlb_efficiency_and_anees(short_run):
         assert np.mean(c.nees.nees[1:]) / 3 == pytest.approx(doc["configs"][name]["anees"], rel=0.05), name
     # sites constrain the chain: their bound is far below VO alone
     assert doc["configs"]["vo_sites"]["crlb_rms_m"] < 0.7 * doc["configs"]["vo"]["crlb_rms_m"]
+
+
+def test_points_by_track_are_the_truths_rows_of_those_tracks_only():
+    truth = np.arange(30.0).reshape(10, 3)
+    tracks = np.array([2, 5, 9])
+    points = PointsByTrack(tracks, truth[tracks])
+    for t in tracks:
+        np.testing.assert_array_equal(points[t], truth[t])
+    assert list(points) == [2, 5, 9] and len(points) == 3
+    for missing in (0, 3, 10):
+        with pytest.raises(KeyError):
+            points[missing]
