@@ -21,9 +21,10 @@ import numpy as np
 from ..errors import GraphError
 from .keys import value_type
 
-# rows a file (a site's landmarks and poses leave together, a few thousand); the environment
-# may set it (tests)
-CHUNK_ROWS = int(os.environ.get("PANCAM_GRAPH_FROZEN_CHUNK_ROWS", "16384"))
+# rows a file; the environment may set it (tests). The rows in memory before they go are the
+# sawtooth of a group's memory along the mission: with 16,384 its groups grew 0.23 / 0.75 /
+# 0.42 MB a km from 10 to 50 km, with 4,096 0.10 / 0.65 / 0.33 (one run each, docs/performance.md)
+CHUNK_ROWS = int(os.environ.get("PANCAM_GRAPH_FROZEN_CHUNK_ROWS", "4096"))
 _SYMBOL_SHIFT = 56  # a gtsam.Symbol's character is the key's top byte
 
 
