@@ -46,8 +46,8 @@ class Motions:
     """Every stop's motion from the previous one (None for the first) as columns of numbers,
     appended a stop at a time and read back as `Motion`s. As a list of `Motion` objects a
     traverse's motions took 2.1 KB a stop (mission_traverse: 71 MB in each worker and in the
-    run's process); here 400 bytes, in blocks of `BLOCK` stops (a large array of a group's
-    inputs is mapped by its worker, not copied: side_by_side.Handover)."""
+    run's process); here 48 numbers and 3 integers, in blocks of `BLOCK` stops (a large array
+    of a group's inputs is mapped by its worker, not copied: side_by_side.Handover)."""
 
     BLOCK = 4096
     _WIDTH = 12 + 36  # prev_T_curr's 3x4 [R | t] row by row, then the 6x6 covariance
@@ -66,10 +66,12 @@ class Motions:
     def append(self, motion: Motion | None) -> None:
         block, i = divmod(self._n, self.BLOCK)
         if block == len(self._numbers):
-            self._numbers.append(np.zeros((self.BLOCK, self._WIDTH)))
-            self._codes.append(np.zeros((self.BLOCK, 3), dtype=np.int64))
-        elif not self._numbers[block].flags.writeable:  # read back mapped from a file
-            self._numbers[block], self._codes[block] = np.array(self._numbers[block]), np.array(self._codes[block])
+            self._numbers.append(self._block(self._WIDTH, float))
+            self._codes.append(self._block(3, np.int64))
+        elif not self._numbers[block].flags.writeable or len(self._numbers[block]) < self.BLOCK:
+            # read back (mapped from a file, or the last, short, block of a pickle): a block of its own
+            self._numbers[block] = self._block(self._WIDTH, float, self._numbers[block])
+            self._codes[block] = self._block(3, np.int64, self._codes[block])
         if motion is None:
             self._codes[block][i] = (-1, 0, 0)
             self._odometry.append(None)
@@ -82,6 +84,13 @@ class Motions:
                                      self._failures.index(motion.vo_failure))
             self._odometry.append(motion.odometry)
         self._n += 1
+
+    def _block(self, width: int, dtype, start: np.ndarray | None = None) -> np.ndarray:
+        """A block of `BLOCK` rows, beginning with `start`'s."""
+        block = np.zeros((self.BLOCK, width), dtype=dtype)
+        if start is not None:
+            block[:len(start)] = start
+        return block
 
     def extend(self, motions: Iterable[Motion | None]) -> None:
         for motion in motions:
@@ -126,16 +135,9 @@ class Motions:
         numbers, codes = state["numbers"], state["codes"]
         self._n = len(codes)
         self._failures, self._odometry = state["failures"], state["odometry"]
-        # views of what was read (a mapped array stays mapped until a block is written to)
+        # views of what was read (a mapped array stays mapped until a block is written to: append)
         self._numbers = [numbers[b:b + self.BLOCK] for b in range(0, self._n, self.BLOCK)]
         self._codes = [codes[b:b + self.BLOCK] for b in range(0, self._n, self.BLOCK)]
-        if self._numbers and len(self._numbers[-1]) < self.BLOCK:  # the last block at its full size again
-            last = self._numbers[-1]
-            self._numbers[-1] = np.zeros((self.BLOCK, self._WIDTH))
-            self._numbers[-1][:len(last)] = last
-            tail = self._codes[-1]
-            self._codes[-1] = np.zeros((self.BLOCK, 3), dtype=np.int64)
-            self._codes[-1][:len(tail)] = tail
 
 
 @dataclass(frozen=True)

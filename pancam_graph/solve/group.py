@@ -216,9 +216,11 @@ def _configuration_result(job: GroupJob, name: str, localizer: Localizer, finish
         extra = localizer.true_values(truth)
         tracks = np.array(sorted(localizer.landmarks), dtype=np.int64)
         # the bound needs the truth of every variable (an observation folder may have poses only)
-        points = truth.landmarks[tracks] if not len(tracks) or tracks[-1] < len(truth.landmarks) else None
-        release_mapped_pages()  # the truth's landmarks were read through (mapped in a worker)
-        if extra is not None and points is not None and np.all(np.isfinite(points)):
+        points = None
+        if extra is not None and (not len(tracks) or tracks[-1] < len(truth.landmarks)):
+            points = truth.landmarks[tracks]
+            release_mapped_pages()  # the truth's landmarks were read through (mapped in a worker)
+        if points is not None and np.all(np.isfinite(points)):
             if progress is not None:
                 progress(f"CRLB of {name}", 0, 1)
             crlb = crlb_position_covariances(localizer.smoother, localizer.stops, truth.world_T_body,
