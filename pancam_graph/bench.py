@@ -13,6 +13,7 @@ from pathlib import Path
 from .config import load_scenario, resolve_scenario
 from .errors import ConfigError, ResultsError
 from .processes import cores, hold_malloc_thresholds, start_process_server
+from .scratch import temporary_folder
 from .solve.group import ProgressCallback
 
 
@@ -140,8 +141,6 @@ def _peak_memory(result) -> dict[str, dict[str, float]]:
 
 def bench_monte_carlo_sweep(scenario: str, seed: int | None, seeds: int, workers: int) -> dict:
     """bench --monte-carlo as a sweep: the same summary, the runs on a local Dask cluster."""
-    import tempfile
-
     import numpy as np
 
     from .config import resolve_scenario
@@ -153,7 +152,7 @@ def bench_monte_carlo_sweep(scenario: str, seed: int | None, seeds: int, workers
     first = sc.seed if seed is None else seed
     spec = SweepSpec(scenarios=[str(resolve_scenario(scenario).resolve())], seeds=seeds, first_seed=first)
     start = time.perf_counter()
-    with tempfile.TemporaryDirectory(prefix="pancam-graph-bench-") as folder:
+    with temporary_folder("bench") as folder:
         records = run_sweep(plan(spec, Path(folder)), spec.timeout_s, workers)
         failed = [r for r in records if r.status != "done"]
         if failed:
@@ -367,14 +366,12 @@ def _stereo_frames(folder: Path, kind: str):
 
 
 def _time_recorded_run(scenario, seed: int) -> float:
-    import tempfile
-
     from .solve.pipeline import run
     from .solve.results import RunOptions
     from .viz.rerun_live import RerunRecorder
     from .viz.rerun_sink import RerunTarget, open_recording
 
-    with tempfile.TemporaryDirectory() as tmp:
+    with temporary_folder("bench") as tmp:
         start = time.perf_counter()
         recording = open_recording(RerunTarget("save", path=Path(tmp) / "bench.rrd"), "bench")
         run(scenario, RunOptions(seed=seed), listener=RerunRecorder(recording))

@@ -12,7 +12,6 @@ import multiprocessing.context
 import os
 import pickle
 import platform
-import tempfile
 import weakref
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
@@ -24,6 +23,7 @@ from typing import TypeVar
 import numpy as np
 
 from .errors import PancamGraphError
+from .scratch import temporary_folder
 
 T = TypeVar("T")
 
@@ -83,7 +83,7 @@ def call_apart(function: Callable[..., T], *args) -> T:
     written apart, each at an aligned offset of one file that this process maps read-only. Its
     arrays are views of that file (read-only): their pages are resident only while they are
     read, and `release_mapped_pages` hands them back to the page cache."""
-    with tempfile.TemporaryDirectory(prefix="pancam_graph_apart_", ignore_cleanup_errors=True) as folder:
+    with temporary_folder("apart") as folder:
         folder = Path(folder)
         with ProcessPoolExecutor(1, mp_context=process_context(), initializer=hold_malloc_thresholds) as pool:
             try:

@@ -25,6 +25,7 @@ import gtsam
 
 from ..atomic import write_atomically
 from ..errors import GraphError
+from ..scratch import temporary_folder
 from .keys import subset
 
 # updates per file (denver_trail's ~900 stops make one and a tail); the environment may set it
@@ -133,7 +134,7 @@ class UpdateLog:
 
     def _write_chunk(self) -> None:
         if self._folder is None:
-            self._temporary = tempfile.TemporaryDirectory(prefix="pancam-graph-log-")
+            self._temporary = temporary_folder("log")
             self._folder = Path(self._temporary.name)
         path = self._path(self.files)
         try:  # a checkpoint's log must be on disk if a saved state refers to it
@@ -175,7 +176,7 @@ class UpdateLog:
         if chunks is not None:
             self.files = 0
             if chunks:
-                self._temporary = tempfile.TemporaryDirectory(prefix="pancam-graph-log-")
+                self._temporary = temporary_folder("log")
                 self._folder = Path(self._temporary.name)
             for blob in chunks:
                 self._path(self.files).write_bytes(blob)

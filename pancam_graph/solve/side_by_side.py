@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import os
 import pickle
-import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -34,6 +33,7 @@ from ..frontend.vo_ahead import BLOCK_STOPS, VoAhead
 from ..kinds import stop_records, uses_vo
 from ..processes import RELEASE_EVERY_STOPS, hold_malloc_thresholds, map_npy, process_context, release_mapped_pages
 from ..records import Traverse
+from ..scratch import temporary_folder
 from .group import GroupJob, GroupOutcome, ProgressCallback, new_state, run_group
 from .memory import release_memory, rss_mb
 from .state import Checkpoints, RunState
@@ -130,7 +130,7 @@ class Handover:
     process."""
 
     def __init__(self):
-        self._folder = tempfile.TemporaryDirectory(prefix="pancam_graph_groups_", ignore_cleanup_errors=True)
+        self._folder = temporary_folder("groups")
         self.folder = Path(self._folder.name)
         # by id; the array is held too, so that no other object takes its id meanwhile
         self._arrays: dict[int, tuple[np.ndarray, Path]] = {}
