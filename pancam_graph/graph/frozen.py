@@ -5,20 +5,19 @@ grow with the traverse (the issue's "stops that left the window stream their res
 disk"; as a `gtsam.Values`, a pose took 192 bytes and a landmark 128: with the rows in files,
 mission_traverse's groups with sites grew 0.9 and 0.5 MB a km less).
 
-The files are a temporary folder's, gone with the object; a checkpoint carries their rows."""
+The files are unlinked once mapped (spill.mapped): nothing is left behind, however the run
+ends; a checkpoint carries their rows."""
 
 from __future__ import annotations
 
 import os
-import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass
-from pathlib import Path
 
 import gtsam
 import numpy as np
 
-from ..errors import GraphError
+from ..spill import mapped
 from .keys import value_type
 
 # rows a file; the environment may set it (tests). The rows in memory before they go are the
@@ -62,9 +61,12 @@ class FrozenRows:
     before its rows go to a file (a replay freezing the same variables) replaces its row."""
 
     def __init__(self) -> None:
-        self._tail: dict[int, np.ndarray] = {}
+        # the latest rows, one after another in one block, filled and emptied again and again
+        # (a small array a row, kept until its file, scattered the heap's free space)
+        self._tail: dict[int, tuple[int, int]] = {}  # key -> (start, width) in the block
+        self._block = np.zeros(0)
+        self._used = 0
         self._chunks: list[_Chunk] = []
-        self._temporary: tempfile.TemporaryDirectory | None = None
 
     @property
     def files(self) -> int:
@@ -75,10 +77,23 @@ class FrozenRows:
         return len(self._tail) + sum(len(c.keys) for c in self._chunks)
 
     def put(self, key: int, row: np.ndarray) -> None:
-        self._tail[key] = np.array(row, dtype=float).ravel()
+        row = np.asarray(row, dtype=float).ravel()
+        at = self._tail.get(key)
+        if at is None or at[1] != len(row):
+            if self._used + len(row) > len(self._block):
+                grown = np.empty(max(2 * len(self._block), CHUNK_ROWS * 12, self._used + len(row)))
+                grown[:self._used] = self._block[:self._used]
+                self._block = grown
+            at = self._tail[key] = (self._used, len(row))
+            self._used += len(row)
+        self._block[at[0]:at[0] + at[1]] = row
+
+    def _tail_row(self, key: int) -> np.ndarray | None:
+        at = self._tail.get(key)
+        return None if at is None else self._block[at[0]:at[0] + at[1]].copy()  # the block is reused
 
     def get(self, key: int) -> np.ndarray | None:
-        row = self._tail.get(key)
+        row = self._tail_row(key)
         if row is not None:
             return row
         for chunk in reversed(self._chunks):
@@ -94,7 +109,8 @@ class FrozenRows:
         for chunk in self._chunks:
             for i, key in enumerate(chunk.keys.tolist()):
                 yield key, chunk.row(i)
-        yield from self._tail.items()
+        for key in list(self._tail):
+            yield key, self._tail_row(key)
 
     def rows(self, keys: list[int], width: int) -> tuple[np.ndarray, np.ndarray]:
         """(found, rows): whether each key is here and its row (rows of `width` numbers; zeros
@@ -111,7 +127,7 @@ class FrozenRows:
             out[hit] = chunk.data[start[:, None] + np.arange(width)]
             found |= hit
         for j in np.flatnonzero(~found):
-            row = self._tail.get(int(wanted[j]))
+            row = self._tail_row(int(wanted[j]))
             if row is not None:
                 out[j], found[j] = row, True
         return found, out
@@ -123,39 +139,24 @@ class FrozenRows:
             return
         keys = np.fromiter(self._tail, dtype=np.int64, count=len(self._tail))
         order = np.argsort(keys)
-        rows = list(self._tail.values())
-        sizes = np.array([len(rows[i]) for i in order], dtype=np.int64)
-        offsets = np.concatenate([[0], np.cumsum(sizes)])
-        data = np.concatenate([rows[i] for i in order]) if rows else np.zeros(0)
-        self._chunks.append(self._mapped(keys[order], offsets, data))
-        self._tail = {}
+        spans = np.array(list(self._tail.values()), dtype=np.int64).reshape(-1, 2)[order]
+        offsets = np.concatenate([[0], np.cumsum(spans[:, 1])])
+        data = np.concatenate([self._block[start:start + width] for start, width in spans.tolist()])
+        self._chunks.append(_Chunk.of(mapped(keys[order]), mapped(offsets), mapped(data)))
+        self._tail, self._used = {}, 0
 
-    def _mapped(self, keys: np.ndarray, offsets: np.ndarray, data: np.ndarray) -> _Chunk:
-        if self._temporary is None:
-            self._temporary = tempfile.TemporaryDirectory(prefix="pancam-graph-frozen-")
-        folder = Path(self._temporary.name)
-        index = len(self._chunks)
-        arrays = {}
-        try:
-            for name, array in (("keys", keys), ("offsets", offsets), ("data", data)):
-                path = folder / f"chunk-{index:05d}-{name}.npy"
-                np.save(path, array)
-                arrays[name] = np.load(path, mmap_mode="r")
-        except OSError as exc:
-            raise GraphError(f"{folder}: cannot write the rows of the variables that left the window: "
-                             f"{exc.strerror}") from None
-        return _Chunk.of(arrays["keys"], arrays["offsets"], arrays["data"])
-
-    # -- checkpoints: the rows themselves, mapped again from files of a new folder -----------
+    # -- checkpoints: the rows themselves, mapped again from new files ------------------------
 
     def __getstate__(self) -> dict:
-        return {"tail": self._tail,
+        return {"tail": {key: self._tail_row(key) for key in self._tail},
                 "chunks": [(np.asarray(c.keys), np.asarray(c.offsets), np.asarray(c.data)) for c in self._chunks]}
 
     def __setstate__(self, state: dict) -> None:
-        self._tail, self._chunks, self._temporary = state["tail"], [], None
-        for keys, offsets, data in state["chunks"]:
-            self._chunks.append(self._mapped(keys, offsets, data))
+        self.__init__()
+        for key, row in state["tail"].items():
+            self.put(key, row)
+        self._chunks = [_Chunk.of(mapped(keys), mapped(offsets), mapped(data))
+                        for keys, offsets, data in state["chunks"]]
 
 
 # -- a variable's value as a row and back, by its kind of variable (keys.value_type) --------------

@@ -4,7 +4,6 @@ its updates for batch polishing, the bounds and checkpoints."""
 from __future__ import annotations
 
 import time
-from array import array
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -92,9 +91,10 @@ class Smoother:
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
         self._new_rebuild: dict[int, Rebuild] = {}
-        # each update's wall time and the variables it relinearized (8 bytes an update, not a list's 32)
-        self.update_ms = array("d")
-        self.relinearized = array("q")
+        # every update's wall time and the variables it relinearized, summed: a step reads what its
+        # updates added (a list an update grew with the traverse)
+        self.update_ms_sum = 0.0
+        self.relinearized_sum = 0
 
     def _new_isam(self) -> gtsam.IncrementalFixedLagSmoother:
         params = gtsam.ISAM2Params()
@@ -166,8 +166,8 @@ class Smoother:
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
         self._new_rebuild = {}
-        self.update_ms.append(elapsed)
-        self.relinearized.append(self.isam.getISAM2Result().getVariablesRelinearized())
+        self.update_ms_sum += elapsed
+        self.relinearized_sum += self.isam.getISAM2Result().getVariablesRelinearized()
         return elapsed
 
     def _stamp(self) -> float:

@@ -8,7 +8,6 @@ bearing-range factor from the site that first triangulated it.
 
 from __future__ import annotations
 
-from array import array
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 from typing import Literal
@@ -22,6 +21,7 @@ from ..graph.keys import L, X
 from ..graph.tie_gate import RelativePose, SitePoint
 from ..records import Stop, Traverse
 from ..sections import Section
+from ..spill import Column, mapped
 from .base import Kind
 
 # The last sites collected, for the other configurations stepping the same stop (Sites._collect)
@@ -49,41 +49,49 @@ class LandmarkReference:
 
 class TrackIds:
     """The tracks made landmarks over the whole traverse (one may not be made again): the latest
-    in a set, the others in a sorted array, 8 bytes each. As one set of Python ints they held
-    about 1 KB a stop of long_traverse's vo_sites and full (tracemalloc)."""
+    in a set, each `MERGE_AT` before them a sorted array in a file (spill.mapped), 8 bytes each.
+    As one set of Python ints they held about 1 KB a stop of long_traverse's vo_sites and full
+    (tracemalloc)."""
 
-    MERGE_AT = 4096  # tracks in the set before they go into the array
+    MERGE_AT = 4096  # tracks in the set before they go to a file
 
     def __init__(self) -> None:
         self._latest: set[int] = set()
-        self._merged = np.zeros(0, dtype=np.int64)
+        self._filed: list[np.ndarray] = []  # sorted, each MERGE_AT tracks
 
     def add(self, track: int) -> None:
         self._latest.add(track)
         if len(self._latest) >= self.MERGE_AT:
-            self._merged = np.union1d(self._merged, np.fromiter(self._latest, np.int64, len(self._latest)))
+            self._filed.append(mapped(np.sort(np.fromiter(self._latest, np.int64, len(self._latest)))))
             self._latest = set()
 
     def __contains__(self, track: int) -> bool:
-        return track in self._latest or bool(self._in_merged(np.array([track], np.int64))[0])
+        return track in self._latest or bool(self._in_filed(np.array([track], np.int64))[0])
 
     def not_in(self, tracks: set[int]) -> list[int]:
         """Those of `tracks` that are not landmark tracks."""
         fresh = np.fromiter(tracks - self._latest, np.int64)
-        return fresh[~self._in_merged(fresh)].tolist()
+        return fresh[~self._in_filed(fresh)].tolist()
 
-    def _in_merged(self, tracks: np.ndarray) -> np.ndarray:
-        # a binary search in the sorted array (np.isin would sort it again at every call)
-        at = np.searchsorted(self._merged, tracks)
-        found = at < len(self._merged)
-        found[found] = self._merged[at[found]] == tracks[found]
+    def _in_filed(self, tracks: np.ndarray) -> np.ndarray:
+        # a binary search in each sorted array (np.isin would sort it again at every call)
+        found = np.zeros(len(tracks), dtype=bool)
+        for filed in self._filed:
+            at = np.minimum(np.searchsorted(filed, tracks), len(filed) - 1)
+            found |= filed[at] == tracks
         return found
 
     def __len__(self) -> int:
-        return len(self._latest) + len(self._merged)
+        return len(self._latest) + sum(len(filed) for filed in self._filed)
 
     def as_set(self) -> set[int]:
-        return self._latest | set(self._merged.tolist())
+        return self._latest.union(*(filed.tolist() for filed in self._filed))
+
+    def __getstate__(self) -> dict:
+        return {"latest": self._latest, "filed": [np.asarray(filed) for filed in self._filed]}
+
+    def __setstate__(self, state: dict) -> None:
+        self._latest, self._filed = state["latest"], [mapped(filed) for filed in state["filed"]]
 
 
 class SitesSettings(Section):
@@ -131,7 +139,7 @@ class Sites(Kind):
         self.landmark_ids = TrackIds()
         # (track, site stop) of every stereo view of a landmark, as they came: two columns, not a
         # list a landmark (long_traverse's vo_sites: 61,360 views of 30,010 landmarks)
-        self._view_tracks, self._view_stops = array("q"), array("q")
+        self._view_tracks, self._view_stops = Column("q"), Column("q")
         self.references: dict[int, LandmarkReference] = {}
         self._relative_cache: dict[tuple[int, int], RelativePose] = {}  # these two: one site's step
         self._site_poses: dict[int, gtsam.Pose3] = {}
@@ -266,9 +274,9 @@ class Sites(Kind):
     def tie_links(self) -> np.ndarray:
         """(track, site stop) for every landmark and every site whose panorama observed it, by
         track and then as the sites came."""
-        tracks = np.frombuffer(self._view_tracks, dtype=np.int64)
+        tracks = self._view_tracks.to_numpy()
         order = np.argsort(tracks, kind="stable")
-        return np.column_stack([tracks[order], np.frombuffer(self._view_stops, dtype=np.int64)[order]])
+        return np.column_stack([tracks[order], self._view_stops.to_numpy()[order]])
 
     def counters(self) -> dict:
         return {"landmarks": len(self.landmark_ids), "rejected_tie_points": self.rejected_ties,

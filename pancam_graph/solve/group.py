@@ -223,7 +223,7 @@ def _configuration_result(job: GroupJob, name: str, localizer: Localizer, finish
         if points is not None and np.all(np.isfinite(points)):
             if progress is not None:
                 progress(f"CRLB of {name}", 0, 1)
-            crlb = crlb_position_covariances(localizer.smoother, localizer.stops, truth.world_T_body,
+            crlb = crlb_position_covariances(localizer.smoother, list(localizer.stops), truth.world_T_body,
                                              PointsByTrack(tracks, points), extra)
             consistency_result = consistency(poses[:, :3, 3], truth.positions, covariance, crlb)
     elif traverse.gps_fixes:  # no truth: the fixes are the reference

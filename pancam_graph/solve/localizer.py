@@ -3,7 +3,6 @@ one iSAM2 update out."""
 
 from __future__ import annotations
 
-from array import array
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -19,6 +18,7 @@ from ..graph.smoother import RelinearizeThresholds, Smoother, pose_matrices
 from ..kinds import KINDS, STEP_COUNTERS, Kind, absolute, uses_vo
 from ..kinds.base import NO_TIE_LINKS, StepCounts
 from ..records import GroundTruth, Stop, Traverse
+from ..spill import Column
 
 # (key_a, key_b, a_T_b, covariance) -> factor
 MotionFactor = Callable[[int, int, gtsam.Pose3, np.ndarray], gtsam.NonlinearFactor]
@@ -84,7 +84,7 @@ class Localizer:
         self.estimator = estimator
         self.smoother = smoother_for(estimator, with_gps=absolute(kinds))
         self.rng = np.random.default_rng(seed)
-        self.stops = array("q")  # every stop stepped: 8 bytes each, not a list's 36
+        self.stops = Column("q")  # every stop stepped, to files as the traverse goes on
         self.previous_stop: Stop | None = None
         self.bridged_stops = 0
         self.interpolated: list[InterpolatedPose] = []
@@ -111,7 +111,8 @@ class Localizer:
 
     def step(self, stop: Stop, motion: Motion | None) -> StepResult:
         k = stop.index
-        updates = len(self.smoother.update_ms)  # a site stop takes two iSAM2 updates
+        # what this stop's updates add (a site stop takes two)
+        ms_before, relinearized_before = self.smoother.update_ms_sum, self.smoother.relinearized_sum
         if motion is None:
             self.smoother.add(factors.start_prior(self.traverse.start_world_T_body, self.traverse.start_sigmas))
             self.smoother.insert(X(k), gtsam.Pose3(self.traverse.start_world_T_body))
@@ -129,8 +130,8 @@ class Localizer:
             kind.after_update(stop, counts)
         self.previous_stop = stop
         self._keys_at.clear()
-        ms, relinearized = sum(self.smoother.update_ms[updates:]), sum(self.smoother.relinearized[updates:])
-        return StepResult(k, ms, relinearized, dict(counts))
+        ms = self.smoother.update_ms_sum - ms_before
+        return StepResult(k, ms, self.smoother.relinearized_sum - relinearized_before, dict(counts))
 
     def _add_motion(self, prev: Stop, stop: Stop, motion: Motion) -> None:
         """The between factor(s) from the previous stop. Kinds that measure while the rover drives
@@ -258,7 +259,7 @@ class Localizer:
         # by key: GTSAM's extractPoint3 also reads every other vector as a point (the orbital
         # kind's 4-vectors, as three numbers of garbage)
         points = self.smoother.stacked(values, [L(t) for t in ids.tolist()], 3)
-        return Snapshot(np.array(self.stops, dtype=np.int64), poses, ids, points)
+        return Snapshot(self.stops.to_numpy(), poses, ids, points)
 
     # -- results ---------------------------------------------------------------------------
 

@@ -3,17 +3,19 @@
 A StepResult per stop holds an object, a dict and a few numbers: about 250 bytes a stop and
 configuration (tracemalloc, long_traverse), and the run's process holds every configuration's
 for the whole traverse (mission_traverse: 33,589 stops, six configurations). As columns it is
-the 8 bytes of each number.
+the 8 bytes of each number, and those go to files as the traverse goes on (spill.Column): the
+table is read only at the end.
 """
 
 from __future__ import annotations
 
 import math
-from array import array
 from collections.abc import Iterator
+from itertools import repeat
 
 import numpy as np
 
+from ..spill import Column
 from .localizer import StepResult
 
 
@@ -23,10 +25,10 @@ class StepTable:
     so) unless a stop gives it a fraction."""
 
     def __init__(self) -> None:
-        self._stops = array("q")
-        self._update_ms = array("d")
-        self._relinearized = array("q")
-        self._counts: dict[str, array] = {}  # name -> one value per stop, NaN where the stop did not set it
+        self._stops = Column("q")
+        self._update_ms = Column("d")
+        self._relinearized = Column("q")
+        self._counts: dict[str, Column] = {}  # name -> one value per stop, NaN where the stop did not set it
         self._whole: set[str] = set()  # counters every value of which was an int
 
     def append(self, step: StepResult) -> None:
@@ -36,7 +38,7 @@ class StepTable:
                 continue
             column = self._counts.get(name)
             if column is None:
-                column = self._counts[name] = array("d", [math.nan]) * n
+                column = self._counts[name] = Column("d", repeat(math.nan, n))
                 if type(value) is int:
                     self._whole.add(name)
             elif type(value) is not int:
@@ -53,24 +55,30 @@ class StepTable:
         return len(self._stops)
 
     def __iter__(self) -> Iterator[StepResult]:
-        for i in range(len(self._stops)):
-            yield self[i]
+        # each column read once, not a value at a time (files: a table is read at the end)
+        counts = {name: column.to_numpy().tolist() for name, column in self._counts.items()}
+        columns = zip(self._stops, self._update_ms, self._relinearized, strict=True)
+        for i, (stop, ms, relinearized) in enumerate(columns):
+            yield self._step(stop, ms, relinearized, {name: values[i] for name, values in counts.items()})
 
     def __getitem__(self, i: int) -> StepResult:
+        return self._step(self._stops[i], self._update_ms[i], self._relinearized[i],
+                          {name: column[i] for name, column in self._counts.items()})
+
+    def _step(self, stop: int, ms: float, relinearized: int, values: dict[str, float]) -> StepResult:
         counts: dict[str, float | None] = {}
-        for name, column in self._counts.items():
-            value = column[i]
+        for name, value in values.items():
             if not math.isnan(value):
                 counts[name] = int(value) if name in self._whole else value
-        return StepResult(self._stops[i], self._update_ms[i], self._relinearized[i], counts)
+        return StepResult(stop, ms, relinearized, counts)
 
     @property
     def stops(self) -> np.ndarray:
-        return np.frombuffer(self._stops, dtype=np.int64).copy()
+        return self._stops.to_numpy()
 
     @property
     def update_ms(self) -> np.ndarray:
-        return np.frombuffer(self._update_ms, dtype=np.float64).copy()
+        return self._update_ms.to_numpy()
 
     @classmethod
     def of(cls, steps) -> StepTable:

@@ -8,6 +8,7 @@ import gtsam
 import numpy as np
 import pytest
 
+from pancam_graph import spill
 from pancam_graph.config import EstimatorConfig
 from pancam_graph.errors import GraphError
 from pancam_graph.frontend.motion import motion_between
@@ -16,6 +17,7 @@ from pancam_graph.frontend.vo_ahead import VoAhead
 from pancam_graph.graph import frozen, update_log
 from pancam_graph.graph.keys import L, X, subset
 from pancam_graph.graph.smoother import RelinearizeThresholds, Smoother
+from pancam_graph.kinds.sites import TrackIds
 from pancam_graph.sim import simulate
 from pancam_graph.solve.localizer import Localizer, smoother_for
 
@@ -84,14 +86,16 @@ def test_variables_that_left_take_no_factor_and_have_no_marginal(short_scenario,
 @pytest.mark.parametrize("log", ["in memory", "temporary files", "checkpoint folder"])
 def test_a_windowed_run_resumes_from_its_checkpoint_exactly(short_scenario, trail, log, tmp_path, monkeypatch):
     """The update log in memory, spilled to files carried in the pickle, or in files the
-    checkpoint refers to (and with them, the variables that left the window in files too): the
-    resumed run is the uninterrupted one to the bit."""
+    checkpoint refers to (and with them, the variables that left the window and the sites' views
+    and landmark tracks in files too): the resumed run is the uninterrupted one to the bit."""
     traverse, _, motions = trail
     kinds = ["vo", "sites", "hrc", "gps"]
     whole = _solve(_localizer(short_scenario, traverse, kinds, WINDOW_M), traverse, motions)
     if log != "in memory":
         monkeypatch.setattr(update_log, "CHUNK_UPDATES", 16)
         monkeypatch.setattr(frozen, "CHUNK_ROWS", 40)
+        monkeypatch.setattr(spill, "CHUNK", 30)
+        monkeypatch.setattr(TrackIds, "MERGE_AT", 60)
     first = _localizer(short_scenario, traverse, kinds, WINDOW_M)
     if log == "checkpoint folder":
         first.smoother.log.keep_in(tmp_path / "log")
@@ -99,6 +103,7 @@ def test_a_windowed_run_resumes_from_its_checkpoint_exactly(short_scenario, trai
     assert not first.smoother.live(X(0))  # marginalization has begun before the checkpoint
     assert first.smoother.log.files == (0 if log == "in memory" else 4)
     assert (first.smoother.frozen.files > 0) == (log != "in memory")
+    assert (len(first.kinds["sites"].landmark_ids._filed) > 0) == (log != "in memory")
     saved = pickle.dumps(first)
     for stop, motion in list(zip(traverse.stops, motions, strict=True))[70:]:
         first.step(stop, motion)  # and writes more of its log's files, which the saved state does not know
@@ -109,6 +114,8 @@ def test_a_windowed_run_resumes_from_its_checkpoint_exactly(short_scenario, trai
     np.testing.assert_array_equal(whole.final().world_T_body, resumed.final().world_T_body)
     np.testing.assert_array_equal(whole.position_covariances(), resumed.position_covariances())
     np.testing.assert_array_equal(whole.final().landmarks, resumed.final().landmarks)
+    np.testing.assert_array_equal(whole.tie_links(), resumed.tie_links())
+    np.testing.assert_array_equal(whole.stops.to_numpy(), resumed.stops.to_numpy())
     if log == "checkpoint folder":
         assert sorted(p.name for p in (tmp_path / "log").iterdir())[:2] == ["chunk-00000.pkl", "chunk-00001.pkl"]
         (tmp_path / "log" / "chunk-00002.pkl").unlink()
