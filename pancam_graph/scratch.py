@@ -36,7 +36,8 @@ def sweep(where: Path | None = None) -> list[Path]:
     removed = []
     for path in Path(where or tempfile.gettempdir()).glob(f"{PREFIX}*"):
         match = _NAME.match(path.name)
-        if match is None or match["host"] != _host() or _running(int(match["pid"])) or not path.is_dir():
+        if (match is None or match["host"] != _host() or _running(int(match["pid"])) or path.is_symlink()
+                or not path.is_dir()):
             continue
         shutil.rmtree(path, ignore_errors=True)
         removed.append(path)

@@ -24,5 +24,9 @@ def test_the_folders_of_killed_processes_are_swept(tmp_path):
     elsewhere = Path(tempfile.mkdtemp(prefix=f"{scratch.PREFIX}log-otherhost-{2**22 + 1}-", dir=tmp_path))
     not_ours = tmp_path / "pancam-graph-results"
     not_ours.mkdir()
+    (not_ours / "keep").touch()
+    link = tmp_path / f"{left.name[:-3]}xyz"  # a dead process's name, a link to another folder
+    link.symlink_to(not_ours)
     assert scratch.sweep(tmp_path) == [left]
-    assert not left.exists() and ours.is_dir() and elsewhere.is_dir() and not_ours.is_dir()
+    assert not left.exists() and ours.is_dir() and elsewhere.is_dir() and (not_ours / "keep").is_file()
+    assert link.is_symlink()
