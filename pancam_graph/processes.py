@@ -13,7 +13,7 @@ import os
 import pickle
 import platform
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import forkserver
@@ -27,7 +27,8 @@ from .scratch import temporary_folder
 
 T = TypeVar("T")
 
-PRELOAD = ["pancam_graph.solve.side_by_side"]  # imports everything a worker runs
+# everything a worker runs, then what hands back the pages the imports read (fork_server)
+PRELOAD = ["pancam_graph.solve.side_by_side", "pancam_graph.fork_server"]
 
 
 def cores() -> int:
@@ -128,6 +129,55 @@ def release_mapped_pages() -> None:
     for mapping in list(_mappings):
         if not mapping.closed and hasattr(mmap, "MADV_DONTNEED"):
             mapping.madvise(mmap.MADV_DONTNEED)
+
+
+MADV_DONTNEED = 4  # Linux's
+
+
+def release_library_pages() -> int:
+    """Drop from this process's page tables the resident pages of the files it maps read-only
+    and never wrote to (the shared libraries' code and constants, the modules' compiled code):
+    a page used again comes back from the page cache, as it is. For a process done with most of
+    the code it ran: the fork server after its imports, the run's process while it waits for its
+    groups. Those pages count in every process's resident memory, 80-130 MB each on a fresh
+    install (less once the page cache has dropped the parts nobody reads). Returns the kB
+    released (0 where not Linux with glibc)."""
+    if not _glibc():
+        return 0
+    try:
+        with open("/proc/self/smaps") as f:
+            mappings = _clean_file_mappings(f)
+    except OSError:
+        return 0
+    madvise = ctypes.CDLL("libc.so.6").madvise
+    madvise.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
+    released = 0
+    for start, end, rss_kb in mappings:
+        if madvise(start, end - start, MADV_DONTNEED) == 0:
+            released += rss_kb
+    return released
+
+
+def _clean_file_mappings(smaps: Iterable[str]) -> list[tuple[int, int, int]]:
+    """(start, end, resident kB) of the private, read-only mappings of files with no page of
+    their own (`Anonymous: 0 kB`): their pages are the file's, so dropping them loses nothing."""
+    out = []
+    vma: list | None = None
+    for line in smaps:
+        fields = line.split()
+        if len(fields) >= 5 and "-" in fields[0] and len(fields[1]) == 4:  # a mapping's header
+            start, end = (int(x, 16) for x in fields[0].split("-"))
+            path = fields[5] if len(fields) >= 6 else ""
+            readonly_private_file = fields[1][1] == "-" and fields[1][3] == "p" and path.startswith("/")
+            vma = [start, end, 0] if readonly_private_file and fields[4] != "0" else None
+            if vma is not None:
+                out.append(vma)
+        elif vma is not None and fields[:1] == ["Rss:"]:
+            vma[2] = int(fields[1])
+        elif vma is not None and fields[:1] == ["Anonymous:"] and fields[1] != "0":
+            out.remove(vma)  # a page written to (copied on write): not the file's any more
+            vma = None
+    return [(start, end, rss) for start, end, rss in out if rss]
 
 
 def _call_into(folder: Path, function: Callable, args: tuple) -> None:

@@ -6,9 +6,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import gtsam
 import numpy as np
 import pytest
 
+from pancam_graph import processes
 from pancam_graph.config import load_scenario, resolve_scenario
 from pancam_graph.errors import ConfigError
 from pancam_graph.processes import call_apart, release_mapped_pages
@@ -103,3 +105,55 @@ def test_freed_blocks_go_back_with_the_thresholds_held():
 
     assert kept_mb("dynamic") > 150.0  # glibc's default behaviour: the 200 MB stay resident
     assert kept_mb("held") < 10.0
+
+
+_SMAPS = """\
+7f0000000000-7f0000010000 r-xp 00000000 08:01 1234 /lib/libcode.so
+Rss:                  40 kB
+Anonymous:             0 kB
+7f0000010000-7f0000012000 r--p 00010000 08:01 1234 /lib/libcode.so
+Rss:                   8 kB
+Anonymous:             4 kB
+7f0000012000-7f0000013000 rw-p 00012000 08:01 1234 /lib/libcode.so
+Rss:                   4 kB
+Anonymous:             0 kB
+7f0000020000-7f0000030000 r--p 00000000 08:01 99 /lib/unread.so
+Rss:                   0 kB
+Anonymous:             0 kB
+7f0000040000-7f0000050000 rw-p 00000000 00:00 0
+Rss:                  64 kB
+Anonymous:            64 kB
+7f0000060000-7f0000061000 r--s 00000000 00:05 7 /dev/shm/shared
+Rss:                   4 kB
+Anonymous:             0 kB
+7ffd00000000-7ffd00002000 r-xp 00000000 00:00 0                          [vdso]
+Rss:                   8 kB
+Anonymous:             0 kB
+7f0000070000-7f0000078000 r--p 00000000 08:01 55 /lib/constants.so
+Rss:                  12 kB
+Anonymous:             0 kB
+VmFlags: rd mr mw me sd
+"""
+
+
+def test_only_read_only_unwritten_file_pages_are_released():
+    # the code and constants of a file, not what was written (a relocated page, data), shared or
+    # anonymous memory, nor the kernel's vdso
+    assert processes._clean_file_mappings(_SMAPS.splitlines()) == [
+        (0x7f0000000000, 0x7f0000010000, 40), (0x7f0000070000, 0x7f0000078000, 12)]
+
+
+@pytest.mark.skipif(platform.system() != "Linux" or platform.libc_ver()[0] != "glibc", reason="Linux's smaps")
+def test_a_process_runs_on_after_its_library_pages_are_released():
+    script = ("import numpy as np, gtsam\n"
+              "from pancam_graph import processes\n"
+              "def file_kb():\n"
+              "    return int(next(l for l in open('/proc/self/status') if l.startswith('RssFile')).split()[1])\n"
+              "before = file_kb(); released = processes.release_library_pages(); after = file_kb()\n"
+              "x = gtsam.Pose3(gtsam.Rot3.Yaw(0.5), [1.0, 2.0, 3.0]).inverse().translation()\n"
+              "print(before, released, after, *np.linalg.solve(np.eye(3) * 2.0, x))")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    before, released, after, *x = (float(v) for v in out.stdout.split())
+    assert released > 10_000 and after < before - 10_000  # kB: the imports' code pages, gone from the process
+    expected = -(gtsam.Rot3.Yaw(0.5).inverse().matrix() @ [1.0, 2.0, 3.0]) / 2.0
+    np.testing.assert_allclose(x, expected, rtol=1e-12)

@@ -31,7 +31,14 @@ from ..errors import GraphError
 from ..frontend.motion import Motions, VoMotions, dead_reckoning_motion, motion_from
 from ..frontend.vo_ahead import BLOCK_STOPS, VoAhead
 from ..kinds import stop_records, uses_vo
-from ..processes import RELEASE_EVERY_STOPS, hold_malloc_thresholds, map_npy, process_context, release_mapped_pages
+from ..processes import (
+    RELEASE_EVERY_STOPS,
+    hold_malloc_thresholds,
+    map_npy,
+    process_context,
+    release_library_pages,
+    release_mapped_pages,
+)
 from ..records import Traverse
 from ..scratch import temporary_folder
 from .group import GroupJob, GroupOutcome, ProgressCallback, new_state, run_group
@@ -77,6 +84,8 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
             if len(futures) == len(groups) and any(_uses_vo(configs) for configs in groups):
                 dr_motions = None  # the groups have them; the run's are the VO's (33,589 of each: 40 MB)
             release_memory()  # what the inputs' pickling left, and read of the source's mapped arrays
+            if len(futures) == len(groups):  # this process only waits for its groups now
+                release_library_pages()
 
         for g, configs in enumerate(groups):
             if not _uses_vo(configs):
