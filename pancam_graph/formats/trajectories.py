@@ -9,6 +9,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..geodesy import LocalFrame
+from ..graph.frozen import pose_matrices
 from ..records import Trajectory
 from .gps_logs import read_gps_file
 
@@ -61,9 +62,7 @@ def _finite(path: Path, rows: np.ndarray) -> None:
 
 def _kitti(path: Path, rows: np.ndarray) -> Trajectory:
     _finite(path, rows)
-    poses = np.zeros((len(rows), 4, 4))
-    poses[:, :3, :] = rows.reshape(-1, 3, 4)
-    poses[:, 3, 3] = 1.0
+    poses = pose_matrices(rows)
     _check_rotations(path, poses)
     return Trajectory(str(path), poses[:, :3, 3].copy(), None, poses)
 

@@ -170,6 +170,15 @@ def row_of(values: gtsam.Values, key: int) -> np.ndarray:
     return np.asarray(getattr(values, f"at{kind}")(key), dtype=float)
 
 
+def pose_matrices(rows: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) poses from (N, 12) rows of their 3x4 [R | t], row by row (`row_of`'s,
+    `Smoother.stacked`'s, a KITTI pose file's)."""
+    out = np.zeros((len(rows), 4, 4))
+    out[:, :3] = np.asarray(rows).reshape(-1, 3, 4)
+    out[:, 3, 3] = 1.0
+    return out
+
+
 def value_of(key: int, row: np.ndarray):
     """The GTSAM value (Pose3, a float, or an array for a Point3 or a Vector) of `row`."""
     kind = value_type(key)

@@ -445,10 +445,3 @@ class Smoother:
         except RuntimeError as exc:
             raise GraphError(f"batch Levenberg-Marquardt failed: {exc}") from None
 
-
-def pose_matrices(rows: np.ndarray) -> np.ndarray:
-    """(N, 4, 4) from `Smoother.stacked`'s (N, 12) pose rows."""
-    out = np.zeros((len(rows), 4, 4))
-    out[:, :3] = rows.reshape(-1, 3, 4)
-    out[:, 3, 3] = 1.0
-    return out

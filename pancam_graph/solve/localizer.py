@@ -13,8 +13,9 @@ from ..config import EstimatorConfig
 from ..errors import ConfigError
 from ..frontend.motion import Motion
 from ..graph import factors
+from ..graph.frozen import pose_matrices
 from ..graph.keys import L, T, X
-from ..graph.smoother import RelinearizeThresholds, Smoother, pose_matrices
+from ..graph.smoother import RelinearizeThresholds, Smoother
 from ..kinds import KINDS, STEP_COUNTERS, Kind, absolute, uses_vo
 from ..kinds.base import NO_TIE_LINKS, StepCounts
 from ..records import GroundTruth, Stop, Traverse
