@@ -26,6 +26,7 @@ from pyproj import CRS
 
 from .errors import PancamGraphError
 from .geodesy import LocalFrame
+from .maps import ground_spacing
 from .records import MapRaster
 
 MAX_POINTS = 4000  # a site's points used at most (a simulated panorama has 2,000-2,600 within 40 m)
@@ -109,7 +110,7 @@ def register_site(points_body: np.ndarray, vertical_var_body: np.ndarray, predic
     # differs from ENU up by the curvature's drop, which a shift of metres changes by millimetres
     ends = frame.to_map(np.array([site_enu, site_enu + [1.0, 0.0, 0.0], site_enu + [0.0, 1.0, 0.0]]), crs)
     site_xy, to_map = ends[0], (ends[1:] - ends[0]).T
-    rows, cols = _window(dtm, site_xy, max_range_m + search_m + 2 * dtm.post_m)
+    rows, cols = _window(dtm, site_xy, max_range_m + search_m + 2 * max(ground_spacing(dtm)))
     window = dtm.values[rows, cols].astype(float)
     if np.isnan(window).mean() > 0.05:
         raise RegistrationFailed(f"the map has no data at {np.isnan(window).mean():.0%} of the site's posts")
@@ -180,16 +181,20 @@ def _shared_error_spread(xy: np.ndarray, weighted_jacobian: np.ndarray, errors: 
 
 
 def _window(dtm: MapRaster, centre_xy: np.ndarray, radius_m: float) -> tuple[slice, slice]:
-    """The raster's rows and columns within `radius_m` of a map point; RegistrationFailed when
-    that square reaches outside the raster."""
-    col0 = int(np.floor((centre_xy[0] - radius_m - dtm.x0_m) / dtm.post_m))
-    row0 = int(np.floor((dtm.y0_m - centre_xy[1] - radius_m) / dtm.post_m))
-    size = int(np.ceil(2 * radius_m / dtm.post_m)) + 1
+    """The raster's rows and columns within `radius_m` on the ground of a map point (the posts'
+    ground spacing per axis: maps.ground_spacing); MapNotCovering when that box reaches outside
+    the raster."""
+    east_m, north_m = ground_spacing(dtm)
+    half_cols, half_rows = radius_m / east_m * dtm.post_m, radius_m / north_m * dtm.post_m  # map units
+    col0 = int(np.floor((centre_xy[0] - half_cols - dtm.x0_m) / dtm.post_m))
+    row0 = int(np.floor((dtm.y0_m - centre_xy[1] - half_rows) / dtm.post_m))
+    cols = int(np.ceil(2 * half_cols / dtm.post_m)) + 1
+    rows = int(np.ceil(2 * half_rows / dtm.post_m)) + 1
     height, width = dtm.values.shape
-    if row0 < 0 or col0 < 0 or row0 + size > height or col0 + size > width:
+    if row0 < 0 or col0 < 0 or row0 + rows > height or col0 + cols > width:
         raise MapNotCovering(f"the site is not covered by the map (within {radius_m:.0f} m of its predicted "
                              "position)")
-    return slice(row0, row0 + size), slice(col0, col0 + size)
+    return slice(row0, row0 + rows), slice(col0, col0 + cols)
 
 
 def _coarse_shift(window: np.ndarray, pixel: np.ndarray, heights: np.ndarray, weight: np.ndarray,

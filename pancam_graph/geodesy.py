@@ -1,6 +1,6 @@
 """Geodetic coordinates <-> local ENU at a geodetic origin, on Earth (WGS84) or Mars (the IAU 2015
-sphere), and into the map projection an orbital or survey map of the site would use; all through
-pyproj."""
+sphere for positions, its ellipsoid for "up"), the local vertical anywhere in that frame, and the
+map projection an orbital or survey map of the site would use; all through pyproj."""
 
 from __future__ import annotations
 
@@ -25,16 +25,27 @@ _GEOGRAPHIC = {"earth": "EPSG:4326", "mars": "IAU_2015:49900"}
 _MARS_MAP = "IAU_2015:49910"
 _STANDARD_PARALLEL = "8823"  # EPSG's parameter code: latitude of the 1st standard parallel
 _SHAPE = {"earth": "+ellps=WGS84", "mars": f"+R={MARS_RADIUS_M!r}"}
+# The surface whose normal is "up" (gravity, an accelerometer's tilt, a mission's site frame): on
+# Mars the IAU 2015 ellipsoid (3,396.19 / 3,376.20 km), whose normal is the planetographic
+# vertical, 0.05 deg from the sphere's at Gale and 0.2 deg at Jezero.
+_UP_CRS = {"earth": "EPSG:4326", "mars": "IAU_2015:49901"}
+
+
+def _shape_of(crs: str) -> str:
+    ellipsoid = CRS.from_user_input(crs).ellipsoid
+    return f"+a={ellipsoid.semi_major_metre!r} +b={ellipsoid.semi_minor_metre!r}"
 
 
 @dataclass(frozen=True)
 class LocalFrame:
-    """Local east-north-up frame tangent to the body's reference surface at (lat0, lon0, h0): the
-    WGS84 ellipsoid on Earth, the IAU 2015 sphere on Mars (planetocentric latitude, east
-    longitude).
+    """Local east-north-up frame at (lat0, lon0, h0), its up the body's vertical there.
 
-    Heights are above that surface. Uses `+proj=cart` then `+proj=topocentric`: exact, no
-    flat-earth shortcut.
+    Positions are on the body's reference surface: the WGS84 ellipsoid on Earth, the IAU 2015
+    sphere on Mars (planetocentric latitude, east longitude), heights above it. "Up" is the
+    normal of the body's ellipsoid through the origin (WGS84; the IAU 2015 Mars ellipsoid, i.e.
+    the planetographic vertical), as gravity and a mission's site frame have it. Uses
+    `+proj=cart` then `+proj=topocentric`: exact, no flat-earth shortcut. The frame is Cartesian:
+    away from the origin the vertical turns by the distance over the body's radius (`up_at`).
     """
 
     lat0_deg: float
@@ -42,6 +53,8 @@ class LocalFrame:
     h0_m: float
     body: Body = "earth"
     _transformer: Transformer = field(init=False, repr=False, compare=False)
+    _to_up: Transformer = field(init=False, repr=False, compare=False)  # body geodetic -> up-ellipsoid geodetic
+    up_lat_deg: float = field(init=False, repr=False, compare=False)  # the origin's vertical's latitude
 
     def __post_init__(self) -> None:
         # Plain floats: a numpy scalar's repr ("np.float64(49.0)") would corrupt the PROJ string,
@@ -52,13 +65,39 @@ class LocalFrame:
             raise GeodesyError(f"origin out of range: lat {self.lat0_deg}, lon {self.lon0_deg}")
         if self.body not in _SHAPE:
             raise GeodesyError(f"body {self.body!r}: expected {' or '.join(_SHAPE)}")
-        shape = _SHAPE[self.body]
+        shape = up_shape = _SHAPE[self.body]
+        if _UP_CRS[self.body] == _GEOGRAPHIC[self.body]:  # Earth: positions are on the up ellipsoid
+            to_up = Transformer.from_pipeline("+proj=noop")
+            lon, lat, h = self.lon0_deg, self.lat0_deg, self.h0_m
+        else:  # the origin on the up ellipsoid: the same point, its latitude that of the normal through it
+            up_shape = _shape_of(_UP_CRS[self.body])
+            to_up = Transformer.from_pipeline(f"+proj=pipeline +step +proj=cart {shape} +step +inv +proj=cart "
+                                              f"{up_shape}")
+            lon, lat, h = to_up.transform(self.lon0_deg, self.lat0_deg, self.h0_m, errcheck=True)
         pipeline = (
             f"+proj=pipeline +step +proj=cart {shape} "
-            f"+step +proj=topocentric {shape} +lat_0={self.lat0_deg!r} "
-            f"+lon_0={self.lon0_deg!r} +h_0={self.h0_m!r}"
+            f"+step +proj=topocentric {up_shape} +lat_0={float(lat)!r} +lon_0={float(lon)!r} +h_0={float(h)!r}"
         )
         object.__setattr__(self, "_transformer", Transformer.from_pipeline(pipeline))
+        object.__setattr__(self, "_to_up", to_up)
+        object.__setattr__(self, "up_lat_deg", float(lat))
+
+    def enu_R_fixed(self) -> np.ndarray:
+        """3x3 rotation of a body-fixed Cartesian direction (x to longitude 0 on the equator, z
+        to the north pole) into this frame."""
+        return _enu_R_fixed(np.deg2rad(self.up_lat_deg), np.deg2rad(self.lon0_deg))
+
+    def up_at(self, enu: np.ndarray) -> np.ndarray:
+        """(N, 3) unit vectors of the vertical (the up ellipsoid's normal) at ENU points (N, 3),
+        in this frame: (0, 0, 1) at the origin, turned by about distance / radius away from it."""
+        geodetic = self.to_geodetic(enu)
+        try:
+            _, lat, _ = self._to_up.transform(geodetic[:, 1], geodetic[:, 0], geodetic[:, 2], errcheck=True)
+        except ProjError as exc:
+            raise GeodesyError(f"the vertical at ENU points failed: {exc}") from exc
+        lat, lon = np.deg2rad(np.asarray(lat)), np.deg2rad(geodetic[:, 1])
+        normal = np.column_stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)])
+        return normal @ self.enu_R_fixed().T
 
     def map_crs(self) -> CRS:
         """The projected CRS of a map of this site: on Earth the UTM zone of the origin, on Mars
@@ -126,3 +165,11 @@ class LocalFrame:
         except ProjError as exc:
             raise GeodesyError(f"ENU -> geodetic failed: {exc}") from exc
         return np.column_stack([lat, lon, h])
+
+
+def _enu_R_fixed(lat_rad: float, lon_rad: float) -> np.ndarray:
+    """Body-fixed Cartesian -> east, north, up at a geodetic latitude and longitude."""
+    sin_lat, cos_lat, sin_lon, cos_lon = np.sin(lat_rad), np.cos(lat_rad), np.sin(lon_rad), np.cos(lon_rad)
+    return np.array([[-sin_lon, cos_lon, 0.0],
+                     [-sin_lat * cos_lon, -sin_lat * sin_lon, cos_lat],
+                     [cos_lat * cos_lon, cos_lat * sin_lon, sin_lat]])

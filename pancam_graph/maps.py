@@ -1,5 +1,6 @@
-"""Orbital maps on the local frame: where a map's posts are in local ENU, a map's georeference
-error (MapBias), and a map sampled from a height function (what the simulation's orbiter sees).
+"""Orbital maps on the local frame: where a map's posts are in local ENU, how far apart they are on
+the ground, a map's georeference error (MapBias), and a map sampled from a height function (what
+the simulation's orbiter sees).
 
 A map's georeference error is a horizontal rigid motion of the whole map: a point at true ENU
 w (east, north) appears in the map at R(rotation) w + (east, north), the rotation about the
@@ -9,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -35,6 +37,36 @@ class MapBias:
 
     def from_map(self, xy: np.ndarray) -> np.ndarray:
         return (np.atleast_2d(xy) - [self.east_m, self.north_m]) @ self.rotation()
+
+
+def ground_spacing(raster: MapRaster) -> tuple[float, float]:
+    """(east-west, north-south) ground distance in metres between neighbouring posts at the
+    raster's centre. A map's posts are square in map units, not always on the ground: an
+    equidistant cylindrical CRS with its standard parallel at 0 (common for Mars DTMs) has posts
+    cos(latitude) apart east-west (0.997 m for 1 m posts at Gale)."""
+    rows, cols = raster.values.shape
+    return _ground_spacing(raster.crs_wkt, raster.x0_m + cols * raster.post_m / 2,
+                           raster.y0_m - rows * raster.post_m / 2, raster.post_m)
+
+
+@lru_cache(maxsize=64)
+def _ground_spacing(crs_wkt: str, x: float, y: float, post_m: float) -> tuple[float, float]:
+    from pyproj import CRS, Proj, Transformer
+
+    crs = CRS.from_wkt(crs_wkt)
+    lon, lat = Transformer.from_crs(crs, crs.geodetic_crs, always_xy=True).transform(x, y)
+    factors = Proj(crs).get_factors(lon, lat)  # map units per ground metre, along a parallel and a meridian
+    return post_m / factors.parallel_scale, post_m / factors.meridional_scale
+
+
+def ground_spacing_note(name: str, raster: MapRaster) -> str | None:
+    """One line when the raster's posts are not square on the ground (by more than 0.01 %)."""
+    east, north = ground_spacing(raster)
+    if abs(east / north - 1.0) <= 1e-4:
+        return None
+    return (f"{name}: posts {raster.post_m:g} m apart in map units are {east:.4f} m apart east-west and "
+            f"{north:.4f} m north-south on the ground (the map projection's scale differs between its axes there); "
+            "registered on the ground's distances")
 
 
 def post_enu(raster: MapRaster, frame: LocalFrame, rows: slice = slice(None), cols: slice = slice(None)) -> np.ndarray:
@@ -67,10 +99,12 @@ def sampled_raster(height: Height, frame: LocalFrame, lo_enu: np.ndarray, hi_enu
     return raster
 
 
-def hillshade(dtm: np.ndarray, post_m: float, sun_azimuth_deg: float, sun_elevation_deg: float) -> np.ndarray:
-    """Lambertian shading (0..1) of a height grid (rows north to south) lit from the azimuth
-    (clockwise from north) and elevation."""
-    dz_dn, dz_de = np.gradient(dtm.astype(float), post_m)
+def hillshade(dtm: np.ndarray, spacing_m: tuple[float, float], sun_azimuth_deg: float,
+              sun_elevation_deg: float) -> np.ndarray:
+    """Lambertian shading (0..1) of a height grid (rows north to south, posts `spacing_m` apart on
+    the ground east-west and north-south) lit from the azimuth (clockwise from north) and
+    elevation."""
+    dz_dn, dz_de = np.gradient(dtm.astype(float), spacing_m[1], spacing_m[0])
     dz_dn = -dz_dn  # rows run south
     normal = np.stack([-dz_de, -dz_dn, np.ones_like(dz_de)])
     normal /= np.linalg.norm(normal, axis=0)

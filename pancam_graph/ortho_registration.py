@@ -30,6 +30,7 @@ from pyproj import CRS
 
 from .dem_registration import MapNotCovering, RegistrationFailed
 from .geodesy import LocalFrame
+from .maps import ground_spacing
 from .records import GroundPatch, MapRaster
 
 _DISTINCT_M = 3.0  # a peak this far from the best one is another place (the ground's texture is 1-4 m)
@@ -92,21 +93,22 @@ def register_patch(patch: GroundPatch, map_T_body: np.ndarray, orthoimage: MapRa
     if pixels < settings.min_pixels:
         raise RegistrationFailed(f"the ground patch covers {pixels} orthoimage pixels, fewer than "
                                  f"{settings.min_pixels}")
-    pad = int(np.ceil(search_m / orthoimage.post_m))
+    east_m, north_m = ground_spacing(orthoimage)  # a pixel's size on the ground
+    pad_x, pad_y = int(np.ceil(search_m / east_m)), int(np.ceil(search_m / north_m))
     rows, cols = orthoimage.values.shape
-    top, left = r0 - pad, c0 - pad
-    bottom, right = r0 + grey.shape[0] + pad, c0 + grey.shape[1] + pad
+    top, left = r0 - pad_y, c0 - pad_x
+    bottom, right = r0 + grey.shape[0] + pad_y, c0 + grey.shape[1] + pad_x
     if top < 0 or left < 0 or bottom > rows or right > cols:
         raise MapNotCovering("the orthoimage does not reach round the site")
     window = orthoimage.values[top:bottom, left:right].astype(np.float32)
-    if np.any(window[pad:pad + grey.shape[0], pad:pad + grey.shape[1]][mask] == 0):
+    if np.any(window[pad_y:pad_y + grey.shape[0], pad_x:pad_x + grey.shape[1]][mask] == 0):
         raise RegistrationFailed("the orthoimage has no data under the site (grey level 0)")
     score = cv2.matchTemplate(window, grey, cv2.TM_CCOEFF_NORMED, mask=mask.astype(np.float32))
     score = np.nan_to_num(score, nan=-1.0, posinf=-1.0, neginf=-1.0)
     y, x = np.unravel_index(int(np.argmax(score)), score.shape)
     peak = float(score[y, x])
     yy, xx = np.mgrid[:score.shape[0], :score.shape[1]]
-    far = np.hypot(yy - y, xx - x) * orthoimage.post_m > _DISTINCT_M
+    far = np.hypot((yy - y) * north_m, (xx - x) * east_m) > _DISTINCT_M
     margin = peak - float(score[far].max()) if far.any() else 1.0
     if peak < settings.min_peak:
         raise RegistrationFailed(f"the ground patch does not correlate with the orthoimage (peak {peak:.2f}, "
@@ -118,7 +120,7 @@ def register_patch(patch: GroundPatch, map_T_body: np.ndarray, orthoimage: MapRa
     if not (0 < y < score.shape[0] - 1 and 0 < x < score.shape[1] - 1):
         raise RegistrationFailed(f"the best correlation is at the edge of the {search_m:.1f} m search")
     dx, dy = peak_offset(score, x, y)
-    shift_px = np.array([x + dx - pad, y + dy - pad])  # columns east, rows south
+    shift_px = np.array([x + dx - pad_x, y + dy - pad_y])  # columns east, rows south
     curvature = _curvature(score, x, y) / orthoimage.post_m**2  # per m^2
     independent = pixels / settings.correlated_pixels
     residual = max(2.0 * (1.0 - peak), 1e-3)  # per pixel, normalized grey levels

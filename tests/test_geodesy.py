@@ -63,18 +63,52 @@ def test_numpy_scalar_origin_is_the_same_frame():
                                .to_enu(lat + 1e-3, lon, h), atol=1e-9)
 
 
-def test_a_mars_frame_is_tangent_to_the_iau_sphere():
-    """One degree north of the origin on the sphere: R sin(1 deg) north and R (1 - cos(1 deg)) below
-    the tangent plane, the closed form on a sphere of Mars' radius (3,396,190 m)."""
+def test_a_mars_frame_has_its_positions_on_the_iau_sphere_and_its_up_along_the_ellipsoid_normal():
+    """One degree north of the origin on the sphere (R = 3,396,190 m): the chord between the two
+    points, rotated into east-north-up whose up is the IAU 2015 ellipsoid's normal (planetographic
+    latitude tan(lat_g) = (a / b)^2 tan(lat_c), closed form on the surface)."""
     from pancam_graph.geodesy import MARS_RADIUS_M
 
     frame = LocalFrame(-4.59, 137.44, 0.0, body="mars")  # Gale crater
-    one = np.deg2rad(1.0)
+
+    def on_sphere(lat, lon):
+        la, lo = np.radians(lat), np.radians(lon)
+        return MARS_RADIUS_M * np.array([np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)])
+
+    # the origin's planetographic latitude: of the ellipsoid's normal through it (Bowring's iteration)
+    x, _, z = on_sphere(-4.59, 0.0)
+    e2, lat_g = 1.0 - (3376200.0 / 3396190.0) ** 2, np.arctan2(z, x)
+    for _ in range(10):
+        n = 3396190.0 / np.sqrt(1.0 - e2 * np.sin(lat_g) ** 2)
+        lat_g = np.arctan2(z, x * (1.0 - e2 * n / (n + x / np.cos(lat_g) - n)))
+    lat_g = np.degrees(lat_g)
+    assert frame.up_lat_deg == pytest.approx(lat_g, abs=1e-9) and lat_g - -4.59 == pytest.approx(-0.0543, abs=1e-4)
+
+    la, lo = np.radians(lat_g), np.radians(137.44)
+    enu_R_fixed = np.array([[-np.sin(lo), np.cos(lo), 0.0],
+                            [-np.sin(la) * np.cos(lo), -np.sin(la) * np.sin(lo), np.cos(la)],
+                            [np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)]])
+    expected = enu_R_fixed @ (on_sphere(-3.59, 137.44) - on_sphere(-4.59, 137.44))
     enu = frame.to_enu(-3.59, 137.44, 0.0)[0]
-    np.testing.assert_allclose(enu, [0.0, MARS_RADIUS_M * np.sin(one), -MARS_RADIUS_M * (1 - np.cos(one))], atol=1e-3)
+    np.testing.assert_allclose(enu, expected, atol=1e-3)
+    np.testing.assert_allclose(frame.enu_R_fixed(), enu_R_fixed, atol=1e-12)
     np.testing.assert_allclose(frame.to_geodetic(enu[None])[0], [-3.59, 137.44, 0.0], atol=1e-9)
     # the same degree on Earth's ellipsoid is 111 km, not Mars' 59 km
     assert LocalFrame(-4.59, 137.44, 0.0).to_enu(-3.59, 137.44, 0.0)[0, 1] > 110_000.0
+
+
+def test_on_earth_up_is_wgs84_s_normal_and_turns_with_distance():
+    """On Earth the frame's up is the geodetic vertical (WGS84's normal): up_at 10 km east turns
+    by 10 km over the prime vertical's radius (the independent ECEF computation above)."""
+    frame = LocalFrame(39.7392, -105.1450, 1705.0)
+    assert frame.up_lat_deg == 39.7392
+    east = frame.to_geodetic(np.array([[10_000.0, 0.0, 0.0]]))[0]
+    up_there = _ecef(east[0], east[1], east[2] + 1.0) - _ecef(*east)
+    expected = _enu_by_hand(39.7392, -105.1450, 1705.0, *east[:2], east[2] + 1.0) - \
+        _enu_by_hand(39.7392, -105.1450, 1705.0, *east)
+    assert np.linalg.norm(up_there) == pytest.approx(1.0, abs=1e-9)
+    np.testing.assert_allclose(frame.up_at(np.array([[10_000.0, 0.0, 0.0]]))[0], expected, atol=1e-9)
+    assert np.degrees(np.arccos(expected[2])) == pytest.approx(np.degrees(10_000.0 / 6_387_000.0), rel=3e-3)
 
 
 def test_a_site_map_is_in_the_body_s_map_projection():
@@ -91,7 +125,8 @@ def test_a_site_map_is_in_the_body_s_map_projection():
     steps = np.diff(mars.to_map(np.array([[0.0, 0.0, 0.0], [100.0, 0.0, 0.0], [100.0, 100.0, 0.0]])), axis=0)
     np.testing.assert_allclose(steps, [[100.0, 0.0], [0.0, 100.0]], atol=2e-3)  # square on the ground
     enu = np.array([[120.0, -80.0, 0.0], [-3.0, 40.0, 0.0]])
-    np.testing.assert_allclose(mars.from_map(mars.to_map(enu))[:, :2], enu[:, :2], atol=1e-6)
+    # a map point is ENU only with its height: up is the ellipsoid's normal, not the sphere's
+    np.testing.assert_allclose(mars.from_map(mars.to_map(enu), mars.to_geodetic(enu)[:, 2]), enu, atol=1e-6)
     earth = LocalFrame(49.0, 8.4, 110.0)
     assert earth.map_crs().to_epsg() == 32632  # UTM 32 N
     steps = np.diff(earth.to_map(np.array([[0.0, 0.0, 0.0], [100.0, 0.0, 0.0]])), axis=0)[0]

@@ -153,6 +153,8 @@ def run_command(
         from ..solve.pipeline import select_configurations
 
         select_configurations(data.estimator, data.traverse, names)  # before anything is written
+    for note in data.info.notes:
+        console.print(Text("note: ", style="dim") + Text(note), soft_wrap=True)
     for reason in data.rejected[:10]:
         console.print(Text("fix left out: ", style="yellow") + Text(reason), soft_wrap=True)
     if len(data.rejected) > 10:

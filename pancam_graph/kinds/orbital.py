@@ -41,7 +41,7 @@ from ..dem_registration import DtmErrors, MapNotCovering, RegistrationFailed, re
 from ..errors import InputError
 from ..graph import tie_gate
 from ..graph.keys import E, S, X
-from ..maps import MapBias, hillshade, sampled_raster
+from ..maps import MapBias, ground_spacing, hillshade, sampled_raster
 from ..ortho_registration import register_patch
 from ..records import GroundTruth, MapRaster, OrbitalMap, Stop, Traverse
 from ..sections import Section
@@ -226,7 +226,7 @@ class Orbital(Kind):
         orthoimage = None
         if sensor.orthoimage_pixel_m > 0:
             fine = sampled_raster(truth.terrain, traverse.origin, lo, hi, sensor.orthoimage_pixel_m, bias)
-            shade = hillshade(fine.values, fine.post_m, sensor.sun_azimuth_deg, sensor.sun_elevation_deg)
+            shade = hillshade(fine.values, ground_spacing(fine), sensor.sun_azimuth_deg, sensor.sun_elevation_deg)
             grey = np.clip(40 + 200 * shade + rng.normal(0.0, 4.0, shade.shape), 0, 255).astype(np.uint8)
             orthoimage = MapRaster(grey, fine.x0_m, fine.y0_m, fine.post_m, fine.crs_wkt)
         orbital_map = OrbitalMap("orbital_map", dtm, orthoimage, sensor.offset_sigma_m, sensor.rotation_sigma_deg,

@@ -12,12 +12,15 @@ gravity: the measured body direction, rotated into the world, against the refere
 (2 dof each, an angle per axis). The
 ephemeris is pvlib's solar position (NREL's SPA) on Earth and marstime's Mars24 algorithm on
 Mars. The sun is at infinity, so its direction in the local ENU frame (a Cartesian frame at the
-origin) is the same wherever the rover is: it is computed at the origin.
+origin) is the same wherever the rover is: it is computed at the origin. Gravity is not: the
+vertical at the rover is the body ellipsoid's normal there (LocalFrame.up_at), which turns away
+from the origin's by the distance over the body's radius (0.17 deg at 10 km on Mars).
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import warnings
 from dataclasses import dataclass
 from typing import Literal
 
@@ -26,6 +29,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from .. import chi2
+from ..errors import GeodesyError
 from ..geodesy import LocalFrame
 from ..graph.keys import X
 from ..records import GroundTruth, Stop, Traverse
@@ -33,6 +37,11 @@ from ..sections import Section
 from .base import Kind, RowError, StepCounts
 
 Planet = Literal["earth", "mars"]
+# Years the ephemerides are used in: ERFA's leap-second table starts in 1960 (UTC before it is
+# not TT - 32.184 s - a whole number of seconds), pandas' timestamps (pvlib) end in 2262.
+EPHEMERIS_YEARS = (1960, 2199)
+_EPHEMERIS_UTC_S = (dt.datetime(EPHEMERIS_YEARS[0], 1, 1, tzinfo=dt.UTC).timestamp(),
+                    dt.datetime(EPHEMERIS_YEARS[1] + 1, 1, 1, tzinfo=dt.UTC).timestamp())
 
 
 class SunHeadingSettings(Section):
@@ -67,6 +76,11 @@ class SunSensor(Section):
     def _check(self) -> SunSensor:
         if self.planet == "mars" and self.start_utc is None:
             raise ValueError("planet 'mars' needs start_utc (local solar time on Mars is not derived here)")
+        years = [self.date.year] if self.start_utc is None else [self.start_utc.year]
+        if not all(EPHEMERIS_YEARS[0] <= y <= EPHEMERIS_YEARS[1] for y in years):
+            what = f"date {self.date}" if self.start_utc is None else f"start_utc {self.start_utc}"
+            raise ValueError(f"{what}: the sun's ephemerides are used for years {EPHEMERIS_YEARS[0]}-"
+                             f"{EPHEMERIS_YEARS[1]}")
         return self
 
 @dataclass(frozen=True)
@@ -81,9 +95,13 @@ class SunSighting:
 
 
 def sun_directions_enu(planet: Planet, frame: LocalFrame, utc_s: np.ndarray) -> np.ndarray:
-    """(N, 3) unit vectors towards the sun in the local ENU frame at `frame`'s origin."""
-    utc_s = np.asarray(utc_s, dtype=float)
-    lat, lon = np.deg2rad(frame.lat0_deg), np.deg2rad(frame.lon0_deg)
+    """(N, 3) unit vectors towards the sun in the local ENU frame at `frame`'s origin, as a sun
+    sensor sees it (apparent: light time and aberration, and on Earth refraction, included)."""
+    utc_s = np.atleast_1d(np.asarray(utc_s, dtype=float))
+    outside = ~((utc_s >= _EPHEMERIS_UTC_S[0]) & (utc_s < _EPHEMERIS_UTC_S[1]))
+    if outside.any():
+        raise GeodesyError(f"UTC {utc_s[outside][0]:g} s since 1970: the sun's ephemerides are used for years "
+                           f"{EPHEMERIS_YEARS[0]}-{EPHEMERIS_YEARS[1]}")
     if planet == "earth":
         # pvlib (and pandas under it) only when a traverse has sightings: every process imports kinds
         import pandas as pd
@@ -97,15 +115,29 @@ def sun_directions_enu(planet: Planet, frame: LocalFrame, utc_s: np.ndarray) -> 
                                 np.sin(elevation)])
     import marstime
 
-    j2000 = marstime.j2000_offset_tt(marstime.julian_tt(2440587.5 + utc_s / 86400.0))
-    declination = np.deg2rad(marstime.solar_declination(marstime.Mars_Ls(j2000)))
+    j2000 = _tt_days_since_j2000(utc_s)
+    ls = np.deg2rad(marstime.Mars_Ls(j2000))
+    # A direction in the body-fixed Cartesian frame needs the planetocentric declination; Mars24's
+    # solar_declination is the planetographic one, 0.25 deg sin Ls larger (Allison & McEwen 2000)
+    declination = np.arcsin(0.42565 * np.sin(ls))
     subsolar_east = -np.deg2rad(marstime.subsolar_longitude(j2000))  # Mars24 gives it west-positive
     sun_fixed = np.column_stack([np.cos(declination) * np.cos(subsolar_east),
                                  np.cos(declination) * np.sin(subsolar_east), np.sin(declination)])
-    fixed_to_enu = np.array([[-np.sin(lon), np.cos(lon), 0.0],
-                             [-np.sin(lat) * np.cos(lon), -np.sin(lat) * np.sin(lon), np.cos(lat)],
-                             [np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)]])
-    return sun_fixed @ fixed_to_enu.T
+    return sun_fixed @ frame.enu_R_fixed().T
+
+
+def _tt_days_since_j2000(utc_s: np.ndarray) -> np.ndarray:
+    """Terrestrial Time in days since J2000 of UTC seconds since 1970, with ERFA's leap seconds
+    (marstime's own table stops in 2012: 2 s, 0.008 deg of Mars' rotation, short since 2017)."""
+    import erfa
+
+    days, seconds = np.divmod(np.asarray(utc_s, dtype=float), 86400.0)
+    with warnings.catch_warnings():
+        # past the table's last entry, its last TAI - UTC holds (no leap second is announced)
+        warnings.simplefilter("ignore", erfa.ErfaWarning)
+        tai = erfa.utctai(2440587.5 + days, seconds / 86400.0)
+        tt = erfa.taitt(*tai)
+    return (tt[0] - 2451545.0) + tt[1]
 
 
 def start_utc_s(sensor: SunSensor, frame: LocalFrame) -> float:
@@ -158,14 +190,15 @@ class SunHeading(Kind):
             return ()
         utc = start_utc_s(sensor, traverse.origin) + np.array([s.time_s for s in sites])
         directions = sun_directions_enu(sensor.planet or traverse.origin.body, traverse.origin, utc)
+        verticals = traverse.origin.up_at(np.array([truth.world_T_body[s.index][:3, 3] for s in sites]))
         low = np.sin(np.deg2rad(sensor.min_elevation_deg))
         out = []
-        for stop, t, n in zip(sites, utc, directions, strict=True):
-            if n[2] < low:
+        for stop, t, n, up_world in zip(sites, utc, directions, verticals, strict=True):
+            if n[2] < low:  # the sun's elevation, near enough: the vertical turns 0.17 deg in 10 km
                 continue
             body_R_world = truth.world_T_body[stop.index][:3, :3].T
             sun = _perturbed(body_R_world @ n, np.deg2rad(sensor.sigma_deg), rng)
-            up = _perturbed(body_R_world[:, 2], np.deg2rad(sensor.tilt_sigma_deg), rng)
+            up = _perturbed(body_R_world @ up_world, np.deg2rad(sensor.tilt_sigma_deg), rng)
             out.append(SunSighting(stop.index, float(t), sun, up))
         return tuple(out)
 
@@ -179,6 +212,9 @@ class SunHeading(Kind):
         for line, (stop, utc_s, *numbers) in rows:
             if stop != int(stop) or not 0 <= stop < len(traverse.stops):
                 raise RowError(line, f"stop {stop:g} is not one of the traverse's stops 0..{len(traverse.stops) - 1}")
+            if not _EPHEMERIS_UTC_S[0] <= utc_s < _EPHEMERIS_UTC_S[1]:
+                raise RowError(line, f"utc_s {utc_s:g} is outside the years {EPHEMERIS_YEARS[0]}-"
+                                     f"{EPHEMERIS_YEARS[1]} the sun's ephemerides are used for")
             sun, up = _unit(line, "sun", numbers[:3]), _unit(line, "up", numbers[3:])
             out.append(SunSighting(int(stop), utc_s, sun, up))
         return tuple(out)
@@ -204,10 +240,12 @@ class SunHeading(Kind):
         if stop.index in self._at_stop:
             sighting, reference = self._at_stop[stop.index]
             key = X(stop.index)
+            # the vertical where the rover is predicted to be: 1 km off turns it by 0.017 deg on Mars
+            up = self.loc.traverse.origin.up_at(self.loc.smoother.pose(key).translation()[None, :])[0]
             self.loc.smoother.add(gtsam.AttitudeFactorPose3(key, gtsam.Unit3(reference), self._sun_model,
                                                             gtsam.Unit3(sighting.sun_body)))
-            self.loc.smoother.add(gtsam.AttitudeFactorPose3(key, gtsam.Unit3(np.array([0.0, 0.0, 1.0])),
-                                                            self._tilt_model, gtsam.Unit3(sighting.up_body)))
+            self.loc.smoother.add(gtsam.AttitudeFactorPose3(key, gtsam.Unit3(up), self._tilt_model,
+                                                            gtsam.Unit3(sighting.up_body)))
             self.used += 1
             counts.add("sun_sightings")
 

@@ -102,7 +102,7 @@ def load(folder: Path, frontend: FrontendConfig | None = None,
         truth = None if obs.truth is None else replace(obs.truth, world_T_body=obs.truth.world_T_body[:n])
         rectified = "rectified with the folder's calibration, " if pairs.rectify is not None else ""
         info = SourceInfo("image_folder", str(folder), "truth.kitti of the image folder" if truth else "none",
-                          notes=(f"front-end {frontend.detector}: {rectified}median "
+                          notes=(*obs.notes, f"front-end {frontend.detector}: {rectified}median "
                                  f"{median_frame_ms(tracker):.1f} ms per frame", *notes),
                           options={"detector": frontend.detector, "skip_bad_frames": skip_bad_frames})
         return SourceData(replace(obs.traverse, stops=tuple(stops)), truth, obs.estimator, obs.seed, info)

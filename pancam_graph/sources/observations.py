@@ -16,7 +16,7 @@ def matches(path: Path) -> bool:
 def load(path: Path) -> SourceData:
     obs = read_observations(path)
     reference = "truth.kitti of the observation folder" if obs.truth is not None else "none"
-    info = SourceInfo("observations", str(path), reference)
+    info = SourceInfo("observations", str(path), reference, notes=obs.notes)
     return SourceData(obs.traverse, obs.truth, obs.estimator, obs.seed, info)
 
 

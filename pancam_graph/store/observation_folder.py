@@ -182,6 +182,7 @@ class ObservationSet:
     panorama_frames: tuple[PanoramaImage, ...] = ()  # an image folder: site panorama and HRC images
     # the rig's calibration as calibrated, when it is a file whose images need rectifying
     calibration: StereoCalibration | None = None
+    notes: tuple[str, ...] = ()  # what the reader noticed that the user should hear of (one line each)
 
 
 # -- writing -------------------------------------------------------------------------------------
@@ -319,6 +320,18 @@ def _read_maps(folder: Path, sources: list[MapSource]) -> tuple[OrbitalMap, ...]
     return tuple(maps)
 
 
+def _map_notes(folder: Path, sources: list[MapSource], maps: tuple[OrbitalMap, ...]) -> tuple[str, ...]:
+    """A line for each map raster whose posts are not square on the ground."""
+    from ..maps import ground_spacing_note
+
+    notes = []
+    for source, orbital_map in zip(sources, maps, strict=True):
+        notes.append(ground_spacing_note(str(folder / source.dtm), orbital_map.dtm))
+        if orbital_map.orthoimage is not None:
+            notes.append(ground_spacing_note(str(folder / source.orthoimage), orbital_map.orthoimage))
+    return tuple(note for note in notes if note)
+
+
 def _write_rectified_yaml(path: Path, rig: Rig) -> None:
     """A rectified pair as OpenCV FileStorage YAML: identical cameras, no distortion, the right
     one `baseline` along x."""
@@ -380,8 +393,10 @@ def read_observations(folder: Path) -> ObservationSet:
                         wheel_slip=SlipPrior(manifest.wheel_slip_mean, manifest.wheel_slip_sigma),
                         body_T_nav_left=body_T_left)
     measurements = _read_kind_tables(folder, traverse)
+    notes: tuple[str, ...] = ()
     if manifest.maps:
         measurements["orbital"] = _read_maps(folder, manifest.maps)
+        notes = _map_notes(folder, manifest.maps, measurements["orbital"])
     if measurements:
         traverse = dataclasses.replace(traverse, measurements=measurements)
     truth = None
@@ -390,7 +405,7 @@ def read_observations(folder: Path) -> ObservationSet:
         slip, states = _read_truth_toml(folder / "truth.toml")
         truth = GroundTruth(_read_truth(folder / "truth.kitti", n), landmarks, slip, kinds=states)
     return ObservationSet(traverse, truth, manifest.estimator, manifest.seed, folder, frames, panorama_frames,
-                          None if calibration is None or calibration.is_rectified else calibration)
+                          None if calibration is None or calibration.is_rectified else calibration, notes)
 
 
 def _read_kind_tables(folder: Path, traverse: Traverse) -> dict[str, tuple]:
