@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from dataclasses import dataclass, field, fields
 from importlib import resources
 from pathlib import Path
 from typing import Annotated, Literal, TypeVar
@@ -17,9 +18,77 @@ from pydantic import AfterValidator, BaseModel, Field, ValidationError, create_m
 
 from .errors import ConfigError, PancamGraphError
 from .kinds import KINDS, configuration_problem
-from .sections import Section
-from .source_options import DETECTORS
-from .text_files import read_text
+from .kinds.base import Section
+from .runtime.text_files import read_text
+
+# -- the options only some sources take (each source says which: sources/): their names,
+# command-line flags, help and checks, written once. The CLI's flags, its --resume clash check and
+# a run's reproduce.sh all come from here.
+
+DETECTORS = ("gftt", "orb", "sift")
+
+
+def _option(flag: str, help: str, minimum: float | None = None):
+    return field(default=None, metadata={"flag": flag, "help": help, "minimum": minimum})
+
+
+@dataclass(frozen=True)
+class SourceOptions:
+    """None: not given. One given to a source that does not take it is an error (`check`)."""
+
+    seed: int | None = _option("--seed", "scenario: override its seed", minimum=0)
+    gps_topic: str | None = _option("--gps-topic", "bag: NavSatFix topic (default: the only one)")
+    odom_topic: str | None = _option("--odom-topic", "bag: Odometry topic (default: the only one)")
+    holdout_every: int | None = _option("--holdout-every", "bag, KITTI: keep every N-th fix out of the graph "
+                                        "for scoring (default 5; 0: use all)", minimum=0)
+    geoid_height_m: float | None = _option("--geoid-height", "KITTI: geoid height (m) added to OXTS alt")
+    detector: str | None = _option("--detector", "image sources: gftt (default), orb or sift")
+    skip_bad_frames: bool | None = _option("--skip-bad-frames", "image sources: a missing, truncated or "
+                                           "wrong-sized image leaves its stop to the VO bridge (default: stop "
+                                           "with a message naming the file)")
+    # as text on the command line: LEFT,RIGHT
+    stereo_topics: tuple[str, str] | None = _option("--stereo-topics", "bag: LEFT,RIGHT rectified image topics "
+                                                    "for stereo VO (CameraInfo beside each: .../camera_info)")
+
+    def __post_init__(self) -> None:
+        flags = self.flags()
+        for f in fields(self):
+            value, minimum = getattr(self, f.name), f.metadata["minimum"]
+            if minimum is not None and value is not None and value < minimum:
+                raise ConfigError(f"{flags[f.name]} {value}: must be at least {minimum}")
+        if self.detector is not None and self.detector not in DETECTORS:
+            raise ConfigError(f"--detector {self.detector!r}: expected {', '.join(DETECTORS[:-1])} or {DETECTORS[-1]}")
+        if isinstance(self.stereo_topics, str):
+            topics = tuple(t.strip() for t in self.stereo_topics.split(",") if t.strip())
+            if len(topics) != 2:
+                raise ConfigError(f"--stereo-topics {self.stereo_topics!r}: expected LEFT,RIGHT (two image topics)")
+            object.__setattr__(self, "stereo_topics", topics)
+
+    @staticmethod
+    def flags() -> dict[str, str]:
+        """Option name -> its command-line flag."""
+        return {f.name: f.metadata["flag"] for f in fields(SourceOptions)}
+
+    @staticmethod
+    def help(name: str) -> str:
+        return SourceOptions._metadata(name)["help"]
+
+    @staticmethod
+    def minimum(name: str) -> float | None:
+        return SourceOptions._metadata(name)["minimum"]
+
+    @staticmethod
+    def _metadata(name: str):
+        return next(f.metadata for f in fields(SourceOptions) if f.name == name)
+
+    def given(self) -> dict[str, object]:
+        """The options set (not None), by name."""
+        return {name: getattr(self, name) for name in self.flags() if getattr(self, name) is not None}
+
+    def check(self, kind: str, allowed: set[str] | frozenset[str]) -> None:
+        for name in self.given():
+            if name not in allowed:
+                raise ConfigError(f"{self.flags()[name]} does not apply to a {kind} source")
 
 
 def _ordered(pair: tuple[float, float]) -> tuple[float, float]:
@@ -446,19 +515,10 @@ class _ScenarioCore(_Strict):
     render: RenderConfig = RenderConfig()
 
     @model_validator(mode="after")
-    def _on_its_body(self) -> _ScenarioCore:
-        if self.origin.body == "mars" and self.gps.enabled:
-            raise ValueError("origin on mars: there is no GPS on Mars; set [gps] enabled = false")
-        sun = getattr(self, "sun_heading", None)
-        if sun is not None and sun.enabled:
-            if sun.planet not in (None, self.origin.body):
-                raise ValueError(f"[sun_heading] planet = {sun.planet!r} but the origin is on {self.origin.body}")
-            if self.origin.body == "mars" and sun.start_utc is None:
-                raise ValueError("[sun_heading] on mars needs start_utc (local solar time on Mars is not derived here)")
-        estimated = getattr(self.estimator, "sun_heading", None)
-        if estimated is not None and estimated.planet not in (None, self.origin.body):
-            raise ValueError(f"[estimator.sun_heading] planet = {estimated.planet!r} but the origin is on "
-                             f"{self.origin.body}")
+    def _kinds_rules(self) -> _ScenarioCore:
+        """Each kind's own rules for a scenario (Kind.check_scenario: GPS on Mars, the sun's planet)."""
+        for kind in KINDS.values():
+            kind.check_scenario(self)
         return self
 
 

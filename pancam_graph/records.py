@@ -13,8 +13,8 @@ from dataclasses import dataclass, field, replace
 import gtsam
 import numpy as np
 
-from .geodesy import LocalFrame
-from .rig import Rig
+from .geometry.geodesy import LocalFrame
+from .geometry.rig import Rig
 
 
 @dataclass(frozen=True)

@@ -31,9 +31,9 @@ import gtsam
 import numpy as np
 
 from pancam_graph.config import FrontendConfig, bundled_scenarios, load_scenario
-from pancam_graph.dem_registration import DtmErrors, RegistrationFailed, register_site
 from pancam_graph.graph import tie_gate
 from pancam_graph.kinds.orbital import BIAS_NAMES, OrbitalSettings, _map_pose, predicted_measurement
+from pancam_graph.orbital.dem_registration import DtmErrors, RegistrationFailed, register_site
 from pancam_graph.records import PanoramaFrame
 from pancam_graph.sim import simulate
 
@@ -172,7 +172,7 @@ def _ortho(patch, guess: np.ndarray, orbital_map, frame, search_m: float, true: 
     """The orthoimage correlation as a 4-component result: up and yaw taken as the truth's."""
     from types import SimpleNamespace
 
-    from pancam_graph.ortho_registration import register_patch
+    from pancam_graph.orbital.ortho_registration import register_patch
 
     if orbital_map.orthoimage is None:
         raise RegistrationFailed("the map has no orthoimage")

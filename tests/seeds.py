@@ -1,7 +1,7 @@
 """Runs of one scenario over many seeds on every core (test helper): each seed is its own run,
 as in one process, so the results do not depend on where they ran."""
 
-from pancam_graph.processes import cores, process_context
+from pancam_graph.runtime.processes import cores, process_context
 from pancam_graph.solve.pipeline import RunOptions, run
 
 

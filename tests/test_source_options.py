@@ -4,8 +4,8 @@ import pytest
 from typer.testing import CliRunner
 
 from pancam_graph.cli import app
+from pancam_graph.config import SourceOptions
 from pancam_graph.errors import ConfigError
-from pancam_graph.source_options import SourceOptions
 
 
 def test_stereo_topics_given_as_text_become_a_pair():

@@ -12,7 +12,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.optimize import brentq, minimize_scalar
 
-from ..rig import Rig, rig_preset
+from ..geometry.rig import Rig, rig_preset
 from .stereo import hrc_point_covariance, point_covariance, rotate_covariance
 from .transform import TransformModel, position_covariance, propagate, transform_covariance
 

@@ -9,8 +9,8 @@ import numpy as np
 from ..config import EstimatorConfig
 from ..errors import EvaluationError
 from ..frontend.stereo_vo import StereoVO
+from ..geometry.rig import Rig
 from ..records import StereoObservations
-from ..rig import Rig
 from .design import Assumptions, fov_grid
 
 

@@ -11,7 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import chi2, rig
+from ..geometry import rig
+from ..graph import chi2
 
 
 def triangulation_jacobian(x_m: float, z_m: float, baseline_m: float, focal_px: float) -> np.ndarray:

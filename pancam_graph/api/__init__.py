@@ -18,20 +18,20 @@ from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .atomic import writing
-from .errors import ConfigError, FrameError, GeodesyError, RunInterrupted, ViewerUnavailable
-from .evaluation.evaluate import Evaluation
-from .processes import cores, hold_malloc_thresholds, start_process_server
-from .records import Traverse
-from .solve.group import ProgressCallback
-from .solve.results import RunOptions, RunResult, SourceData
-from .solve.state import RunState
-from .sources import SourceOptions, open_source, source_kind
-from .viz.rerun_sink import OpenRecording as Recording
-from .viz.rerun_sink import RerunTarget
+from ..errors import ConfigError, FrameError, GeodesyError, RunInterrupted, ViewerUnavailable
+from ..evaluation.evaluate import Evaluation
+from ..records import Traverse
+from ..runtime.atomic import writing
+from ..runtime.processes import cores, hold_malloc_thresholds, start_process_server
+from ..solve.group import ProgressCallback
+from ..solve.results import RunOptions, RunResult, SourceData
+from ..solve.state import RunState
+from ..sources import SourceOptions, open_source, source_for, stereo_image_sources
+from ..viz.rerun_sink import OpenRecording as Recording
+from ..viz.rerun_sink import RerunTarget
 
 if TYPE_CHECKING:
-    from .store.results_folder import SavedRun
+    from ..store.results_folder import SavedRun
 
 
 @dataclass(frozen=True)
@@ -71,7 +71,7 @@ def default_out(data: SourceData) -> Path:
 def check_out(out: Path | None, option: str = "--out") -> None:
     """Results are never written over: `out` must be new or an empty folder, and no live run may
     be writing it."""
-    from .store.results_folder import refuse_if_in_use
+    from ..store.results_folder import refuse_if_in_use
 
     if out is None:
         return
@@ -105,7 +105,7 @@ def _with_vo_error_model(data: SourceData, name: str | None) -> SourceData:
     """The source with the VO error model `name` in effect (as it is: None, or its own)."""
     if name is None or name == data.estimator.vo_error_model:
         return data
-    from .config import with_vo_error_model
+    from ..config import with_vo_error_model
 
     estimator = with_vo_error_model(data.estimator, name)
     scenario = None if data.scenario is None else data.scenario.model_copy(update={"estimator": estimator})
@@ -113,8 +113,8 @@ def _with_vo_error_model(data: SourceData, name: str | None) -> SourceData:
 
 
 def _kept_frontend_work(exc: FrameError, out: Path | None) -> FrameError:
-    from .store.observation_folder import write_observations
-    from .store.results_folder import results_folder
+    from ..store.observation_folder import write_observations
+    from ..store.results_folder import results_folder
 
     data = exc.partial
     if data is None:
@@ -147,7 +147,7 @@ def run(source: str | Path = "denver_trail", *, out: Path | str | None = None, s
     default every core. `opened`: the source already read (open_data). `on_viewer`: told the web
     viewer's address as soon as a served recording (`rerun` mode serve) is up, before the run.
     `vo_error_model`: the VO error model instead of the source's own (config.VO_ERROR_MODELS)."""
-    from .solve.pipeline import select_configurations
+    from ..solve.pipeline import select_configurations
 
     hold_malloc_thresholds()
     out = Path(out) if out is not None else None
@@ -167,7 +167,7 @@ def run(source: str | Path = "denver_trail", *, out: Path | str | None = None, s
 def resume_point(resume: Path | str) -> ResumePoint:
     """A killed run's staging folder (its <out>.partial, or the <out> it was to become) and its
     last checkpoint."""
-    from .store.checkpoint import read_checkpoint
+    from ..store.checkpoint import read_checkpoint
 
     resume = Path(resume)
     if resume.name.endswith(".partial"):
@@ -199,9 +199,9 @@ def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, ta
                      checkpoint_every_s: float, figures: bool, progress: ProgressCallback | None,
                      states: list[RunState] | None = None,
                      on_viewer: Callable[[str], None] | None = None) -> RunOutcome:
-    from .solve.pipeline import run_traverse
-    from .store.checkpoint import CheckpointWriter, RunInputs, remove_checkpoint
-    from .store.results_folder import results_folder, write_run
+    from ..solve.pipeline import run_traverse
+    from ..store.checkpoint import CheckpointWriter, RunInputs, remove_checkpoint
+    from ..store.results_folder import results_folder, write_run
 
     out = out or default_out(data)
     recording = checkpoints = None
@@ -212,8 +212,8 @@ def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, ta
                                            resumed=bool(states))
             listener = None
             if target is not None:
-                from .viz.rerun_live import RerunRecorder
-                from .viz.rerun_sink import open_recording
+                from ..viz.rerun_live import RerunRecorder
+                from ..viz.rerun_sink import open_recording
 
                 if target.mode == "save" and target.path is None:
                     target = dataclasses.replace(target, path=folder / "recording.rrd")
@@ -229,7 +229,7 @@ def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, ta
                                       # the wall time counts the source's reading (an image source's front-end)
                                       started=None if states else time.perf_counter() - data.load_s)
                 # the report's plotting imports matplotlib (27 MB resident): not while the groups run
-                from .viz.report import write_report
+                from ..viz.report import write_report
 
                 with writing(folder, "the results"):
                     write_run(result, folder)
@@ -253,7 +253,7 @@ def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, ta
 
 def _kind_warnings(result) -> list[str]:
     """What the kinds left undone that the user must hear of (Kind.warning_counters)."""
-    from .kinds import KINDS
+    from ..kinds import KINDS
 
     out = []
     for name, configuration in result.configurations.items():
@@ -270,13 +270,12 @@ def track(source: str | Path, out: Path | str, *, detector: str | None = None, s
           progress: ProgressCallback | None = None) -> Traverse:
     """Run the image front-end over stereo images and write what it found as an observation
     folder `out`, so the back-end can run again without the images."""
-    from .store.observation_folder import write_observations
+    from ..store.observation_folder import write_observations
 
     out = Path(out)
     check_out(out)
-    if source_kind(str(source)) not in ("kitti_odometry", "image_folder"):
-        raise ConfigError(f"{source}: track needs stereo images (an image folder or a KITTI odometry "
-                          "sequence folder)")
+    if not source_for(str(source)).stereo_images:
+        raise ConfigError(f"{source}: track needs stereo images ({stereo_image_sources()})")
     data = open_data(source, SourceOptions(detector=detector, skip_bad_frames=skip_bad_frames or None), out,
                      progress)
     with writing(out, "the observation folder", discard=not out.exists()):
@@ -286,9 +285,9 @@ def track(source: str | Path, out: Path | str, *, detector: str | None = None, s
 
 def simulate(scenario: str | Path, out: Path | str, *, seed: int | None = None, truth: bool = True) -> Traverse:
     """Write a scenario's simulated observations as an observation folder."""
-    from .config import load_scenario, resolve_scenario
-    from .sim import simulate as simulate_scenario
-    from .store.observation_folder import write_observations
+    from ..config import load_scenario, resolve_scenario
+    from ..sim import simulate as simulate_scenario
+    from ..store.observation_folder import write_observations
 
     sc = load_scenario(resolve_scenario(str(scenario)))
     out = Path(out)
@@ -307,10 +306,10 @@ def evaluate(estimate: Path | str, reference: Path | str, *, align: str = "none"
     write metrics.json in the run's schema (one configuration, named after the estimate) and a
     plot. Against a GPS log, an estimate with attitudes is compared at the antenna: `lever_arm`
     (body frame, m), by default the one saved beside the estimate (a results folder's)."""
-    from .evaluation.evaluate import at_point_of_body, evaluate_trajectories
-    from .formats.trajectories import read_trajectory
-    from .geodesy import LocalFrame
-    from .store.results_folder import read_gps_lever_arm, read_local_frame
+    from ..evaluation.evaluate import at_point_of_body, evaluate_trajectories
+    from ..formats.trajectories import read_trajectory
+    from ..geometry.geodesy import LocalFrame
+    from ..store.results_folder import read_gps_lever_arm, read_local_frame
 
     estimate, reference = Path(estimate), Path(reference)
     if align not in ("none", "se3", "yaw"):
@@ -340,8 +339,8 @@ def evaluate(estimate: Path | str, reference: Path | str, *, align: str = "none"
     if arm is not None:
         result = dataclasses.replace(result, lever_arm_m=tuple(float(v) for v in arm))
     if out is not None:
-        from .store.results_folder import write_evaluation
-        from .viz.plots import evaluation_plot
+        from ..store.results_folder import write_evaluation
+        from ..viz.plots import evaluation_plot
 
         out = Path(out)
         if out.exists() and not out.is_dir():
@@ -359,9 +358,9 @@ def view(results: Path | str, target: RerunTarget, saved: SavedRun | None = None
     layout; returns the closed recording (a served one stays served until its `stop_serving`;
     `on_viewer` is told its web viewer's address as soon as it is up; its `failure` says why
     it stopped, if it did)."""
-    from .store.results_folder import read_run
-    from .viz.rerun_replay import replay
-    from .viz.rerun_sink import open_recording
+    from ..store.results_folder import read_run
+    from ..viz.rerun_replay import replay
+    from ..viz.rerun_sink import open_recording
 
     results = Path(results)
     if target.mode == "save" and target.path is None:
@@ -387,10 +386,10 @@ def analyze(out: Path | str, rigs: list[str] | None = None, sigma_px: float = 0.
             progress: Callable[[int, int], None] | None = None) -> AnalysisOutcome:
     """Chapter 3's error analysis for rig presets (default every one) or a `custom` rig (baseline
     m, focal length px, horizontal FOV deg), written into `out` with every assumption."""
-    from .analysis.design import AnalysisRig, Assumptions
-    from .analysis.trades import analyze as analyze_rigs
-    from .rig import RIG_PRESETS
-    from .viz.analysis_plots import write_analysis
+    from ..analysis.design import AnalysisRig, Assumptions
+    from ..analysis.trades import analyze as analyze_rigs
+    from ..geometry.rig import RIG_PRESETS
+    from ..viz.analysis_plots import write_analysis
 
     out = Path(out)
     check_out(out)
@@ -430,7 +429,7 @@ class SweepPlan:
 def plan_sweep(spec: Path | str, out: Path | str) -> SweepPlan:
     """Read a sweep specification (scenarios x rigs x estimator variants x seeds) and lay out its
     runs in the sweep folder `out` (runs already done there are skipped when it runs)."""
-    from .sweep.spec import load_spec, plan
+    from ..sweep.spec import load_spec, plan
 
     spec, out = Path(spec), Path(out)
     specification = load_spec(spec)
@@ -444,8 +443,8 @@ def sweep(planned: SweepPlan, *, workers: int = 2, scheduler: str | None = None,
     """A planned sweep's runs on Dask, one task per run (`progress(record, done, total)` hears each
     that ends); a run that fails or times out is recorded and the others go on. Then the table of
     runs and the summary over seeds."""
-    from .sweep.runner import run_sweep
-    from .sweep.table import run_rows, summarize, write_tables
+    from ..sweep.runner import run_sweep
+    from ..sweep.table import run_rows, summarize, write_tables
 
     records = run_sweep(planned.runs, planned.timeout_s, workers, scheduler, progress)
     rows = run_rows(records)

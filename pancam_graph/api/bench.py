@@ -10,11 +10,11 @@ import resource
 import time
 from pathlib import Path
 
-from .config import load_scenario, resolve_scenario
-from .errors import ConfigError, ResultsError
-from .processes import cores, hold_malloc_thresholds, start_process_server
-from .scratch import temporary_folder
-from .solve.group import ProgressCallback
+from ..config import load_scenario, resolve_scenario
+from ..errors import ConfigError, ResultsError
+from ..runtime.processes import cores, hold_malloc_thresholds, start_process_server
+from ..runtime.scratch import temporary_folder
+from ..solve.group import ProgressCallback
 
 
 def _load(scenario: str):
@@ -34,8 +34,8 @@ def bench_runs(scenario: str, seed: int | None = None, seeds: int = 1, rerun: bo
     seeds. The load average before and after goes with the figures."""
     import numpy as np
 
-    from .solve.pipeline import run
-    from .solve.results import RunOptions, cost_along, memory_along, percentiles
+    from ..solve.pipeline import run
+    from ..solve.results import RunOptions, cost_along, memory_along, percentiles
 
     seeds = max(seeds, monte_carlo)
     load_before = os.getloadavg()
@@ -80,7 +80,7 @@ def bench_runs(scenario: str, seed: int | None = None, seeds: int = 1, rerun: bo
                                            for k, mb in samples]
                                    for group, samples in memory_along(results[0]).items()}
     if plot is not None:
-        from .viz.plots import plot_cost_along
+        from ..viz.plots import plot_cost_along
 
         try:
             plot_cost_along(report["isam2_update_ms_per_km"], report["rss_mb_along_path"],
@@ -110,7 +110,7 @@ def bench_runs(scenario: str, seed: int | None = None, seeds: int = 1, rerun: bo
             for n in results[0].configurations
         }
     if monte_carlo:
-        from .evaluation.consistency import monte_carlo_summary
+        from ..evaluation.consistency import monte_carlo_summary
 
         report["monte_carlo"] = {n: monte_carlo_summary([r.configurations[n].consistency for r in results],
                                                         [r.configurations[n].nees.last for r in results])
@@ -125,7 +125,7 @@ def _peak_memory(result) -> dict[str, dict[str, float]]:
     of configurations side by side (the most they held at their checkpoints). Resident set
     size counts the pages the workers share (the fork server's imports) in each; the
     proportional set size (sampled at checkpoints) counts each its share."""
-    from .solve.memory import pss_mb
+    from ..runtime.memory import pss_mb
 
     rss = {"this process": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
     pss = {"this process": pss_mb() or 0.0}
@@ -143,10 +143,10 @@ def bench_monte_carlo_sweep(scenario: str, seed: int | None, seeds: int, workers
     """bench --monte-carlo as a sweep: the same summary, the runs on a local Dask cluster."""
     import numpy as np
 
-    from .config import resolve_scenario
-    from .sweep.runner import run_sweep
-    from .sweep.spec import SweepSpec, plan
-    from .sweep.table import monte_carlo, run_rows
+    from ..config import resolve_scenario
+    from ..sweep.runner import run_sweep
+    from ..sweep.spec import SweepSpec, plan
+    from ..sweep.table import monte_carlo, run_rows
 
     sc = _load(scenario)
     first = sc.seed if seed is None else seed
@@ -178,13 +178,13 @@ def bench_sites(source: str | None, compared_sites: int = 3, progress: ProgressC
     the folder names a bundled scenario."""
     import numpy as np
 
-    from .config import FrontendConfig, bundled_scenarios
-    from .frontend.motion import VoMotions
-    from .frontend.panorama import PanoramaMatcher, PanoramaView, unaided_matches
-    from .render.truth import RenderedTruth
-    from .sources import image_folder
-    from .sources.site_images import images_by_stop, with_site_panoramas
-    from .store.observation_folder import is_image_folder, read_observations
+    from ..config import FrontendConfig, bundled_scenarios
+    from ..frontend.motion import VoMotions
+    from ..frontend.panorama import PanoramaMatcher, PanoramaView, unaided_matches
+    from ..render.truth import RenderedTruth
+    from ..sources import image_folder
+    from ..sources.site_images import images_by_stop, with_site_panoramas
+    from ..store.observation_folder import is_image_folder, read_observations
 
     if source is None or not is_image_folder(Path(source)):
         raise ConfigError(f"bench sites {source or ''}: give an image folder with site panoramas "
@@ -303,15 +303,15 @@ def bench_frontend(source: str | None, detector: str | None = None, progress: Pr
     """The image front-end's time per frame and per stage on stereo images, as `run` drives it."""
     import numpy as np
 
-    from .config import FrontendConfig
-    from .frontend.tracker import StereoTracker
-    from .sources import source_kind
-    from .sources.frames import frame_ms, track_frames
+    from ..config import FrontendConfig
+    from ..frontend.tracker import StereoTracker
+    from ..sources import source_for, stereo_image_sources
+    from ..sources.frames import frame_ms, track_frames
 
-    kind = source_kind(source) if source is not None else None
-    if kind not in ("kitti_odometry", "image_folder"):
-        raise ConfigError(f"bench frontend {source or ''}: give stereo images (an image folder or a KITTI "
-                          "odometry sequence folder, e.g. ../shared/data/real/kitti_odometry_51)")
+    if source is None or not source_for(source).stereo_images:
+        raise ConfigError(f"bench frontend {source or ''}: give stereo images ({stereo_image_sources()}, e.g. "
+                          "../shared/data/real/kitti_odometry_51)")
+    kind = source_for(source).name
     config = FrontendConfig(detector=detector or "gftt")
     stops, read_raw, size, rectify, camera_motion = _stereo_frames(Path(source), kind)
     tracker = StereoTracker(config)
@@ -349,15 +349,15 @@ def _stereo_frames(folder: Path, kind: str):
     """(the stops, a reader of stop k's raw pair, (height, width), the rectification or None,
     the camera's motion from dead reckoning or None) of an image source."""
     if kind == "kitti_odometry":
-        from .formats.kitti import read_kitti_odometry
-        from .records import StereoObservations, Stop
+        from ..formats.kitti import read_kitti_odometry
+        from ..records import StereoObservations, Stop
 
         sequence = read_kitti_odometry(folder)
         cam = sequence.stereo.camera
         stops = [Stop(k, float(sequence.times_s[k]), StereoObservations.empty()) for k in range(len(sequence))]
         return stops, sequence.stereo_pair, (cam.height, cam.width), None, None
-    from .sources.image_folder import FramePairs, odometry_camera_motion
-    from .store.observation_folder import read_observations
+    from ..sources.image_folder import FramePairs, odometry_camera_motion
+    from ..store.observation_folder import read_observations
 
     obs = read_observations(folder)
     pairs = FramePairs(obs)
@@ -366,10 +366,10 @@ def _stereo_frames(folder: Path, kind: str):
 
 
 def _time_recorded_run(scenario, seed: int) -> float:
-    from .solve.pipeline import run
-    from .solve.results import RunOptions
-    from .viz.rerun_live import RerunRecorder
-    from .viz.rerun_sink import RerunTarget, open_recording
+    from ..solve.pipeline import run
+    from ..solve.results import RunOptions
+    from ..viz.rerun_live import RerunRecorder
+    from ..viz.rerun_sink import RerunTarget, open_recording
 
     with temporary_folder("bench") as tmp:
         start = time.perf_counter()

@@ -20,8 +20,8 @@ import typer
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from ..config import SourceOptions
 from ..errors import ConfigError
-from ..source_options import SourceOptions
 from .app import console, user_input
 
 if TYPE_CHECKING:  # the heavy imports wait until a command needs them: --help stays fast

@@ -11,14 +11,14 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
+from ..config import SourceOptions
 from ..errors import ConfigError
-from ..source_options import SourceOptions
 from .app import app, console, user_input
 from .common import load_named_scenario, with_progress, with_source_options
 
 if TYPE_CHECKING:  # the heavy imports wait until a command needs them: --help stays fast
     from ..frontend.calibrate import StereoFit
-    from ..stereo_pair import StereoCalibration
+    from ..geometry.stereo_pair import StereoCalibration
 
 
 @app.command("track")

@@ -13,8 +13,8 @@ from rich.markup import escape
 from rich.table import Table
 from rich.text import Text
 
+from ..config import SourceOptions
 from ..errors import ConfigError
-from ..source_options import SourceOptions
 from .app import app, console, leave_without_rerun, user_input
 from .common import (
     SERVE_FOR_HELP,
@@ -118,7 +118,7 @@ def run_command(
     folder; a failed run leaves <out>.partial with what was done, which `--resume` continues.
     """
     from .. import api
-    from ..processes import cores, start_process_server
+    from ..runtime.processes import cores, start_process_server
 
     processes = 1 if one_process else None
     if resume is not None:

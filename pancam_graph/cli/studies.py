@@ -12,8 +12,8 @@ from rich.markup import escape
 from rich.table import Table
 from rich.text import Text
 
+from ..config import SourceOptions
 from ..errors import ConfigError, ResultsError
-from ..source_options import SourceOptions
 from .app import EXIT_FAILURE, app, console, leave_without_rerun, user_input
 from .common import (
     SERVE_FOR_HELP,
@@ -178,7 +178,7 @@ def bench_command(
 ) -> None:
     """Time full runs (all configurations) and print one JSON object; `bench frontend SOURCE`
     times the image front-end per stage."""
-    from .. import bench
+    from ..api import bench
 
     def report(stage: str, done: int, total: int) -> None:
         if stage.startswith("seed "):  # a finished seed of several: one line each

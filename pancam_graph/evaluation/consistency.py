@@ -16,8 +16,8 @@ from dataclasses import asdict, dataclass
 import gtsam
 import numpy as np
 
-from .. import chi2
 from ..errors import EvaluationError, GraphError
+from ..graph import chi2
 from ..graph.keys import L, X, subset
 from ..graph.smoother import Smoother
 

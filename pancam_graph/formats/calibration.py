@@ -15,9 +15,9 @@ import yaml
 
 from ..errors import InputError
 from ..frontend.calibrate import MIN_TARGETS_PER_VIEW, ControlField
-from ..rig import Camera
-from ..stereo_pair import RectifiedStereo, StereoCalibration
-from ..text_files import read_text
+from ..geometry.rig import Camera
+from ..geometry.stereo_pair import RectifiedStereo, StereoCalibration
+from ..runtime.text_files import read_text
 from .tables import CsvTable, write_csv
 
 KALIBR_CAMERA_MODELS = ("pinhole",)

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..geodesy import LocalFrame
+from ..geometry.geodesy import LocalFrame
 from .tables import write_csv
 
 KML_NS = "http://www.opengis.net/kml/2.2"

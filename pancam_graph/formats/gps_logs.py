@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..records import GpsFix
-from ..text_files import read_text
+from ..runtime.text_files import read_text
 
 # The CSV columns this reader understands; time, latitude, longitude and height are required.
 MAX_SIGMA_M = 1e4  # a fix less certain than this says nothing (and squares past float range)

@@ -27,10 +27,10 @@ import gtsam
 import numpy as np
 
 from ..errors import InputError
-from ..geodesy import LocalFrame
+from ..geometry.geodesy import LocalFrame
+from ..geometry.rig import BODY_T_FORWARD_CAMERA, Camera, Rig
 from ..records import GpsFix, GroundTruth, SlipPrior, StereoObservations, Stop, Traverse
-from ..rig import BODY_T_FORWARD_CAMERA, Camera, Rig
-from ..text_files import read_text
+from ..runtime.text_files import read_text
 from .kitti import FEATURE_SIGMA_PX
 from .tables import CsvTable
 

@@ -23,10 +23,10 @@ import gtsam
 import numpy as np
 
 from ..errors import InputError
-from ..geodesy import LocalFrame
+from ..geometry.geodesy import LocalFrame
+from ..geometry.stereo_pair import RectifiedStereo
 from ..records import GpsFix, OdometryTrack
-from ..stereo_pair import RectifiedStereo
-from ..text_files import read_text
+from ..runtime.text_files import read_text
 from .calibration import rectified_from_projections
 from .trajectories import read_kitti_poses
 

@@ -11,8 +11,8 @@ import gtsam
 import numpy as np
 
 from ..errors import InputError
+from ..geometry.stereo_pair import RectifiedStereo
 from ..records import GpsFix, OdometryTrack
-from ..stereo_pair import RectifiedStereo
 from .calibration import rectified_from_projections
 
 NAVSAT_NO_FIX = -1  # sensor_msgs/NavSatStatus.STATUS_NO_FIX

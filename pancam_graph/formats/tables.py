@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..text_files import read_text
+from ..runtime.text_files import read_text
 
 
 def write_json(path: Path, data: dict) -> None:

@@ -8,7 +8,7 @@ import gtsam
 import numpy as np
 
 from ..errors import InputError
-from ..geodesy import LocalFrame
+from ..geometry.geodesy import LocalFrame
 from ..graph.frozen import pose_matrices
 from ..records import Trajectory
 from .gps_logs import read_gps_file

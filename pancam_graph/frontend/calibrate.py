@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from ..stereo_pair import StereoCalibration
+from ..geometry.stereo_pair import StereoCalibration
 
 ARUCO_DICTIONARY = cv2.aruco.DICT_4X4_250
 MIN_TARGETS_PER_VIEW = 12  # fewer and a view's pose is weak (and a stray detection weighs)

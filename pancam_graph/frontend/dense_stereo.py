@@ -19,8 +19,8 @@ import cv2
 import numpy as np
 
 from ..errors import FrontendError
+from ..geometry.rig import Camera, triangulate_rectified, triangulation_covariance
 from ..records import GroundPatch
-from ..rig import Camera, triangulate_rectified, triangulation_covariance
 
 SCALE = 2  # images matched at 1/SCALE resolution
 GRID_PX = 6  # a point every GRID_PX pixels (at the matched resolution) in both directions

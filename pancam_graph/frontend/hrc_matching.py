@@ -28,9 +28,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .. import chi2
-from ..ortho_registration import peak_offset
-from ..rig import Rig, triangulation_covariance
+from ..geometry.rig import Rig, triangulation_covariance
+from ..graph import chi2
+from ..orbital.ortho_registration import peak_offset
 from .panorama import PanoramaView, Region, SitePanorama
 
 

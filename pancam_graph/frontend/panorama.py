@@ -19,8 +19,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..config import FrontendConfig
+from ..geometry.rig import Camera, triangulate_rectified
 from ..records import StereoObservations
-from ..rig import Camera, triangulate_rectified
 from .tracker import StereoTracker
 
 LINK_PX = 1.5  # a flow end point this near the other frame's feature is that feature

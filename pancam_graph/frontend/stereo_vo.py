@@ -15,10 +15,10 @@ import cv2
 import gtsam
 import numpy as np
 
-from .. import chi2
 from ..config import EstimatorConfig
+from ..geometry.rig import Rig, triangulate_rectified, triangulation_covariance
+from ..graph import chi2
 from ..records import StereoObservations, Traverse
-from ..rig import Rig, triangulate_rectified, triangulation_covariance
 from .two_stop_adjustment import StereoIntrinsics, adjust_two_stops
 
 _CHI2_6DOF_99 = chi2.quantile(0.99, 6)  # a point's two stereo residuals (2 x 3 px components): outlier gate

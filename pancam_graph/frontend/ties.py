@@ -29,10 +29,10 @@ import gtsam
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .. import chi2
+from ..geometry.rig import Rig, triangulate_rectified, triangulation_covariance
+from ..graph import chi2
 from ..graph.tie_gate import RelativePose, SitePoint, site_points
-from ..ortho_registration import peak_offset
-from ..rig import Rig, triangulate_rectified, triangulation_covariance
+from ..orbital.ortho_registration import peak_offset
 from .panorama import SitePanorama
 from .tracker import StereoTracker
 

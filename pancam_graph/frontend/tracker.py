@@ -33,8 +33,8 @@ from scipy.spatial import Delaunay, cKDTree
 
 from ..config import FrontendConfig
 from ..errors import FrontendError
+from ..geometry.rig import Camera, triangulate_rectified
 from ..records import StereoObservations
-from ..rig import Camera, triangulate_rectified
 
 
 @dataclass

@@ -20,9 +20,9 @@ import numpy as np
 
 from ..config import EstimatorConfig
 from ..errors import FrontendError
-from ..processes import cores, hold_malloc_thresholds, process_context
+from ..geometry.rig import Rig
 from ..records import StereoObservations, Traverse
-from ..rig import Rig
+from ..runtime.processes import cores, hold_malloc_thresholds, process_context
 from .stereo_vo import StereoVO, VoResult
 
 BLOCK_STOPS = 64  # stops per task: enough to hide the pickling, few enough to start at once

@@ -14,7 +14,7 @@ from pyproj.database import query_utm_crs_info
 from pyproj.enums import TransformDirection
 from pyproj.exceptions import ProjError
 
-from .errors import GeodesyError
+from ..errors import GeodesyError
 
 Body = Literal["earth", "mars"]
 MARS_RADIUS_M = 3_396_190.0  # the IAU 2015 Mars sphere (IAU_2015:49900), HiRISE's and CTX's datum

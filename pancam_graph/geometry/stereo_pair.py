@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 from .rig import Camera
 
 

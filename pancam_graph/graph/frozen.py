@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from ..spill import mapped
+from ..runtime.spill import mapped
 from .keys import value_type
 
 # rows a file; the environment may set it (tests). The rows in memory before they go are the

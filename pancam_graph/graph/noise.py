@@ -7,8 +7,8 @@ import math
 import gtsam
 import numpy as np
 
-from .. import chi2
 from ..errors import GraphError
+from . import chi2
 
 _KERNELS = {
     "huber": gtsam.noiseModel.mEstimator.Huber.Create,

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from .. import chi2
+from ..geometry.rig import Rig, triangulate_rectified, triangulation_covariance
 from ..records import Stop
-from ..rig import Rig, triangulate_rectified, triangulation_covariance
+from . import chi2
 
 # Squared Mahalanobis distance of a 3-D disagreement that passes: chi-square, 3 dof, 99.9 %.
 AGREEMENT_GATE = chi2.quantile(0.999, 3)

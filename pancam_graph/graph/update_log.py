@@ -23,9 +23,9 @@ from typing import Any
 
 import gtsam
 
-from ..atomic import write_atomically
 from ..errors import GraphError
-from ..scratch import temporary_folder
+from ..runtime.atomic import write_atomically
+from ..runtime.scratch import temporary_folder
 from .keys import subset
 
 # updates per file (denver_trail's ~900 stops make one and a tail); the environment may set it

@@ -16,17 +16,27 @@ Its records travel in `Traverse.measurements[name]`.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, ClassVar, Protocol
 
 import gtsam
 import numpy as np
+from pydantic import BaseModel, ConfigDict
 
 from ..records import GroundTruth, Stop, Traverse
-from ..sections import Section
 
 NO_TIE_LINKS = np.zeros((0, 2), dtype=np.int64)  # (track, site stop) rows: a kind that ties nothing
+# (key_a, key_b, a_T_b, covariance) -> factor: a motion step's between factor
+MotionFactor = Callable[[int, int, gtsam.Pose3, np.ndarray], gtsam.NonlinearFactor]
 
 _REGISTRY: dict[str, type[Kind]] = {}
+
+
+class Section(BaseModel):
+    """The base of a kind's configuration sections: a frozen pydantic model that refuses unknown
+    keys and non-finite numbers."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 def registered() -> dict[str, type[Kind]]:
@@ -51,8 +61,6 @@ class Host(Protocol):
     previous_stop: Stop | None
     bridged_stops: int
     rng: np.random.Generator
-    odometry_factor: Any
-    vo_factor: Any
 
     def kind(self, name: str) -> Kind: ...
 
@@ -81,6 +89,9 @@ class Kind:
     # The stops' image records it reads (Stop.panorama, .hrc, .ground): a worker process running
     # configurations without it is sent a traverse without them.
     stop_records: ClassVar[frozenset[str]] = frozenset()
+    # The motion whose between factors it builds instead of the plain ones (motion_factor):
+    # "odometry" (every dead-reckoning step, bridges of VO included) or "vo" (every VO step).
+    builds_motion: ClassVar[str | None] = None
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)
@@ -108,6 +119,11 @@ class Kind:
         if cls.records and not cls.has_records(traverse):
             return f"the traverse has no {cls.records}"
         return None
+
+    @classmethod
+    def check_scenario(cls, scenario) -> None:
+        """Raise ValueError (the message for the user) when a scenario breaks this kind's rules
+        (config.Scenario: its origin, its sections, its estimator's sections)."""
 
     # -- records: simulated, written and read (kinds with Traverse.measurements) ---------------
 
@@ -140,6 +156,16 @@ class Kind:
     def pose_times(self, prev: Stop, stop: Stop) -> list[float]:
         """Times strictly inside the drive from `prev` to `stop` at which this kind needs a pose."""
         return []
+
+    def motion_factor(self) -> MotionFactor | None:
+        """The factor builder for `builds_motion`'s steps: (key_a, key_b, a_T_b, covariance) ->
+        factor, with this kind's shared variables in it."""
+        return None
+
+    def update_before(self, stop: Stop) -> str | None:
+        """Why the estimate must be updated before this kind's factors of `stop` (a gate or a
+        registration that reads the stop's marginals), or None. The localizer makes that update."""
+        return None
 
     def add(self, stop: Stop, counts: StepCounts) -> None:
         """This stop's factors (before the stop's update)."""

@@ -10,12 +10,10 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
-from .. import chi2
-from ..graph import factors, noise
+from ..graph import chi2, factors, noise
 from ..graph.keys import X
 from ..records import GpsFix, Stop, Traverse
-from ..sections import Section
-from .base import Kind, RowError
+from .base import Kind, RowError, Section
 
 TIME_TOLERANCE_S = 1e-3  # a fix this close to a stop's time is taken at the stop
 _REASONS_KEPT = 20
@@ -40,6 +38,11 @@ class Gps(Kind):
     name = "gps"
     order = 5
     absolute = True
+
+    @classmethod
+    def check_scenario(cls, scenario) -> None:
+        if scenario.origin.body == "mars" and scenario.gps.enabled:
+            raise ValueError("origin on mars: there is no GPS on Mars; set [gps] enabled = false")
     # fixes used in a stop's update (at the stop or on the drive to it), those failing the
     # chi-square test at the updated estimate, and the largest squared Mahalanobis distance
     step_counters = {"gps_fixes": 0, "gps_outliers": 0, "gps_mahalanobis2": None}

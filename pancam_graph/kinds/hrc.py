@@ -11,8 +11,7 @@ from pydantic import Field
 from ..graph import factors, noise
 from ..graph.keys import L
 from ..records import Stop, Traverse
-from ..sections import Section
-from .base import Kind
+from .base import Kind, Section
 from .sites import SiteObservations
 
 

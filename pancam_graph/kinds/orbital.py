@@ -36,27 +36,31 @@ import gtsam
 import numpy as np
 from pydantic import Field
 
-from .. import chi2
-from ..dem_registration import DtmErrors, MapNotCovering, RegistrationFailed, register_site, yaw_jacobian, yaw_of
 from ..errors import InputError
-from ..graph import tie_gate
-from ..graph.keys import E, S, X
-from ..maps import MapBias, ground_spacing, hillshade, sampled_raster
-from ..ortho_registration import register_patch
+from ..graph import chi2, keys, tie_gate
+from ..graph.keys import E, X
+from ..orbital.dem_registration import (
+    DtmErrors,
+    MapNotCovering,
+    RegistrationFailed,
+    register_site,
+    yaw_jacobian,
+    yaw_of,
+)
+from ..orbital.maps import MapBias, ground_spacing, hillshade, sampled_raster
+from ..orbital.ortho_registration import register_patch
 from ..records import GroundTruth, MapRaster, OrbitalMap, Stop, Traverse
-from ..sections import Section
-from .base import Kind
-
-_FIRST_BIAS_KEY = 10  # S(0) is the wheel slip, S(1..3) the VO scale and direction
-
+from .base import Kind, Section
 
 BIAS_NAMES = ("east_m", "north_m", "up_m", "rotation_rad")
+MAX_MAPS = 100  # maps of one traverse: each has its bias, 4 shared scalars
+_BIAS_KEYS = keys.shared("orbital", len(BIAS_NAMES) * MAX_MAPS)
 
 
 def bias_keys(map_index: int) -> tuple[int, int, int, int]:
     """The shared variables of map `map_index`'s bias: east, north, up (m), rotation (rad)."""
-    first = _FIRST_BIAS_KEY + len(BIAS_NAMES) * map_index
-    return tuple(S(first + i) for i in range(len(BIAS_NAMES)))
+    first = len(BIAS_NAMES) * map_index
+    return _BIAS_KEYS[first:first + len(BIAS_NAMES)]
 
 
 def _wrap(angle: float) -> float:
@@ -247,6 +251,8 @@ class Orbital(Kind):
         frame = localizer.traverse.origin
         start = localizer.traverse.start_world_T_body[:3, 3]
         covering = []
+        if len(self.maps) > MAX_MAPS:
+            raise InputError(f"{len(self.maps)} orbital maps: at most {MAX_MAPS} in one traverse (merge them)")
         for m, orbital_map in enumerate(self.maps):
             _check_map(orbital_map, frame)
             sigmas = (orbital_map.offset_sigma_m, orbital_map.offset_sigma_m, orbital_map.vertical_sigma_m,
@@ -259,6 +265,7 @@ class Orbital(Kind):
         if self.maps and not any(covering):
             raise InputError(f"orbital map {self.maps[0].name!r} does not cover the traverse's start "
                              f"({start[0]:.1f} m east, {start[1]:.1f} m north of the origin)")
+        self._site: tuple | None = None  # (stop, points, ground) between update_before and add
         self.registrations: list[tuple[int, int, np.ndarray, np.ndarray]] = []  # stop, map, measured, covariance
         self.refused: list[int] = []
         self.uncovered: list[int] = []
@@ -274,17 +281,27 @@ class Orbital(Kind):
         copy its rasters)."""
         return self.loc.traverse.measurements.get(self.name, ())
 
-    def add(self, stop: Stop, counts) -> None:
+    def update_before(self, stop: Stop) -> str | None:
+        """A site with points or ground to register: the registration starts from the site's
+        updated pose and reads its marginal."""
+        self._site = None
         if not stop.is_site or not self.maps:
-            return
+            return None
         points = tie_gate.site_point_cloud(stop, self.loc.traverse.rig, self.loc.traverse.image_noise_px)
         if points is None:
             self.failed.append(f"stop {stop.index}: no triangulated site points")
         ground = stop.ground if self.settings.use_orthoimage else None
         if points is None and ground is None:
+            return None
+        self._site = (stop.index, points, ground)
+        return "before its orbital registration"
+
+    def add(self, stop: Stop, counts) -> None:
+        site, self._site = self._site, None
+        if site is None or site[0] != stop.index:
             return
+        _, points, ground = site
         smoother = self.loc.smoother
-        smoother.update(context=f"at stop {stop.index}, before its orbital registration")
         pose = smoother.pose(X(stop.index))
         covered = False
         for m, orbital_map in enumerate(self.maps):

@@ -20,9 +20,8 @@ from ..graph import factors, noise, tie_gate
 from ..graph.keys import L, X
 from ..graph.tie_gate import RelativePose, SitePoint
 from ..records import Stop, Traverse
-from ..sections import Section
-from ..spill import Column, mapped
-from .base import Kind
+from ..runtime.spill import Column, mapped
+from .base import Kind, Section
 
 # The last sites collected, for the other configurations stepping the same stop (Sites._collect)
 _RECENT_SITES: deque[tuple[tuple, Stop, SiteObservations]] = deque(maxlen=4)
@@ -156,6 +155,12 @@ class Sites(Kind):
         vars(self).update(state)
         self.stereo_calibration = self.rig.stereo_calibration()
 
+    def update_before(self, stop: Stop) -> str | None:
+        # The gate needs this site's pose in the Bayes tree (its relative covariance to the
+        # earlier sites); the motion factor alone puts it there. That update may move the
+        # smoother's window on: the sites that left it can take no new factor.
+        return "before its tie points" if stop.is_site else None
+
     def add(self, stop: Stop, counts) -> None:
         if stop.is_site:
             counts["new_landmarks"], counts["rejected_ties"] = self._add_site(stop)
@@ -200,10 +205,6 @@ class Sites(Kind):
 
     def _add_site(self, stop: Stop) -> tuple[int, int]:
         current = self._collect(stop)
-        # The gate needs this site's pose in the Bayes tree (its relative covariance to the
-        # earlier sites); the motion factor alone puts it there. That update may move the
-        # smoother's window on: the sites that left it can take no new factor.
-        self.loc.smoother.update(context=f"at stop {stop.index}, before its tie points")
         recent = [site for site in self.sites[-self.memory:] if self.loc.smoother.live(X(site.stop))]
         candidates: dict[int, SiteObservations] = {}
         for earlier in recent:

@@ -28,13 +28,12 @@ import gtsam
 import numpy as np
 from pydantic import Field, model_validator
 
-from .. import chi2
 from ..errors import GeodesyError
-from ..geodesy import LocalFrame
+from ..geometry.geodesy import LocalFrame
+from ..graph import chi2
 from ..graph.keys import X
 from ..records import GroundTruth, Stop, Traverse
-from ..sections import Section
-from .base import Kind, RowError, StepCounts
+from .base import Kind, RowError, Section, StepCounts
 
 Planet = Literal["earth", "mars"]
 # Years the ephemerides are used in: ERFA's leap-second table starts in 1960 (UTC before it is
@@ -178,6 +177,19 @@ class SunHeading(Kind):
     step_counters = {"sun_sightings": 0, "sun_flagged": 0}
 
     records = "sun sightings"
+
+    @classmethod
+    def check_scenario(cls, scenario) -> None:
+        body = scenario.origin.body
+        sun = getattr(scenario, cls.name, None)
+        if sun is not None and sun.enabled:
+            if sun.planet not in (None, body):
+                raise ValueError(f"[sun_heading] planet = {sun.planet!r} but the origin is on {body}")
+            if body == "mars" and sun.start_utc is None:
+                raise ValueError("[sun_heading] on mars needs start_utc (local solar time on Mars is not derived here)")
+        estimated = getattr(scenario.estimator, cls.name, None)
+        if estimated is not None and estimated.planet not in (None, body):
+            raise ValueError(f"[estimator.sun_heading] planet = {estimated.planet!r} but the origin is on {body}")
 
     # -- records -------------------------------------------------------------------------------
 

@@ -20,15 +20,12 @@ import gtsam
 import numpy as np
 from pydantic import Field
 
-from ..graph import noise
-from ..graph.keys import S
-from ..sections import Section
-from .base import Kind
+from ..graph import keys, noise
+from .base import Kind, Section
 from .motion import VisualOdometry
 from .wheel_slip import slip_odometry_error, slip_odometry_factor
 
-VO_SCALE = S(1)
-VO_LATERAL, VO_VERTICAL = S(2), S(3)
+VO_SCALE, VO_LATERAL, VO_VERTICAL = keys.shared("vo_scale", 3)
 _STEP = 1e-6  # central differences in the direction angles (rad): the error is smooth in them
 
 
@@ -82,21 +79,23 @@ class VoScale(Kind):
     order = 6
     Settings = VoScaleSettings
     unavailable = staticmethod(VisualOdometry.unavailable)
+    builds_motion = "vo"
 
     def __init__(self, localizer):
         super().__init__(localizer)
         model = gtsam.noiseModel.Isotropic.Sigma(1, localizer.estimator.vo_scale.sigma)
         localizer.smoother.add(gtsam.PriorFactorDouble(VO_SCALE, 0.0, model))
         localizer.smoother.insert(VO_SCALE, 0.0, shared=True)
-        localizer.vo_factor = vo_scale_factor
         direction_sigma = localizer.estimator.vo_scale.direction_sigma
         if direction_sigma > 0:
             angle = gtsam.noiseModel.Isotropic.Sigma(1, direction_sigma)
             for key in (VO_LATERAL, VO_VERTICAL):
                 localizer.smoother.add(gtsam.PriorFactorDouble(key, 0.0, angle))
                 localizer.smoother.insert(key, 0.0, shared=True)
-            localizer.vo_factor = biased_vo_factor
         self.direction = direction_sigma > 0
+
+    def motion_factor(self):
+        return biased_vo_factor if self.direction else vo_scale_factor
 
     def true_values(self, truth, values: gtsam.Values) -> bool:
         # the calibration's scale error: zero in simulation, unknown on real data, where the bound

@@ -13,12 +13,11 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from ..graph import noise
-from ..graph.keys import S
+from ..graph import keys, noise
 from .base import Kind
 from .motion import DeadReckoningMotion
 
-SLIP = S(0)
+(SLIP,) = keys.shared("wheel_slip", 1)
 
 
 def slip_odometry_error(odom_T: gtsam.Pose3, world_T_a: gtsam.Pose3, world_T_b: gtsam.Pose3, slip: float,
@@ -62,6 +61,7 @@ class WheelSlip(Kind):
     order = 2
     cost = 2.0
     unavailable = staticmethod(DeadReckoningMotion.unavailable)  # it scales the odometry steps
+    builds_motion = "odometry"
 
     def __init__(self, localizer):
         super().__init__(localizer)
@@ -69,7 +69,9 @@ class WheelSlip(Kind):
         model = gtsam.noiseModel.Isotropic.Sigma(1, prior.sigma)
         localizer.smoother.add(gtsam.PriorFactorDouble(SLIP, prior.mean, model))
         localizer.smoother.insert(SLIP, prior.mean, shared=True)
-        localizer.odometry_factor = slip_odometry_factor  # every odometry step, bridges of VO included
+
+    def motion_factor(self):
+        return slip_odometry_factor
 
     def true_values(self, truth, values: gtsam.Values) -> bool:
         if truth.wheel_slip is None:

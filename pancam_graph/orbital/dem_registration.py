@@ -24,10 +24,10 @@ from dataclasses import dataclass
 import numpy as np
 from pyproj import CRS
 
-from .errors import PancamGraphError
-from .geodesy import LocalFrame
+from ..errors import PancamGraphError
+from ..geometry.geodesy import LocalFrame
+from ..records import MapRaster
 from .maps import ground_spacing
-from .records import MapRaster
 
 MAX_POINTS = 4000  # a site's points used at most (a simulated panorama has 2,000-2,600 within 40 m)
 _DISTINCT_M = 2.0  # a place this far from the best one is another place, not the same one less well fitted

@@ -14,8 +14,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from .geodesy import LocalFrame
-from .records import MapRaster
+from ..geometry.geodesy import LocalFrame
+from ..records import MapRaster
 
 Height = Callable[[np.ndarray], np.ndarray]  # elevation (m, local up) at (N, 2) east-north points
 

@@ -28,10 +28,10 @@ import cv2
 import numpy as np
 from pyproj import CRS
 
+from ..geometry.geodesy import LocalFrame
+from ..records import GroundPatch, MapRaster
 from .dem_registration import MapNotCovering, RegistrationFailed
-from .geodesy import LocalFrame
 from .maps import ground_spacing
-from .records import GroundPatch, MapRaster
 
 _DISTINCT_M = 3.0  # a peak this far from the best one is another place (the ground's texture is 1-4 m)
 

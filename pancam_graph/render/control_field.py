@@ -20,8 +20,8 @@ from ..errors import ResultsError
 from ..formats.calibration import write_control_field, write_opencv_yaml
 from ..formats.calibration_images import FIELD_FILE, TRUTH_FILE
 from ..frontend.calibrate import ARUCO_DICTIONARY, ControlField
-from ..processes import cores
-from ..rig import Camera, rig_preset
+from ..geometry.rig import Camera, rig_preset
+from ..runtime.processes import cores
 from .scenario_images import raw_stereo_pair
 
 PITCH_M = 0.20  # target spacing on a panel

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ConfigError
-from ..rig import Camera
+from ..geometry.rig import Camera
 from .terrain import TILE_M, TerrainTile
 
 _VERTEX = """

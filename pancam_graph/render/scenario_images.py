@@ -15,14 +15,14 @@ from pyproj import CRS
 
 from ..config import RenderConfig, Scenario
 from ..errors import ResultsError
-from ..geodesy import LocalFrame
+from ..geometry.geodesy import LocalFrame
+from ..geometry.rig import Camera
+from ..geometry.stereo_pair import StereoCalibration
 from ..kinds.orbital import Orbital, OrbitalSensor
-from ..maps import MapBias
+from ..orbital.maps import MapBias
 from ..records import GroundTruth, MapRaster, Traverse
-from ..rig import Camera
 from ..sim import kind_rng, simulate
 from ..sim.world import dense_path
-from ..stereo_pair import StereoCalibration
 from ..store.observation_folder import PanoramaImage, write_observations
 from .renderer import TerrainRenderer, sensor_image
 from .terrain import Ground, terrain_tiles

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from ..config import Scenario
-from ..rig import Camera
+from ..geometry.rig import Camera
 from ..sim.world import dense_path
 from .renderer import TerrainRenderer
 from .terrain import terrain_tiles

@@ -11,7 +11,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import BinaryIO
 
-from .errors import WriteFailed
+from ..errors import WriteFailed
 
 
 def write_atomically(path: Path, write: Callable[[BinaryIO], None], durable: bool = True) -> None:

@@ -8,7 +8,7 @@ import gc
 import os
 import resource
 
-from ..processes import release_mapped_pages
+from .processes import release_mapped_pages
 
 _PAGE_MB = os.sysconf("SC_PAGE_SIZE") / 2**20 if hasattr(os, "sysconf") else 0.0
 

@@ -22,13 +22,13 @@ from typing import TypeVar
 
 import numpy as np
 
-from .errors import PancamGraphError
+from ..errors import PancamGraphError
 from .scratch import temporary_folder
 
 T = TypeVar("T")
 
 # everything a worker runs, then what hands back the pages the imports read (fork_server)
-PRELOAD = ["pancam_graph.solve.side_by_side", "pancam_graph.fork_server"]
+PRELOAD = ["pancam_graph.solve.side_by_side", "pancam_graph.runtime.fork_server"]
 
 
 def cores() -> int:

@@ -15,7 +15,7 @@ from collections.abc import Iterable, Iterator
 
 import numpy as np
 
-from .errors import WriteFailed
+from ..errors import WriteFailed
 from .processes import map_npy
 from .scratch import PREFIX, temporary_folder
 

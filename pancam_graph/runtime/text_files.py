@@ -8,7 +8,7 @@ import gzip
 import zlib
 from pathlib import Path
 
-from .errors import InputError, PancamGraphError
+from ..errors import InputError, PancamGraphError
 
 
 def read_text(path: Path, what: str = "file", error: type[PancamGraphError] = InputError) -> str:

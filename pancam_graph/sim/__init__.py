@@ -9,10 +9,10 @@ import gtsam
 import numpy as np
 
 from ..config import Scenario
-from ..geodesy import LocalFrame
+from ..geometry.geodesy import LocalFrame
+from ..geometry.rig import rig_preset
 from ..kinds import KINDS
 from ..records import GroundTruth, PanoramaFrame, SlipPrior, Stop, Traverse
-from ..rig import rig_preset
 from .sensors import LandmarkField, dead_reckoning, gps_fix, observe_hrc, observe_stereo
 from .world import dense_path, landmark_field, rover_poses, site_stops, stop_distances
 

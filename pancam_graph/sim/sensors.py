@@ -7,9 +7,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..config import CameraConfig, DeadReckoningConfig, GpsConfig
-from ..geodesy import LocalFrame
+from ..geometry.geodesy import LocalFrame
+from ..geometry.rig import Camera, Rig
 from ..records import DeadReckoning, GpsFix, HrcFrame, StereoObservations
-from ..rig import Camera, Rig
 
 
 class LandmarkField:

@@ -5,7 +5,6 @@ the held-out fixes. A run in one process is one group; side by side, each proces
 from __future__ import annotations
 
 import gc
-import math
 import os
 import time
 from collections.abc import Callable
@@ -21,13 +20,14 @@ from ..frontend.motion import Motion, Motions, VoMotions, dead_reckoning_motion,
 from ..frontend.stereo_vo import StereoVO
 from ..frontend.vo_ahead import VoAhead
 from ..kinds import absolute
-from ..processes import RELEASE_EVERY_STOPS, release_mapped_pages
-from ..records import GpsFix, GroundTruth, Traverse
+from ..records import GpsFix, GroundTruth, Stop, Traverse
+from ..runtime.memory import release_memory, settle_garbage_collector
+from ..runtime.processes import release_mapped_pages
+from .housekeeping import Housekeeping, sample_memory
 from .listener import NullListener, RunListener
 from .localizer import Localizer, Snapshot
-from .memory import peak_rss_mb, pss_mb, release_memory, rss_mb, settle_garbage_collector
 from .results import ConfigurationResult, ProcessUse, RunOptions
-from .state import CHECKPOINT_EVERY_STOPS, Checkpoints, RunState
+from .state import Checkpoints, RunState
 from .step_table import StepTable
 from .stop_records import StopRecords
 
@@ -94,8 +94,10 @@ def run_group(job: GroupJob, state: RunState | None, known: VoMotions | None, sa
 
     listener.start(traverse, job.truth, state.localizers)
     settle_garbage_collector()
+    housekeeping = Housekeeping(state, n, save, listener, progress, start)
     try:
-        _step_through(traverse, state, vo_motion if any_vo else None, save, progress, listener, start, records)
+        _step_through(traverse, state, MotionFeed(traverse, state, vo_motion if any_vo else None),
+                      [listener, housekeeping], records)
     finally:
         gc.unfreeze()
         if ahead is not None:
@@ -115,7 +117,7 @@ def run_group(job: GroupJob, state: RunState | None, known: VoMotions | None, sa
                                               inliers if localizer.uses_vo else np.full(n, -1))
         del localizer  # its graphs are no more use: their memory goes to the next one's bound
         release_memory()
-    _sample_memory(state, n - 1, last=True)
+    sample_memory(state, n - 1, last=True)
     use = ProcessUse(label, os.getpid(), tuple(results), time.perf_counter() - began,
                      time.process_time() - began_cpu, state.memory_mb, state.peak_pss_mb or None)
     return GroupOutcome(results, state.motions, state.vo_s, use)
@@ -127,58 +129,39 @@ def new_state(job: GroupJob) -> RunState:
     return RunState(0, localizers, Motions([None]), Motions([None]), {name: StepTable() for name in localizers})
 
 
-# Reading /proc/self/smaps_rollup (the PSS) costs 5-13 ms at 0.4-1 GB resident; at every
-# checkpoint (every 25 stops and every site) a group of mission_traverse read it 2,400 times.
-PSS_EVERY_S = 2.0
-_pss_read_at = -math.inf  # this process's last read (time.monotonic)
+class MotionFeed:
+    """Each stop's motions for a group's localizers: the VO's (estimated as the stops come by
+    `vo_motion`, unless the state has them) and dead reckoning's, kept only where a
+    configuration reads them (mission_traverse: 33,589 motions, 40 MB pickled)."""
 
+    def __init__(self, traverse: Traverse, state: RunState, vo_motion: Callable[[int, Motion | None], Motion] | None):
+        self.traverse, self.state, self.vo_motion = traverse, state, vo_motion
+        self.needs_dead_reckoning = vo_motion is None or not all(loc.uses_vo for loc in state.localizers.values())
 
-def _sample_memory(state: RunState, stop: int, last: bool = False) -> None:
-    """The process's resident memory at this stop, and its PSS every PSS_EVERY_S (and `last`)."""
-    global _pss_read_at
-    state.memory_mb.append((stop, rss_mb() or peak_rss_mb()))
-    now = time.monotonic()
-    if last or now - _pss_read_at >= PSS_EVERY_S:
-        _pss_read_at = now
-        state.peak_pss_mb = max(state.peak_pss_mb, pss_mb() or 0.0)
-
-
-def _step_through(traverse: Traverse, state: RunState, vo_motion: Callable[[int, Motion | None], Motion] | None,
-                  save: Checkpoints | None, progress: ProgressCallback | None, listener: RunListener,
-                  start: float, records: StopRecords | None = None) -> None:
-    """Feed the state's localizers every stop from `state.next_stop` on; a stop's motion is
-    estimated here unless the state has it already."""
-    n = len(traverse.stops)
-    slip = traverse.wheel_slip
-    motions, dr_motions, steps = state.motions, state.dr_motions, state.steps
-    # A group whose configurations all take the VO's motions reads no dead reckoning: none is kept
-    # (mission_traverse: 33,589 motions, 40 MB pickled).
-    needs_dr = vo_motion is None or not all(loc.uses_vo for loc in state.localizers.values())
-    for k in range(state.next_stop, n):
-        stop = traverse.stops[k] if records is None else records.attach(k, traverse.stops[k])
-        if needs_dr and k > 0 and len(dr_motions) <= k:
-            dr_motions.append(dead_reckoning_motion(stop, dr_motions[-1], slip))
+    def at(self, k: int, stop: Stop) -> tuple[Motion | None, Motion | None]:
+        """(the VO's motion, dead reckoning's) from stop k - 1 to stop k; (None, None) at stop 0."""
+        motions, dr_motions = self.state.motions, self.state.dr_motions
+        if self.needs_dead_reckoning and k > 0 and len(dr_motions) <= k:
+            dr_motions.append(dead_reckoning_motion(stop, dr_motions[-1], self.traverse.wheel_slip))
         if k > 0 and len(motions) <= k:
             t0 = time.perf_counter()
-            motions.append(vo_motion(k, motions[-1]) if vo_motion is not None else dr_motions[k])
-            state.vo_s += time.perf_counter() - t0
-        now = {name: localizer.step(stop, motions[k] if localizer.uses_vo else dr_motions[k])
+            motions.append(self.vo_motion(k, motions[-1]) if self.vo_motion is not None else dr_motions[k])
+            self.state.vo_s += time.perf_counter() - t0
+        return motions[k], dr_motions[k] if self.needs_dead_reckoning else None
+
+
+def _step_through(traverse: Traverse, state: RunState, feed: MotionFeed, listeners: list[RunListener],
+                  records: StopRecords | None = None) -> None:
+    """The state's localizers fed every stop from `state.next_stop` on: each stop's motion in,
+    each localizer's step, the listeners told."""
+    for k in range(state.next_stop, len(traverse.stops)):
+        stop = traverse.stops[k] if records is None else records.attach(k, traverse.stops[k])
+        motion, dead_reckoning = feed.at(k, stop)
+        now = {name: localizer.step(stop, motion if localizer.uses_vo else dead_reckoning)
                for name, localizer in state.localizers.items()}
-        for name, step in now.items():
-            steps[name].append(step)
-        listener.step(stop, motions[k], now)
-        if stop.is_site or (k + 1) % CHECKPOINT_EVERY_STOPS == 0:
-            state.next_stop, state.elapsed_s = k + 1, time.perf_counter() - start
-            settle_garbage_collector()
-            _sample_memory(state, k)
-            if save is not None and k + 1 < n:
-                save(state)
-            listener.checkpoint(stop)
-        if (k + 1) % RELEASE_EVERY_STOPS == 0:  # the mapped inputs read so far (the motions, the source's)
-            release_mapped_pages()
-        if progress is not None:
-            progress("stops", k + 1, n)
-    state.next_stop = n
+        for listener in listeners:
+            listener.step(stop, motion, now)
+    state.next_stop = len(traverse.stops)
 
 
 @dataclass(frozen=True)

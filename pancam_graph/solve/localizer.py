@@ -1,9 +1,9 @@
 """One stop in: the motion from the previous stop and every kind's measurements become factors;
-one iSAM2 update out."""
+the stop's iSAM2 updates out (one, and one before each kind that reads the stop's marginals to
+make its factors: Kind.update_before)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import gtsam
@@ -17,12 +17,9 @@ from ..graph.frozen import pose_matrices
 from ..graph.keys import L, T, X
 from ..graph.smoother import RelinearizeThresholds, Smoother
 from ..kinds import KINDS, STEP_COUNTERS, Kind, absolute, uses_vo
-from ..kinds.base import NO_TIE_LINKS, StepCounts
+from ..kinds.base import NO_TIE_LINKS, MotionFactor, StepCounts
 from ..records import GroundTruth, Stop, Traverse
-from ..spill import Column
-
-# (key_a, key_b, a_T_b, covariance) -> factor
-MotionFactor = Callable[[int, int, gtsam.Pose3, np.ndarray], gtsam.NonlinearFactor]
+from ..runtime.spill import Column
 
 
 @dataclass(frozen=True)
@@ -90,14 +87,21 @@ class Localizer:
         self.bridged_stops = 0
         self.interpolated: list[InterpolatedPose] = []
         self._keys_at: dict[float, int] = {}  # this step's inserted poses by time
-        # How a raw odometry increment or a VO step becomes a factor when a kind models its error
-        # (wheel slip, VO scale); None: the motion's own between factor.
-        self.odometry_factor: MotionFactor | None = None
-        self.vo_factor: MotionFactor | None = None
         self.kinds: dict[str, Kind] = {}
         for name in KINDS:  # registry order: a kind may hook into one built before it
             if name in self.kind_names:
                 self.kinds[name] = KINDS[name](self)
+        # How a raw odometry increment or a VO step becomes a factor when a kind models its error
+        # (wheel slip, VO scale: Kind.builds_motion); None: the motion's own between factor.
+        self.odometry_factor = self._motion_factor("odometry")
+        self.vo_factor = self._motion_factor("vo")
+
+    def _motion_factor(self, motion: str) -> MotionFactor | None:
+        builders = [kind for kind in self.kinds.values() if kind.builds_motion == motion]
+        if len(builders) > 1:
+            raise ConfigError(f"configuration {'+'.join(self.kind_names)}: kinds "
+                              f"{' and '.join(k.name for k in builders)} both build the {motion} steps' factors")
+        return builders[0].motion_factor() if builders else None
 
     def kind(self, name: str) -> Kind:
         if name not in self.kinds:
@@ -125,6 +129,9 @@ class Localizer:
 
         counts = StepCounts()
         for kind in self.kinds.values():
+            why = kind.update_before(stop)
+            if why is not None:
+                self.smoother.update(context=f"at stop {k}, {why}")
             kind.add(stop, counts)
         self.smoother.update(context=f"at stop {k}")
         for kind in self.kinds.values():

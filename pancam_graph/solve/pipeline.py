@@ -12,12 +12,12 @@ from ..config import EstimatorConfig, Scenario
 from ..errors import ConfigError
 from ..frontend.motion import VoMotions
 from ..kinds import configuration_problem, relative_cost, unavailable, uses_vo
-from ..processes import call_apart
 from ..records import GpsFix, GroundTruth, Traverse
+from ..runtime.memory import peak_rss_mb
+from ..runtime.processes import call_apart
 from ..sim import simulate
 from .group import GroupJob, ProgressCallback, run_group
 from .listener import RunListener
-from .memory import peak_rss_mb
 from .results import ConfigurationResult, RunOptions, RunResult, SourceInfo
 from .side_by_side import MemoryWatch, run_side_by_side
 from .state import Checkpoints, RunState

@@ -8,14 +8,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..config import EstimatorConfig, Scenario
+from ..config import EstimatorConfig, Scenario, SourceOptions
 from ..evaluation.consistency import Consistency, NeesAlongRun
 from ..evaluation.gps_check import HoldoutScore
 from ..evaluation.metrics import TrajectoryMetrics
 from ..frontend.motion import Motions, VoMotions
 from ..kinds import COUNTER_DEFAULTS
 from ..records import GpsFix, GroundTruth, Traverse
-from ..source_options import SourceOptions
 from .localizer import InterpolatedPose
 from .step_table import StepTable
 

@@ -26,12 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import writing
 from ..errors import GraphError
 from ..frontend.motion import Motions, VoMotions, dead_reckoning_motion, motion_from
 from ..frontend.vo_ahead import BLOCK_STOPS, VoAhead
 from ..kinds import stop_records, uses_vo
-from ..processes import (
+from ..records import Traverse
+from ..runtime.atomic import writing
+from ..runtime.memory import release_memory, rss_mb
+from ..runtime.processes import (
     RELEASE_EVERY_STOPS,
     hold_malloc_thresholds,
     map_npy,
@@ -39,10 +41,8 @@ from ..processes import (
     release_library_pages,
     release_mapped_pages,
 )
-from ..records import Traverse
-from ..scratch import temporary_folder
+from ..runtime.scratch import temporary_folder
 from .group import GroupJob, GroupOutcome, ProgressCallback, new_state, run_group
-from .memory import release_memory, rss_mb
 from .state import Checkpoints, RunState
 from .stop_records import StopRecords
 

@@ -15,7 +15,7 @@ from itertools import repeat
 
 import numpy as np
 
-from ..spill import Column
+from ..runtime.spill import Column
 from .localizer import StepResult
 
 

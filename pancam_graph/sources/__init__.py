@@ -10,10 +10,10 @@ import dataclasses
 import time
 from pathlib import Path
 
+from ..config import SourceOptions
 from ..errors import ConfigError
-from ..processes import call_apart
+from ..runtime.processes import call_apart
 from ..solve.results import SourceData
-from ..source_options import SourceOptions
 from .recorded import is_kitti_drive
 from .registry import ProgressCallback, Source, registered
 
@@ -37,6 +37,11 @@ def source_kind(text: str) -> str:
     return source_for(text).name
 
 
+def stereo_image_sources() -> str:
+    """The sources with stereo images, in words (for the message when one is needed)."""
+    return " or ".join(s.describes for s in SOURCES if s.stereo_images)
+
+
 def open_source(text: str, options: SourceOptions = SourceOptions(),
                 progress: ProgressCallback | None = None, apart: bool = False) -> SourceData:
     """The source named by `text`, loaded (images: the front-end runs over every frame,
@@ -57,4 +62,5 @@ def _load(name: str, text: str, options: SourceOptions) -> SourceData:
     return next(s for s in SOURCES if s.name == name).load(text, options, None)
 
 
-__all__ = ["SOURCES", "Source", "SourceData", "SourceOptions", "open_source", "source_for", "source_kind"]
+__all__ = ["SOURCES", "Source", "SourceData", "SourceOptions", "open_source", "source_for", "source_kind",
+           "stereo_image_sources"]

@@ -13,14 +13,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..config import FrontendConfig
+from ..config import FrontendConfig, SourceOptions
 from ..errors import FrameError, InputError
 from ..formats.images import read_gray
 from ..frontend.motion import VoMotions
 from ..frontend.tracker import CameraMotion, StageTimes, StereoTracker
 from ..records import Stop, Traverse
 from ..solve.results import SourceData, SourceInfo
-from ..source_options import SourceOptions
 from .frames import median_frame_ms, track_frames
 from .registry import Source, frontend_for
 from .site_images import with_site_panoramas
@@ -160,4 +159,4 @@ def _load(text: str, options: SourceOptions, progress) -> SourceData:
 
 # Before observation folders: an image folder is one, with frames.csv for its stereo pairs.
 SOURCES = (Source("image_folder", 30, frozenset({"detector", "skip_bad_frames"}), matches, _load,
-                  "an image folder (traverse.toml with frames.csv)"),)
+                  "an image folder (traverse.toml with frames.csv)", stereo_images=True),)

@@ -10,14 +10,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import EstimatorConfig, FrontendConfig
+from ..config import EstimatorConfig, FrontendConfig, SourceOptions
 from ..errors import InputError
 from ..frontend.tracker import StereoTracker
-from ..geodesy import LocalFrame
+from ..geometry.geodesy import LocalFrame
+from ..geometry.rig import BODY_T_FORWARD_CAMERA, Rig
 from ..records import GroundTruth, SlipPrior, StereoObservations, Stop, Traverse
-from ..rig import BODY_T_FORWARD_CAMERA, Rig
 from ..solve.results import SourceData, SourceInfo
-from ..source_options import SourceOptions
 from .frames import median_frame_ms, track_frames
 from .registry import Source, frontend_for
 
@@ -90,4 +89,4 @@ def _load(text: str, options: SourceOptions, progress) -> SourceData:
 
 
 SOURCES = (Source("kitti_odometry", 50, frozenset({"detector", "skip_bad_frames"}), matches, _load,
-                  "a KITTI odometry sequence (calib.txt with image_0/image_1 or image_l/image_r)"),)
+                  "a KITTI odometry sequence (calib.txt with image_0/image_1 or image_l/image_r)", stereo_images=True),)

@@ -11,15 +11,14 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from ..config import EstimatorConfig
+from ..config import EstimatorConfig, SourceOptions
 from ..errors import InputError
 from ..evaluation.metrics import fit_yaw
 from ..evaluation.timed import poses_at_times
-from ..geodesy import LocalFrame
+from ..geometry.geodesy import LocalFrame
+from ..geometry.rig import rig_preset
 from ..records import DeadReckoning, GpsFix, GroundTruth, OdometryTrack, SlipPrior, StereoObservations, Stop, Traverse
-from ..rig import rig_preset
 from ..solve.results import SourceData, SourceInfo
-from ..source_options import SourceOptions
 from .registry import Source, frontend_for
 
 _ALIGN_DISTANCE_M = 15.0  # odometry travelled before the initial heading is taken from GPS
@@ -172,7 +171,7 @@ def load_stereo_bag(path: Path, left_topic: str, right_topic: str, left_info: st
     bag has them, come along: fixes at their own times, odometry interpolated to the pairs."""
     from ..formats.rosbag import read_images, read_navsatfix, read_odometry, read_stereo_camera_info
     from ..frontend.tracker import StereoTracker
-    from ..rig import BODY_T_FORWARD_CAMERA, Rig
+    from ..geometry.rig import BODY_T_FORWARD_CAMERA, Rig
     from .frames import track_frames
 
     stereo = read_stereo_camera_info(path, left_info, right_info)

@@ -10,9 +10,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..config import FrontendConfig
+from ..config import FrontendConfig, SourceOptions
 from ..solve.results import SourceData
-from ..source_options import SourceOptions
 
 ProgressCallback = Callable[[str, int, int], None]
 
@@ -29,6 +28,7 @@ class Source:
     # (processes.call_apart): loading it reports no progress and leaves behind nothing the run
     # needs (a long simulation).
     apart: Callable[[str], bool] = lambda text: False
+    stereo_images: bool = False  # it reads stereo images, which the front-end tracks (track, bench frontend)
 
 
 def frontend_for(options: SourceOptions) -> FrontendConfig | None:

@@ -39,7 +39,8 @@ from pydantic import AfterValidator, Field
 from ..config import EstimatorConfig, OriginConfig, _Strict, load_toml_model
 from ..errors import InputError
 from ..formats.tables import CsvTable
-from ..geodesy import LocalFrame
+from ..geometry.geodesy import LocalFrame
+from ..geometry.rig import Camera, Rig, rig_preset
 from ..kinds import KINDS
 from ..kinds.base import RowError
 from ..records import (
@@ -53,11 +54,10 @@ from ..records import (
     Stop,
     Traverse,
 )
-from ..rig import Camera, Rig, rig_preset
-from ..text_files import read_text
+from ..runtime.text_files import read_text
 
 if TYPE_CHECKING:
-    from ..stereo_pair import StereoCalibration
+    from ..geometry.stereo_pair import StereoCalibration
 
 MANIFEST = "traverse.toml"
 FRAMES = "frames.csv"  # an image folder: the navigation stereo pair's images per stop
@@ -198,7 +198,7 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
     `calibration` (the navigation pair as calibrated, raw images) beside the rig preset."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    from ..rig import RIG_PRESETS
+    from ..geometry.rig import RIG_PRESETS
 
     rig = traverse.rig
     preset = rig_preset_name or rig.name
@@ -288,7 +288,7 @@ def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorCon
 
 def _write_maps(folder: Path, maps: tuple[OrbitalMap, ...]) -> list[MapSource]:
     """Each orbital map's GeoTIFFs in maps/, and its manifest entry."""
-    from ..formats.geotiff import write_map_raster
+    from ..orbital.geotiff import write_map_raster
 
     out = []
     for orbital_map in maps:
@@ -306,8 +306,8 @@ def _write_maps(folder: Path, maps: tuple[OrbitalMap, ...]) -> list[MapSource]:
 
 
 def _read_maps(folder: Path, sources: list[MapSource]) -> tuple[OrbitalMap, ...]:
-    """The manifest's orbital maps, each GeoTIFF checked (formats/geotiff.py names the file)."""
-    from ..formats.geotiff import read_map_raster
+    """The manifest's orbital maps, each GeoTIFF checked (orbital/geotiff.py names the file)."""
+    from ..orbital.geotiff import read_map_raster
 
     maps = []
     for source in sources:
@@ -322,7 +322,7 @@ def _read_maps(folder: Path, sources: list[MapSource]) -> tuple[OrbitalMap, ...]
 
 def _map_notes(folder: Path, sources: list[MapSource], maps: tuple[OrbitalMap, ...]) -> tuple[str, ...]:
     """A line for each map raster whose posts are not square on the ground."""
-    from ..maps import ground_spacing_note
+    from ..orbital.maps import ground_spacing_note
 
     notes = []
     for source, orbital_map in zip(sources, maps, strict=True):
@@ -336,7 +336,7 @@ def _write_rectified_yaml(path: Path, rig: Rig) -> None:
     """A rectified pair as OpenCV FileStorage YAML: identical cameras, no distortion, the right
     one `baseline` along x."""
     from ..formats.calibration import write_opencv_yaml
-    from ..stereo_pair import StereoCalibration
+    from ..geometry.stereo_pair import StereoCalibration
 
     k = rig.wac.matrix()
     size = (rig.wac.width, rig.wac.height)

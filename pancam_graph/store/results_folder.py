@@ -19,9 +19,9 @@ import numpy as np
 from ..errors import FolderInUse, GeodesyError, InputError, ResultsError, WriteFailed
 from ..formats.export import write_trajectory_exports
 from ..formats.tables import write_csv, write_json
-from ..geodesy import LocalFrame
+from ..geometry.geodesy import LocalFrame
+from ..geometry.rig import Camera, Rig
 from ..kinds import STEP_COUNTERS
-from ..rig import Camera, Rig
 from ..solve.results import evaluation_document, metrics_document, reproduce_command, run_configuration
 
 if TYPE_CHECKING:

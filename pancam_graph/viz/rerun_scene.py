@@ -30,11 +30,11 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from .. import chi2
-from ..geodesy import LocalFrame
-from ..maps import post_enu
+from ..geometry.geodesy import LocalFrame
+from ..geometry.rig import Camera, Rig
+from ..graph import chi2
+from ..orbital.maps import post_enu
 from ..records import OrbitalMap
-from ..rig import Camera, Rig
 
 APP_ID = "pancam_graph"
 COLOURS = {  # the matplotlib tab10 colours of the report plots

@@ -11,7 +11,7 @@ from pancam_graph.analysis.design import AnalysisRig, Assumptions, max_site_spac
 from pancam_graph.analysis.montecarlo import vo_monte_carlo
 from pancam_graph.analysis.stereo import error_ellipse, hrc_point_covariance, point_covariance
 from pancam_graph.analysis.transform import position_covariance, propagate, transform_covariance
-from pancam_graph.rig import rig_preset
+from pancam_graph.geometry.rig import rig_preset
 
 SEED_TABLE_3_2 = {"exomars": 57.9, "exomars+hrc": 65.2, "mer_navcam": 22.2, "mer_pancam": 92.3}
 

@@ -142,8 +142,8 @@ def test_the_rectified_camera_frame_is_raw_R_rectified_of_the_calibrated_one(kit
     """Points seen by KITTI's real unrectified pair 02/03 (distortion, 0.4 deg misalignment),
     rectified with `rectification_maps`' model: same row in both images, and triangulated in
     the rectified camera they are the original points once turned by raw_R_rectified."""
-    from pancam_graph.rig import triangulate_rectified
-    from pancam_graph.stereo_pair import StereoCalibration
+    from pancam_graph.geometry.rig import triangulate_rectified
+    from pancam_graph.geometry.stereo_pair import StereoCalibration
 
     k = kitti
     calibration = StereoCalibration("kitti", k["K1"], k["D1"], k["K2"], k["D2"], k["size"], k["R"], k["T"])
@@ -177,7 +177,7 @@ def test_a_preset_rig_with_a_calibrated_pair_reads_back_unchanged(short_scenario
     from dataclasses import replace
 
     from pancam_graph.config import EstimatorConfig
-    from pancam_graph.rig import rig_preset
+    from pancam_graph.geometry.rig import rig_preset
     from pancam_graph.sim import simulate
     from pancam_graph.store.observation_folder import read_observations, write_observations
 
@@ -224,7 +224,7 @@ def test_katwijk_pancam_matlab_calibration_reads_with_its_published_baseline_and
 
 def test_the_katwijk_pancam_rig_preset_is_the_calibration_file():
     from pancam_graph.formats.calibration import read_raw_calibration
-    from pancam_graph.rig import rig_preset
+    from pancam_graph.geometry.rig import rig_preset
 
     read = read_raw_calibration(KATWIJK / "PanCam_calibstruct.mat", image_size=(1280, 960))
     rectified = read.rectified()

@@ -15,7 +15,7 @@ from pancam_graph.formats.export import (
     write_trajectory_exports,
 )
 from pancam_graph.formats.gps_logs import read_gps_csv, read_kfgins
-from pancam_graph.geodesy import LocalFrame
+from pancam_graph.geometry.geodesy import LocalFrame
 
 pytestmark = pytest.mark.real_data
 

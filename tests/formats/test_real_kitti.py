@@ -10,7 +10,7 @@ import pytest
 
 from pancam_graph.errors import InputError
 from pancam_graph.formats.kitti import read_kitti_raw
-from pancam_graph.geodesy import LocalFrame
+from pancam_graph.geometry.geodesy import LocalFrame
 
 pytestmark = pytest.mark.real_data
 

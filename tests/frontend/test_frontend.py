@@ -14,7 +14,7 @@ from pancam_graph.config import FrontendConfig
 from pancam_graph.errors import InputError
 from pancam_graph.evaluation.consistency import nees
 from pancam_graph.frontend.tracker import StereoTracker
-from pancam_graph.rig import BODY_T_FORWARD_CAMERA
+from pancam_graph.geometry.rig import BODY_T_FORWARD_CAMERA
 from pancam_graph.solve.pipeline import run_traverse
 from pancam_graph.solve.results import RunOptions
 from pancam_graph.sources import kitti_odometry
@@ -229,7 +229,7 @@ def test_the_odometry_prediction_puts_a_feature_where_the_moved_camera_sees_it()
     import gtsam
 
     from pancam_graph.frontend.tracker import CameraMotion
-    from pancam_graph.rig import rig_preset
+    from pancam_graph.geometry.rig import rig_preset
 
     rig = rig_preset("exomars")
     body_T_camera = rig.body_T_left(0.0, -0.3).matrix()
@@ -260,7 +260,7 @@ def test_the_ground_homography_maps_ground_points_and_leaves_out_rocks():
     import gtsam
 
     from pancam_graph.frontend.tracker import CameraMotion
-    from pancam_graph.rig import rig_preset
+    from pancam_graph.geometry.rig import rig_preset
 
     rig = rig_preset("exomars")
     body_T_camera = rig.body_T_left(0.0, -0.3).matrix()
@@ -288,7 +288,7 @@ def test_the_ground_homography_maps_ground_points_and_leaves_out_rocks():
 def test_an_hrc_frames_footprint_in_a_wac_view_holds_the_ground_it_sees():
     from pancam_graph.frontend.hrc_matching import hrc_footprints
     from pancam_graph.frontend.panorama import PanoramaView
-    from pancam_graph.rig import rig_preset
+    from pancam_graph.geometry.rig import rig_preset
 
     rig = rig_preset("exomars")
     pan, tilt = 0.4, -0.25  # the HRC frame; the ground it sees is 5-7 m off

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from pancam_graph.frontend.two_stop_adjustment import StereoIntrinsics, _Problem, adjust_two_stops
+from pancam_graph.geometry.rig import rig_preset, triangulate_rectified
 from pancam_graph.graph.keys import L, X
-from pancam_graph.rig import rig_preset, triangulate_rectified
 
 SIGMA_PX = 0.3
 

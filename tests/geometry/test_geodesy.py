@@ -3,7 +3,7 @@ import pytest
 from pyproj import CRS
 
 from pancam_graph.errors import GeodesyError
-from pancam_graph.geodesy import LocalFrame
+from pancam_graph.geometry.geodesy import LocalFrame
 
 A = 6378137.0
 F = 1.0 / 298.257223563
@@ -67,7 +67,7 @@ def test_a_mars_frame_has_its_positions_on_the_iau_sphere_and_its_up_along_the_e
     """One degree north of the origin on the sphere (R = 3,396,190 m): the chord between the two
     points, rotated into east-north-up whose up is the IAU 2015 ellipsoid's normal (planetographic
     latitude tan(lat_g) = (a / b)^2 tan(lat_c), closed form on the surface)."""
-    from pancam_graph.geodesy import MARS_RADIUS_M
+    from pancam_graph.geometry.geodesy import MARS_RADIUS_M
 
     frame = LocalFrame(-4.59, 137.44, 0.0, body="mars")  # Gale crater
 
@@ -112,7 +112,7 @@ def test_on_earth_up_is_wgs84_s_normal_and_turns_with_distance():
 
 
 def test_a_site_map_is_in_the_body_s_map_projection():
-    from pancam_graph.geodesy import MARS_RADIUS_M
+    from pancam_graph.geometry.geodesy import MARS_RADIUS_M
 
     mars = LocalFrame(-4.59, 137.44, 0.0, body="mars")
     crs = mars.map_crs()

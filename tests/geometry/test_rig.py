@@ -2,7 +2,7 @@ import cv2
 import numpy as np
 import pytest
 
-from pancam_graph.rig import Camera, rig_preset, triangulate_rectified
+from pancam_graph.geometry.rig import Camera, rig_preset, triangulate_rectified
 
 
 def test_projection_matches_hand_computed_pixels():

@@ -5,9 +5,9 @@ import gtsam
 import numpy as np
 import pytest
 
+from pancam_graph.geometry.rig import rig_preset
 from pancam_graph.graph import factors, noise
 from pancam_graph.graph.keys import L, X
-from pancam_graph.rig import rig_preset
 
 RIG = rig_preset("exomars")
 POSE_A = gtsam.Pose3(gtsam.Rot3.Ypr(0.4, -0.05, 0.02), np.array([3.0, -2.0, 0.3]))

@@ -5,9 +5,9 @@ import gtsam
 import numpy as np
 import pytest
 
+from pancam_graph.geometry.rig import rig_preset
 from pancam_graph.graph.keys import X
 from pancam_graph.graph.tie_gate import AGREEMENT_GATE, RelativePose, SitePoint, disagreement2, site_points
-from pancam_graph.rig import rig_preset
 
 RIG = rig_preset("exomars")
 SIGMA_PX = 0.3

@@ -8,7 +8,6 @@ import gtsam
 import numpy as np
 import pytest
 
-from pancam_graph import spill
 from pancam_graph.config import EstimatorConfig
 from pancam_graph.errors import GraphError
 from pancam_graph.frontend.motion import motion_between
@@ -18,6 +17,7 @@ from pancam_graph.graph import frozen, update_log
 from pancam_graph.graph.keys import L, X, subset
 from pancam_graph.graph.smoother import RelinearizeThresholds, Smoother
 from pancam_graph.kinds.sites import TrackIds
+from pancam_graph.runtime import spill
 from pancam_graph.sim import simulate
 from pancam_graph.solve.localizer import Localizer, smoother_for
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from mars_reference import angle_deg, ellipsoid_normal, enu_axes, sphere_point, sun_mars_fixed
 
-from pancam_graph.geodesy import LocalFrame
+from pancam_graph.geometry.geodesy import LocalFrame
 from pancam_graph.kinds.sun_heading import sun_directions_enu
 
 REAL = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real"

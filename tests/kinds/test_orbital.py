@@ -11,12 +11,12 @@ import rasterio
 from pyproj import CRS
 
 from pancam_graph.config import load_scenario, resolve_scenario
-from pancam_graph.dem_registration import DtmErrors, RegistrationFailed, register_site
 from pancam_graph.errors import InputError
-from pancam_graph.formats.geotiff import read_map_raster, write_map_raster
 from pancam_graph.graph.tie_gate import site_point_cloud
 from pancam_graph.kinds.orbital import BIAS_NAMES, _map_pose, predicted_measurement
-from pancam_graph.maps import MapBias
+from pancam_graph.orbital.dem_registration import DtmErrors, RegistrationFailed, register_site
+from pancam_graph.orbital.geotiff import read_map_raster, write_map_raster
+from pancam_graph.orbital.maps import MapBias
 from pancam_graph.records import MapRaster
 from pancam_graph.sim import simulate
 from pancam_graph.solve.pipeline import RunOptions, run_traverse

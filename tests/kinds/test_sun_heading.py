@@ -9,7 +9,7 @@ import pytest
 
 from pancam_graph.config import load_scenario, resolve_scenario
 from pancam_graph.errors import ConfigError, InputError
-from pancam_graph.geodesy import LocalFrame
+from pancam_graph.geometry.geodesy import LocalFrame
 from pancam_graph.kinds.sun_heading import SunSensor, start_utc_s, sun_directions_enu
 from pancam_graph.sim import simulate
 from pancam_graph.solve.pipeline import RunOptions, run

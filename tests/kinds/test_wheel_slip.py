@@ -6,8 +6,8 @@ import pytest
 from seeds import over_seeds
 
 from pancam_graph.evaluation.consistency import monte_carlo_summary
-from pancam_graph.graph.keys import S, X
-from pancam_graph.kinds.wheel_slip import slip_odometry_error, slip_odometry_factor
+from pancam_graph.graph.keys import X
+from pancam_graph.kinds.wheel_slip import SLIP, slip_odometry_error, slip_odometry_factor
 
 pytestmark = pytest.mark.slow
 
@@ -19,7 +19,7 @@ def _values(slip: float) -> gtsam.Values:
     v = gtsam.Values()
     v.insert(X(0), POSE_A)
     v.insert(X(1), POSE_B)
-    v.insert(S(0), slip)
+    v.insert(SLIP, slip)
     return v
 
 

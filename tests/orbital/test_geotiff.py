@@ -1,4 +1,4 @@
-"""Site maps as GeoTIFF (formats/geotiff.py, maps.py; issue 34): a DTM of a scenario's
+"""Site maps as GeoTIFF (orbital/geotiff.py, orbital/maps.py): a DTM of a scenario's
 terrain written at 1 m posts opens in rasterio with the map projection's CRS and transform and
 gives back the terrain's heights; a map that cannot be used is refused with its file named."""
 
@@ -12,11 +12,11 @@ from pyproj import CRS, Transformer
 from rasterio.transform import Affine
 
 from pancam_graph.config import bundled_scenarios, load_scenario
-from pancam_graph.dem_registration import RegistrationFailed, register_site, yaw_of
 from pancam_graph.errors import InputError
-from pancam_graph.formats.geotiff import read_map_raster, write_map_raster
-from pancam_graph.geodesy import LocalFrame
-from pancam_graph.maps import ground_spacing, ground_spacing_note, sampled_raster
+from pancam_graph.geometry.geodesy import LocalFrame
+from pancam_graph.orbital.dem_registration import RegistrationFailed, register_site, yaw_of
+from pancam_graph.orbital.geotiff import read_map_raster, write_map_raster
+from pancam_graph.orbital.maps import ground_spacing, ground_spacing_note, sampled_raster
 from pancam_graph.records import MapRaster
 from pancam_graph.render.terrain import Ground
 from pancam_graph.sim.world import dense_path, landmark_field

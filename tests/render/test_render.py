@@ -209,7 +209,7 @@ def test_bench_frontend_times_the_runs_own_loop_on_rendered_images(rendered):
 def test_a_rendered_mars_scenario_has_the_craters_and_its_map_is_of_the_rendered_ground():
     from pancam_graph.config import load_scenario, resolve_scenario
     from pancam_graph.kinds.orbital import BIAS_NAMES
-    from pancam_graph.maps import MapBias
+    from pancam_graph.orbital.maps import MapBias
     from pancam_graph.render.scenario_images import maps_of_rendered_ground
     from pancam_graph.render.terrain import Ground
 
@@ -288,7 +288,7 @@ def test_a_sites_ground_from_its_rendered_panorama_is_found_in_the_rendered_orth
     from pancam_graph.frontend.dense_stereo import ground_patch
     from pancam_graph.frontend.panorama import PanoramaView
     from pancam_graph.kinds.orbital import BIAS_NAMES, _map_pose, predicted_measurement
-    from pancam_graph.ortho_registration import register_patch
+    from pancam_graph.orbital.ortho_registration import register_patch
     from pancam_graph.render.scenario_images import maps_of_rendered_ground
 
     mars = load_scenario(resolve_scenario("mars_excerpt"))

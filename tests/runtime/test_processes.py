@@ -10,10 +10,10 @@ import gtsam
 import numpy as np
 import pytest
 
-from pancam_graph import processes
 from pancam_graph.config import load_scenario, resolve_scenario
 from pancam_graph.errors import ConfigError
-from pancam_graph.processes import call_apart, release_mapped_pages
+from pancam_graph.runtime import processes
+from pancam_graph.runtime.processes import call_apart, release_mapped_pages
 from pancam_graph.solve.pipeline import RunOptions, run_traverse, simulated, worth_simulating_apart
 from pancam_graph.sources import source_for
 
@@ -69,7 +69,7 @@ def test_only_a_long_scenario_is_simulated_apart():
 # them still resident once every 1 MB block is freed.
 _KEPT_AFTER_FREEING = """
 import ctypes, sys
-from pancam_graph.processes import hold_malloc_thresholds
+from pancam_graph.runtime.processes import hold_malloc_thresholds
 if sys.argv[1] == "held":
     hold_malloc_thresholds()
 libc = ctypes.CDLL("libc.so.6")
@@ -146,7 +146,7 @@ def test_only_read_only_unwritten_file_pages_are_released():
 @pytest.mark.skipif(platform.system() != "Linux" or platform.libc_ver()[0] != "glibc", reason="Linux's smaps")
 def test_a_process_runs_on_after_its_library_pages_are_released():
     script = ("import numpy as np, gtsam\n"
-              "from pancam_graph import processes\n"
+              "from pancam_graph.runtime import processes\n"
               "def file_kb():\n"
               "    return int(next(l for l in open('/proc/self/status') if l.startswith('RssFile')).split()[1])\n"
               "before = file_kb(); released = processes.release_library_pages(); after = file_kb()\n"

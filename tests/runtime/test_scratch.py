@@ -7,13 +7,13 @@ import sys
 import tempfile
 from pathlib import Path
 
-from pancam_graph import scratch
+from pancam_graph.runtime import scratch
 
 
 def test_the_folders_of_killed_processes_are_swept(tmp_path):
     # a process that made a folder and was killed before it could remove it
     child = subprocess.run([sys.executable, "-c", "import os, tempfile, sys\n"
-                            "from pancam_graph import scratch\n"
+                            "from pancam_graph.runtime import scratch\n"
                             f"tempfile.tempdir = {str(tmp_path)!r}\n"
                             "folder = scratch.temporary_folder('log')\n"
                             "print(folder.name, flush=True)\n"

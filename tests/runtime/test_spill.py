@@ -6,8 +6,8 @@ import tempfile
 import numpy as np
 import pytest
 
-from pancam_graph import spill
-from pancam_graph.spill import Column
+from pancam_graph.runtime import spill
+from pancam_graph.runtime.spill import Column
 
 
 @pytest.mark.parametrize("typecode", ["q", "d"])

@@ -5,7 +5,7 @@ import pickle
 import numpy as np
 import pytest
 
-from pancam_graph import spill
+from pancam_graph.runtime import spill
 from pancam_graph.solve.localizer import StepResult
 from pancam_graph.solve.step_table import StepTable
 

@@ -12,7 +12,7 @@ import pytest
 from rrd import Recording, array
 from scipy.stats import chi2
 
-from pancam_graph.geodesy import LocalFrame
+from pancam_graph.geometry.geodesy import LocalFrame
 from pancam_graph.solve.pipeline import RunOptions, run
 from pancam_graph.viz.rerun_live import RerunRecorder
 from pancam_graph.viz.rerun_sink import RerunTarget, open_recording

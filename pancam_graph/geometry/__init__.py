@@ -1,0 +1,2 @@
+"""Geometry: camera and rig models, calibrated stereo pairs, and geodesy (Earth and Mars frames,
+the local vertical, map CRSs)."""
