@@ -1,0 +1,130 @@
+"""CAHV / CAHVOR / CAHVORE camera models (geometry/cahvor.py): on the 122 real Curiosity Navcam
+labels, rays back-projected and projected again land on their pixels; CAHVORE with no pupil
+shift and a perspective lens is CAHVOR; a fisheye CAHVORE's moving pupil round-trips; bad
+models are refused by name; and the photogrammetric conversion's residual."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pancam_graph.errors import InputError
+from pancam_graph.geometry.cahvor import MAX_HV_SKEW_DEG, CameraModel, to_photogrammetric
+
+REAL = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real"
+CURIOSITY = REAL / "curiosity_navcam_sol26_57"
+needs_curiosity = pytest.mark.skipif(not CURIOSITY.is_dir(),
+                                     reason=f"needs {CURIOSITY} (../shared beside the checkout)")
+
+
+def _navcam_models() -> list[tuple[CameraModel, int, int]]:
+    import pdr
+
+    out = []
+    for path in sorted(CURIOSITY.glob("sol*/*.LBL")):
+        label = pdr.read(path).metadata
+        group = label["GEOMETRIC_CAMERA_MODEL_PARMS"]
+        assert group["MODEL_TYPE"] == "CAHVOR"
+        model = CameraModel(*(np.array(group[f"MODEL_COMPONENT_{i}"], dtype=float) for i in range(1, 7)),
+                            name=path.name)
+        out.append((model, int(label["IMAGE"]["LINE_SAMPLES"]), int(label["IMAGE"]["LINES"])))
+    return out
+
+
+def _grid(width: int, height: int, n: int = 17) -> np.ndarray:
+    xs, ys = np.meshgrid(np.linspace(0.0, width - 1.0, n), np.linspace(0.0, height - 1.0, n))
+    return np.column_stack([xs.ravel(), ys.ravel()])
+
+
+@pytest.fixture(scope="module")
+def navcam():
+    return _navcam_models()
+
+
+@pytest.mark.real_data
+@needs_curiosity
+def test_every_curiosity_navcam_model_projects_its_own_rays_back_onto_their_pixels(navcam):
+    assert len(navcam) == 122 and {w for _, w, _ in navcam} == {256, 1024}
+    worst = 0.0
+    for model, width, height in navcam:
+        pixels = _grid(width, height)
+        origins, directions = model.rays(pixels)
+        for range_m in (0.5, 5.0, 500.0):
+            worst = max(worst, np.abs(model.project(origins + range_m * directions) - pixels).max())
+        # the rays look forward, along A
+        assert np.all(directions @ model.a > 0.5)
+        assert model.hv_skew_deg < 0.01  # measured: at most 0.009 deg
+    assert worst < 1e-6
+
+
+@pytest.mark.real_data
+@needs_curiosity
+def test_the_distortion_is_radial_about_o_and_vanishes_on_it(navcam):
+    model, width, height = next(m for m in navcam if m[1] == 1024)
+    linear = CameraModel(model.c, model.a, model.h, model.v)
+    on_axis = model.c + 3.0 * model.o
+    assert np.allclose(model.project(on_axis[None]), linear.project(on_axis[None]), atol=1e-9)
+    corner = model.rays(np.array([[0.0, 0.0]]))[1][0]
+    shift = np.linalg.norm(model.project((model.c + corner)[None]) - linear.project((model.c + corner)[None]))
+    assert 0.5 < shift < 5.0  # Navcam: a pixel or two at the corner of a full frame
+
+
+def _cahvore(model: CameraModel, e=(0.0, 0.0, 0.0), linearity=1.0) -> CameraModel:
+    return CameraModel(model.c, model.a, model.h, model.v, model.o, model.r, np.array(e), linearity)
+
+
+@pytest.mark.real_data
+@needs_curiosity
+def test_cahvore_with_no_pupil_shift_and_a_perspective_lens_is_cahvor(navcam):
+    model, width, height = navcam[0]
+    same = _cahvore(model)
+    pixels = _grid(width, height)
+    origins, directions = model.rays(pixels)
+    points = origins + 4.0 * directions
+    assert np.allclose(same.project(points), model.project(points), atol=1e-9)
+    o2, d2 = same.rays(pixels)
+    assert np.allclose(o2, origins, atol=1e-12) and np.allclose(d2, directions, atol=1e-9)
+
+
+@pytest.mark.parametrize("linearity", [0.0, 0.5, 1.0])
+def test_a_cahvore_with_a_moving_pupil_round_trips(linearity):
+    """A wide lens whose entrance pupil moves 1-3 cm along O with the angle (Hazcam-like):
+    points on each back-projected ray, from its own origin, project onto the pixel."""
+    model = CameraModel(c=[0.2, 0.1, -1.9], a=[1.0, 0.0, 0.0], h=[512.0, 600.0, 0.0], v=[512.0, 0.0, 600.0],
+                        o=[0.9998, 0.0141, 0.0141], r=[0.0, -0.02, 0.003], e=[0.01, 0.005, -0.002],
+                        linearity=linearity)
+    pixels = _grid(1024, 1024)
+    origins, directions = model.rays(pixels)
+    shift = (origins - model.c) @ model.o
+    assert np.ptp(shift) > 1e-3  # the pupil moves
+    for range_m in (0.3, 3.0, 30.0):
+        assert np.abs(model.project(origins + range_m * directions) - pixels).max() < 1e-6
+
+
+@pytest.mark.parametrize("change, words", [
+    ({"h": [100.0, 306.5, 120.0]}, r"H and V are .* deg apart once A is taken out: expected 90 deg within 0.5 deg"),
+    ({"a": [0.9, 0.0, 0.5]}, r"A must be a unit vector"),
+    ({"r": None}, r"has O and R together"),
+    ({"c": [0.0, float("nan"), 0.0]}, r"C must be 3 finite numbers"),
+])
+def test_a_bad_model_is_refused_by_name(change, words):
+    good = {"c": [0.94, 0.34, -1.92], "a": [0.880549, -0.000483697, 0.473937], "h": [112.392, 306.499, 56.2718],
+            "v": [-34.0832, 3.60851, 329.709], "o": [0.881672, 0.0158892, 0.471577],
+            "r": [0.000274, -0.004951, 0.021485]}
+    CameraModel(**good, name="NLA_good.LBL")
+    with pytest.raises(InputError, match=r"NLA_bad.LBL: (a )?camera model " + words):
+        CameraModel(**(good | change), name="NLA_bad.LBL")
+    assert MAX_HV_SKEW_DEG == 0.5
+
+
+@pytest.mark.real_data
+@needs_curiosity
+def test_the_photogrammetric_conversion_of_the_downsampled_navcam_models(navcam):
+    """The rotation and OpenCV pinhole (k1, k2, p1, p2) fitted to each 256 x 256 model (the
+    frames the rover's own VO used) reproduce its projection over a 25 x 25 grid within 0.05 px.
+    The full 1024 x 1024 frames are left at 0.16 px by these four coefficients (docs/cahvor.md:
+    the model's H-V skew and O's 1 deg off A); not yet within the 0.05 px asked."""
+    small = [m for m in navcam if m[1] == 256]
+    assert len(small) > 100
+    residuals = [to_photogrammetric(model, width, height).residual_px for model, width, height in small[::10]]
+    assert max(residuals) < 0.05, residuals
