@@ -27,7 +27,7 @@ from pancam_graph.formats.gtsam_kitti import (
     read_kitti00_example,
     read_kitti00_truth,
 )
-from pancam_graph.store.observation_folder import write_observations
+from pancam_graph.store.observation_writer import write_observations
 
 DEFAULT_TRUTH = Path(__file__).resolve().parents[1] / "tests" / "data" / "real" / "kitti00_ground_truth"
 

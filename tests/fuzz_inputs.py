@@ -123,7 +123,9 @@ def targets(work: Path) -> list[Target]:
     from pancam_graph.formats.trajectories import read_trajectory
     from pancam_graph.render.scenario_images import raw_stereo_pair
     from pancam_graph.sim import simulate
-    from pancam_graph.store.observation_folder import PanoramaImage, read_observations, write_observations
+    from pancam_graph.store.observation_folder import read_observations
+    from pancam_graph.store.observation_manifest import PanoramaImage
+    from pancam_graph.store.observation_writer import write_observations
 
     scenario_dir = work / "scenario"
     scenario_dir.mkdir()

@@ -31,6 +31,8 @@ from ..viz.rerun_sink import OpenRecording as Recording
 from ..viz.rerun_sink import RerunTarget
 
 if TYPE_CHECKING:
+    from ..frontend.calibrate import StereoFit
+    from ..geometry.stereo_pair import StereoCalibration
     from ..store.results_folder import SavedRun
 
 
@@ -113,7 +115,7 @@ def _with_vo_error_model(data: SourceData, name: str | None) -> SourceData:
 
 
 def _kept_frontend_work(exc: FrameError, out: Path | None) -> FrameError:
-    from ..store.observation_folder import write_observations
+    from ..store.observation_writer import write_observations
     from ..store.results_folder import results_folder
 
     data = exc.partial
@@ -270,7 +272,7 @@ def track(source: str | Path, out: Path | str, *, detector: str | None = None, s
           progress: ProgressCallback | None = None) -> Traverse:
     """Run the image front-end over stereo images and write what it found as an observation
     folder `out`, so the back-end can run again without the images."""
-    from ..store.observation_folder import write_observations
+    from ..store.observation_writer import write_observations
 
     out = Path(out)
     check_out(out)
@@ -283,11 +285,41 @@ def track(source: str | Path, out: Path | str, *, detector: str | None = None, s
     return data.traverse
 
 
+@dataclass(frozen=True)
+class CalibrationOutcome:
+    """A stereo pair calibrated from control-field images, written to `out`; with the
+    calibration it was compared with (`reference`, read from `reference_path`), if any."""
+
+    fit: StereoFit
+    out: Path
+    reference: StereoCalibration | None
+    reference_path: Path | None
+
+
+def calibrate(folder: Path | str, out: Path | str, *, field: Path | str | None = None,
+              truth: Path | str | None = None, progress: ProgressCallback | None = None) -> CalibrationOutcome:
+    """Calibrate a stereo pair from images of a 3-D control field (the dissertation's section 4.2)
+    and write it as OpenCV YAML with its rectification; compared with `truth` (default: the
+    folder's truth_calibration.yaml when there is one)."""
+    from ..formats.calibration import read_opencv_yaml, write_opencv_yaml
+    from ..formats.calibration_images import TRUTH_FILE, calibrate_folder
+
+    folder, out = Path(folder), Path(out)
+    if out.exists() and out.is_dir():
+        raise ConfigError(f"--out {out}: is a folder; give the YAML file to write")
+    truth = Path(truth) if truth is not None else (folder / TRUTH_FILE if (folder / TRUTH_FILE).is_file() else None)
+    reference = read_opencv_yaml(truth) if truth is not None else None
+    fit = calibrate_folder(folder, Path(field) if field is not None else None, progress)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_opencv_yaml(out, fit.calibration, rectification=True)
+    return CalibrationOutcome(fit, out, reference, truth)
+
+
 def simulate(scenario: str | Path, out: Path | str, *, seed: int | None = None, truth: bool = True) -> Traverse:
     """Write a scenario's simulated observations as an observation folder."""
     from ..config import load_scenario, resolve_scenario
     from ..sim import simulate as simulate_scenario
-    from ..store.observation_folder import write_observations
+    from ..store.observation_writer import write_observations
 
     sc = load_scenario(resolve_scenario(str(scenario)))
     out = Path(out)

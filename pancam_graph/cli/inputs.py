@@ -12,7 +12,6 @@ from rich.markup import escape
 from rich.table import Table
 
 from ..config import SourceOptions
-from ..errors import ConfigError
 from .app import app, console, user_input
 from .common import load_named_scenario, with_progress, with_source_options
 
@@ -91,19 +90,13 @@ def calibrate_command(
     """Calibrate a stereo pair from images of a 3-D control field (the seed's section 4.2): each
     camera's focal lengths, principal point and k1, k2, p1, p2, then the pair's boresight, and
     the rectification; prints the fit, its uncertainty and, given a truth, the errors."""
-    from ..formats.calibration import read_opencv_yaml, write_opencv_yaml
-    from ..formats.calibration_images import TRUTH_FILE, calibrate_folder
+    from .. import api
 
     with user_input():
-        if out.exists() and out.is_dir():
-            raise ConfigError(f"--out {out}: is a folder; give the YAML file to write")
-        truth = truth or (folder / TRUTH_FILE if (folder / TRUTH_FILE).is_file() else None)
-        reference = read_opencv_yaml(truth) if truth is not None else None
-        fit = with_progress(folder.name, quiet, lambda report: calibrate_folder(folder, field, report))
-        out.parent.mkdir(parents=True, exist_ok=True)
-        write_opencv_yaml(out, fit.calibration, rectification=True)
-    _print_calibration(fit, reference, truth)
-    console.print(f"calibration written to {out}")
+        outcome = with_progress(folder.name, quiet,
+                                lambda report: api.calibrate(folder, out, field=field, truth=truth, progress=report))
+    _print_calibration(outcome.fit, outcome.reference, outcome.reference_path)
+    console.print(f"calibration written to {outcome.out}")
 
 
 def _print_calibration(fit: StereoFit, reference: StereoCalibration | None, truth_path: Path | None) -> None:

@@ -23,7 +23,8 @@ from ..orbital.maps import MapBias
 from ..records import GroundTruth, MapRaster, Traverse
 from ..sim import kind_rng, simulate
 from ..sim.world import dense_path
-from ..store.observation_folder import PanoramaImage, write_observations
+from ..store.observation_manifest import PanoramaImage
+from ..store.observation_writer import write_observations
 from .renderer import TerrainRenderer, sensor_image
 from .terrain import Ground, terrain_tiles
 

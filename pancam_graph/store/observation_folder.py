@@ -25,18 +25,15 @@ written with repr(), so a folder written from a traverse reads back bit for bit.
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING
 
 import numpy as np
-import tomli_w
-from pydantic import AfterValidator, Field
 
-from ..config import EstimatorConfig, OriginConfig, _Strict, load_toml_model
+from ..config import EstimatorConfig, load_toml_model
 from ..errors import InputError
 from ..formats.tables import CsvTable
 from ..geometry.geodesy import LocalFrame
@@ -55,120 +52,25 @@ from ..records import (
     Traverse,
 )
 from ..runtime.text_files import read_text
+from .observation_manifest import (
+    COVARIANCE_UPPER,
+    FRAME_COLUMNS,
+    FRAMES,
+    HRC_COLUMNS,
+    MANIFEST,
+    ODOMETRY_COLUMNS,
+    PANORAMA_COLUMNS,
+    PANORAMA_FRAME_COLUMNS,
+    PANORAMA_FRAMES,
+    STEREO_COLUMNS,
+    Manifest,
+    MapSource,
+    PanoramaImage,
+    RigSource,
+)
 
 if TYPE_CHECKING:
     from ..geometry.stereo_pair import StereoCalibration
-
-MANIFEST = "traverse.toml"
-FRAMES = "frames.csv"  # an image folder: the navigation stereo pair's images per stop
-FRAME_COLUMNS = ["stop", "time_s", "dwell_s", "left", "right"]
-PANORAMA_FRAMES = "panorama_frames.csv"  # an image folder: site panorama and HRC images
-PANORAMA_FRAME_COLUMNS = ["stop", "site", "camera", "pan_rad", "tilt_rad", "left", "right"]
-STEREO_COLUMNS = ["stop", "time_s", "track", "u_left", "u_right", "v"]
-PANORAMA_COLUMNS = ["stop", "site", "pan_rad", "tilt_rad", "track", "u_left", "u_right", "v"]
-HRC_COLUMNS = ["stop", "pan_rad", "tilt_rad", "track", "u", "v"]
-_UPPER = np.triu_indices(6)
-ODOMETRY_COLUMNS = (["stop"] + [f"r{i}{j}" for i in range(1, 4) for j in range(1, 4)] + ["tx", "ty", "tz"]
-                    + [f"c{i}{j}" for i, j in zip(*_UPPER, strict=True)])
-
-
-LeverArm = Annotated[float, Field(ge=-10.0, le=10.0)]
-Matrix3 = tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]
-Matrix4 = tuple[tuple[float, float, float, float], tuple[float, float, float, float],
-                tuple[float, float, float, float], tuple[float, float, float, float]]
-Sigma = Annotated[float, Field(gt=0.0, le=1e4)]
-RIGID_TOLERANCE = 1e-6  # of R'R against identity (orthonormal axes have det +-1: its sign is checked)
-MAX_TRANSLATION_M = 1e6  # as every coordinate in metres of a scenario (config.Metres)
-
-
-def _rigid(matrix: Matrix4) -> Matrix4:
-    """A 4x4 that is a rigid transform: a rotation (orthonormal, det +1), a translation, and
-    the last row 0 0 0 1."""
-    m = np.array(matrix, dtype=float)
-    if not np.all(np.isfinite(m)):
-        raise ValueError("not finite")
-    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=RIGID_TOLERANCE):
-        raise ValueError(f"last row is {m[3].tolist()}, expected [0, 0, 0, 1]")
-    rotation = m[:3, :3]
-    if np.abs(m[:3, 3]).max() > MAX_TRANSLATION_M:
-        raise ValueError(f"its translation {m[:3, 3].tolist()} lies beyond {MAX_TRANSLATION_M:g} m")
-    if np.abs(rotation).max() > 1.0 + RIGID_TOLERANCE:  # and R'R would overflow on 1e308
-        raise ValueError(f"its 3x3 part is not a rotation (an entry of {np.abs(rotation).max():.3g}): expected "
-                         "orthonormal axes with det +1")
-    off = float(np.max(np.abs(rotation.T @ rotation - np.eye(3))))
-    with np.errstate(all="ignore"):  # subnormal entries (1e-320) warn in the LU of det
-        det = float(np.linalg.det(rotation))
-    if off > RIGID_TOLERANCE or det < 0.0:
-        raise ValueError(f"its 3x3 part is not a rotation (R'R differs from identity by {off:.3g}, det "
-                         f"{det:.3g}): expected orthonormal axes with det +1")
-    return matrix
-
-
-RigidTransform = Annotated[Matrix4, AfterValidator(_rigid)]
-
-
-class RigSource(_Strict):
-    """A rig preset, or a stereo calibration file on a mast of the given height, or both: the
-    preset's mast and HRC with the calibrated navigation pair."""
-
-    preset: str | None = None
-    calibration: str | None = Field(None, description="OpenCV YAML, Kalibr camchain, MATLAB stereoParameters .mat "
-                                    "or left camera_info")
-    calibration_right: str | None = Field(None, description="right camera_info (with a camera_info left)")
-    calibration_image_size: tuple[int, int] | None = Field(
-        None, description="width, height px: for a MATLAB calibration that does not record it")
-    mast_height_m: float = Field(1.5, gt=0.0, le=20.0)
-    body_T_left: RigidTransform | None = Field(
-        None, description="4x4: the navigation pair's left camera in the body frame, for a body-fixed pair "
-        "(default: on the mast at pan 0 and traverse_tilt_rad)")
-    rectification: Matrix3 | None = Field(
-        None, description="3x3: a rectified calibration's left camera axes in the camera as mounted (the "
-        "transpose of stereoRectify's R1), when the images were rectified before the calibration was written")
-
-
-class MapSource(_Strict):
-    """An orbital map of the traverse's ground: GeoTIFFs (paths relative to the folder) and the
-    accuracy its producer states for its georeference."""
-
-    name: str = Field(min_length=1)
-    dtm: str = Field(description="DTM GeoTIFF: heights above the body's reference surface, a projected CRS")
-    orthoimage: str | None = Field(None, description="orthoimage GeoTIFF, one grey band, the DTM's CRS")
-    offset_sigma_m: float = Field(3.0, gt=0.0, le=10000.0, description="1-sigma horizontal georeference error, "
-                                  "per axis")
-    vertical_sigma_m: float = Field(1.0, gt=0.0, le=10000.0, description="1-sigma offset of its heights")
-    rotation_sigma_deg: float = Field(0.02, gt=0.0, le=10.0, description="1-sigma rotation about the origin")
-
-
-class Manifest(_Strict):
-    name: str
-    seed: int = Field(0, description="seeds the tie-point selection at sites")
-    origin: OriginConfig
-    rig: RigSource
-    image_noise_px: float = Field(gt=0.0, le=50.0)
-    traverse_tilt_rad: float = Field(ge=-1.5708, le=1.5708, description="mast tilt of the navigation stereo pair "
-                                     "(pan 0)")
-    gps_lever_arm_m: tuple[LeverArm, LeverArm, LeverArm] = (0.0, 0.0, 0.0)
-    start_world_T_body: RigidTransform = Field(description="4x4, surveyed start pose in local ENU")
-    start_sigmas: tuple[Sigma, Sigma, Sigma, Sigma, Sigma, Sigma] = Field(
-        description="rotation rad x3, position m x3 (1 sigma)")
-    wheel_slip_mean: float = Field(0.0, ge=-0.5, le=1.0, description="expected odometry slip shared along the "
-                                   "traverse")
-    wheel_slip_sigma: float = Field(0.05, gt=0.0, le=1.0, description="its uncertainty (1 sigma)")
-    estimator: EstimatorConfig = EstimatorConfig()
-    maps: list[MapSource] = Field(default_factory=list, description="orbital maps (the orbital kind)")
-
-
-@dataclass(frozen=True)
-class PanoramaImage:
-    """One image frame of a site panorama (a WAC stereo pair) or an HRC frame, at mast angles."""
-
-    stop: int
-    site: int
-    camera: str  # "wac" (left and right) or "hrc" (left only)
-    pan_rad: float
-    tilt_rad: float
-    left: Path
-    right: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -184,174 +86,6 @@ class ObservationSet:
     calibration: StereoCalibration | None = None
     notes: tuple[str, ...] = ()  # what the reader noticed that the user should hear of (one line each)
 
-
-# -- writing -------------------------------------------------------------------------------------
-
-def write_observations(folder: Path, traverse: Traverse, estimator: EstimatorConfig, seed: int,
-                       truth: GroundTruth | None = None, rig_preset_name: str | None = None,
-                       frames: list[tuple[str, str]] | None = None,
-                       panorama_frames: list[PanoramaImage] = (), calibration: StereoCalibration | None = None
-                       ) -> None:
-    """A traverse as an observation folder (the format an external front-end writes); with
-    `frames` (left and right image paths per stop, relative to the folder) an image folder:
-    frames.csv instead of the observations, panorama_frames.csv for the site images, and
-    `calibration` (the navigation pair as calibrated, raw images) beside the rig preset."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    from ..geometry.rig import RIG_PRESETS
-
-    rig = traverse.rig
-    preset = rig_preset_name or rig.name
-    body_T_left = None
-    if traverse.body_T_nav_left is not None:  # the manifest holds the camera as mounted
-        body_T_left = traverse.body_T_nav_left.copy()
-        body_T_left[:3, :3] = body_T_left[:3, :3] @ rig.rectification().T
-    rig_source = RigSource(preset=preset, mast_height_m=rig.mast_height_m,
-                           body_T_left=None if body_T_left is None else body_T_left.tolist())
-    if calibration is not None:  # raw images: the preset's mast with the pair as calibrated
-        from ..formats.calibration import write_opencv_yaml
-
-        write_opencv_yaml(folder / "calibration.yaml", calibration)
-        rig_source = rig_source.model_copy(update={"calibration": "calibration.yaml"})
-    elif preset not in RIG_PRESETS or rig != rig_preset(preset):
-        # a calibrated pair (alone, or on a preset's mast): its rectified model as OpenCV YAML,
-        # and the turn rectification gave the left camera
-        _write_rectified_yaml(folder / "calibration.yaml", rig)
-        rotation = None if rig.raw_R_rectified is None else tuple(map(tuple, rig.rectification().tolist()))
-        rig_source = rig_source.model_copy(update={"preset": preset if preset in RIG_PRESETS else None,
-                                                   "calibration": "calibration.yaml", "rectification": rotation})
-    manifest = Manifest(
-        name=traverse.name, seed=seed,
-        origin=OriginConfig(lat_deg=traverse.origin.lat0_deg, lon_deg=traverse.origin.lon0_deg,
-                            h_m=traverse.origin.h0_m, body=traverse.origin.body),
-        rig=rig_source,
-        image_noise_px=traverse.image_noise_px, traverse_tilt_rad=traverse.traverse_tilt_rad,
-        gps_lever_arm_m=tuple(float(v) for v in traverse.gps_lever_arm_m),
-        start_world_T_body=traverse.start_world_T_body.tolist(),
-        start_sigmas=tuple(float(v) for v in traverse.start_sigmas), wheel_slip_mean=traverse.wheel_slip.mean,
-        wheel_slip_sigma=traverse.wheel_slip.sigma, estimator=estimator,
-        maps=_write_maps(folder, traverse.measurements.get("orbital", ())))
-    (folder / MANIFEST).write_text(tomli_w.dumps(manifest.model_dump(mode="json", exclude_none=True)),
-                                   encoding="utf-8")
-    def r(x) -> str:  # shortest text that reads back to the same float
-        return repr(float(x))
-
-    stereo, panorama, hrc, odometry = [], [], [], []
-    for s in traverse.stops:
-        obs = s.stereo
-        stereo += [(s.index, r(s.time_s), r(s.dwell_s), int(t), r(a), r(b), r(c))
-                   for t, (a, b, c) in zip(obs.track_ids, obs.uvv, strict=True)]
-        if not len(obs):
-            stereo.append((s.index, r(s.time_s), r(s.dwell_s), "", "", "", ""))
-        for f in s.panorama:
-            panorama += [(s.index, s.site_id, r(f.pan_rad), r(f.tilt_rad), int(t), r(a), r(b), r(c))
-                         for t, (a, b, c) in zip(f.observations.track_ids, f.observations.uvv, strict=True)]
-        for f in s.hrc:
-            hrc += [(s.index, r(f.pan_rad), r(f.tilt_rad), int(t), r(u), r(v))
-                    for t, (u, v) in zip(f.track_ids, f.uv, strict=True)]
-        if s.dead_reckoning is not None:
-            m, cov = s.dead_reckoning.prev_T_curr, s.dead_reckoning.covariance
-            odometry.append((s.index, *(r(v) for v in m[:3, :3].ravel()), *(r(v) for v in m[:3, 3]),
-                             *(r(v) for v in cov[_UPPER])))
-    if frames is None:
-        _write_csv(folder / "stereo.csv", STEREO_COLUMNS[:2] + ["dwell_s"] + STEREO_COLUMNS[2:], stereo)
-    else:
-        _write_csv(folder / FRAMES, FRAME_COLUMNS, [(s.index, r(s.time_s), r(s.dwell_s), left, right)
-                                                   for s, (left, right) in zip(traverse.stops, frames, strict=True)])
-    tables = [("odometry.csv", ODOMETRY_COLUMNS, odometry),
-              (PANORAMA_FRAMES, PANORAMA_FRAME_COLUMNS,
-               [(f.stop, f.site, f.camera, r(f.pan_rad), r(f.tilt_rad), f.left, f.right or "")
-                for f in panorama_frames])]
-    if frames is None:  # an image folder's panoramas are images (panorama_frames.csv)
-        tables += [("panorama.csv", PANORAMA_COLUMNS, panorama), ("hrc.csv", HRC_COLUMNS, hrc)]
-    for name, kind in KINDS.items():  # the tables of kinds with records of their own
-        if kind.columns and traverse.measurements.get(name):
-            tables.append((f"{name}.csv", list(kind.columns),
-                           [tuple(r(v) for v in row) for row in kind.to_rows(traverse.measurements[name])]))
-    for name, columns, rows in tables:
-        if rows:
-            _write_csv(folder / name, columns, rows)
-    if truth is not None:
-        np.savetxt(folder / "truth.kitti", truth.world_T_body[:, :3, :].reshape(-1, 12), fmt="%.17g")
-        # what the bound (CRLB) of a configuration with landmarks or a slip variable needs
-        seen = [] if frames is not None else sorted({int(t) for s in traverse.stops for f in s.panorama
-                                                     for t in f.observations.track_ids})
-        seen = [t for t in seen if t < len(truth.landmarks)]
-        _write_csv(folder / "truth_landmarks.csv", ["track", "x_m", "y_m", "z_m"],
-                   [(t, *(r(v) for v in truth.landmarks[t])) for t in seen])
-        states = {k: {name: float(v) for name, v in state.items()} for k, state in truth.kinds.items()}
-        truth_toml = ({"wheel_slip": truth.wheel_slip} if truth.wheel_slip is not None else {}) | (
-            {"kinds": states} if states else {})
-        if truth_toml:
-            (folder / "truth.toml").write_text(tomli_w.dumps(truth_toml), encoding="utf-8")
-
-
-def _write_maps(folder: Path, maps: tuple[OrbitalMap, ...]) -> list[MapSource]:
-    """Each orbital map's GeoTIFFs in maps/, and its manifest entry."""
-    from ..orbital.geotiff import write_map_raster
-
-    out = []
-    for orbital_map in maps:
-        (folder / "maps").mkdir(exist_ok=True)
-        dtm = f"maps/{orbital_map.name}_dtm.tif"
-        write_map_raster(folder / dtm, orbital_map.dtm)
-        ortho = None
-        if orbital_map.orthoimage is not None:
-            ortho = f"maps/{orbital_map.name}_orthoimage.tif"
-            write_map_raster(folder / ortho, orbital_map.orthoimage)
-        out.append(MapSource(name=orbital_map.name, dtm=dtm, orthoimage=ortho,
-                             offset_sigma_m=orbital_map.offset_sigma_m, vertical_sigma_m=orbital_map.vertical_sigma_m,
-                             rotation_sigma_deg=orbital_map.rotation_sigma_deg))
-    return out
-
-
-def _read_maps(folder: Path, sources: list[MapSource]) -> tuple[OrbitalMap, ...]:
-    """The manifest's orbital maps, each GeoTIFF checked (orbital/geotiff.py names the file)."""
-    from ..orbital.geotiff import read_map_raster
-
-    maps = []
-    for source in sources:
-        dtm = read_map_raster(folder / source.dtm)
-        if dtm.values.dtype == np.uint8:
-            raise InputError(f"{folder / source.dtm}: 8-bit grey levels: expected a DTM of heights (float)")
-        ortho = None if source.orthoimage is None else read_map_raster(folder / source.orthoimage)
-        maps.append(OrbitalMap(source.name, dtm, ortho, source.offset_sigma_m, source.rotation_sigma_deg,
-                               source.vertical_sigma_m))
-    return tuple(maps)
-
-
-def _map_notes(folder: Path, sources: list[MapSource], maps: tuple[OrbitalMap, ...]) -> tuple[str, ...]:
-    """A line for each map raster whose posts are not square on the ground."""
-    from ..orbital.maps import ground_spacing_note
-
-    notes = []
-    for source, orbital_map in zip(sources, maps, strict=True):
-        notes.append(ground_spacing_note(str(folder / source.dtm), orbital_map.dtm))
-        if orbital_map.orthoimage is not None:
-            notes.append(ground_spacing_note(str(folder / source.orthoimage), orbital_map.orthoimage))
-    return tuple(note for note in notes if note)
-
-
-def _write_rectified_yaml(path: Path, rig: Rig) -> None:
-    """A rectified pair as OpenCV FileStorage YAML: identical cameras, no distortion, the right
-    one `baseline` along x."""
-    from ..formats.calibration import write_opencv_yaml
-    from ..geometry.stereo_pair import StereoCalibration
-
-    k = rig.wac.matrix()
-    size = (rig.wac.width, rig.wac.height)
-    write_opencv_yaml(path, StereoCalibration(str(path), k, np.zeros(5), k, np.zeros(5), size, np.eye(3),
-                                              np.array([-rig.baseline_m, 0.0, 0.0])))
-
-
-def _write_csv(path: Path, header: list[str], rows: list) -> None:
-    with path.open("w", encoding="utf-8", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(header)
-        writer.writerows(rows)
-
-
-# -- reading -------------------------------------------------------------------------------------
 
 def is_observation_folder(path: Path) -> bool:
     return (Path(path) / MANIFEST).is_file() and not is_image_folder(path)
@@ -599,7 +333,7 @@ def _read_odometry(path: Path, n: int) -> dict[int, DeadReckoning]:
         pose = np.eye(4)
         pose[:3, :3], pose[:3, 3] = np.reshape(numbers[:9], (3, 3)), numbers[9:12]
         cov = np.zeros((6, 6))
-        cov[_UPPER] = numbers[12:]
+        cov[COVARIANCE_UPPER] = numbers[12:]
         cov = cov + np.triu(cov, 1).T
         if np.abs(pose[:3, :3]).max() > 1.0 + 1e-6 or not np.allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3),
                                                                          atol=1e-6):
@@ -667,3 +401,32 @@ def _read_truth(path: Path, n: int) -> np.ndarray:
     if len(poses) != n:
         raise InputError(f"{path}: {len(poses)} poses; expected {n} (one per stop)")
     return poses
+
+
+def _read_maps(folder: Path, sources: list[MapSource]) -> tuple[OrbitalMap, ...]:
+    """The manifest's orbital maps, each GeoTIFF checked (orbital/geotiff.py names the file)."""
+    from ..orbital.geotiff import read_map_raster
+
+    maps = []
+    for source in sources:
+        dtm = read_map_raster(folder / source.dtm)
+        if dtm.values.dtype == np.uint8:
+            raise InputError(f"{folder / source.dtm}: 8-bit grey levels: expected a DTM of heights (float)")
+        ortho = None if source.orthoimage is None else read_map_raster(folder / source.orthoimage)
+        maps.append(OrbitalMap(source.name, dtm, ortho, source.offset_sigma_m, source.rotation_sigma_deg,
+                               source.vertical_sigma_m))
+    return tuple(maps)
+
+
+def _map_notes(folder: Path, sources: list[MapSource], maps: tuple[OrbitalMap, ...]) -> tuple[str, ...]:
+    """A line for each map raster whose posts are not square on the ground."""
+    from ..orbital.maps import ground_spacing_note
+
+    notes = []
+    for source, orbital_map in zip(sources, maps, strict=True):
+        notes.append(ground_spacing_note(str(folder / source.dtm), orbital_map.dtm))
+        if orbital_map.orthoimage is not None:
+            notes.append(ground_spacing_note(str(folder / source.orthoimage), orbital_map.orthoimage))
+    return tuple(note for note in notes if note)
+
+

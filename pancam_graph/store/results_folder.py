@@ -22,7 +22,7 @@ from ..formats.tables import write_csv, write_json
 from ..geometry.geodesy import LocalFrame
 from ..geometry.rig import Camera, Rig
 from ..kinds import STEP_COUNTERS
-from ..solve.results import evaluation_document, metrics_document, reproduce_command, run_configuration
+from .documents import evaluation_document, metrics_document, reproduce_command, run_configuration
 
 if TYPE_CHECKING:
     from ..solve.results import RunResult

@@ -5,7 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..evaluation.consistency import NEES_BOUND_99
-from ..solve.results import RunResult, reproduce_command
+from ..solve.results import RunResult
+from ..store.documents import reproduce_command
 from . import plots
 
 FIGURES = (

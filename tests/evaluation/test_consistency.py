@@ -18,7 +18,7 @@ from pancam_graph.evaluation.consistency import (
 )
 from pancam_graph.graph.keys import X
 from pancam_graph.graph.smoother import RelinearizeThresholds, Smoother
-from pancam_graph.solve.results import metrics_document
+from pancam_graph.store.documents import metrics_document
 
 
 def test_crlb_of_a_chain_is_the_sum_of_its_step_variances():

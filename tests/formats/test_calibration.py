@@ -179,7 +179,8 @@ def test_a_preset_rig_with_a_calibrated_pair_reads_back_unchanged(short_scenario
     from pancam_graph.config import EstimatorConfig
     from pancam_graph.geometry.rig import rig_preset
     from pancam_graph.sim import simulate
-    from pancam_graph.store.observation_folder import read_observations, write_observations
+    from pancam_graph.store.observation_folder import read_observations
+    from pancam_graph.store.observation_writer import write_observations
 
     traverse, _ = simulate(short_scenario, 0)
     rotation = cv2.Rodrigues(np.array([0.01, -0.002, 0.003]))[0]

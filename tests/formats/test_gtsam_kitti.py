@@ -23,8 +23,8 @@ from pancam_graph.formats.gtsam_kitti import (
     read_kitti00_example,
     read_kitti00_truth,
 )
-from pancam_graph.solve.results import metrics_document
-from pancam_graph.store.observation_folder import write_observations
+from pancam_graph.store.documents import metrics_document
+from pancam_graph.store.observation_writer import write_observations
 
 TRUTH = Path(__file__).parents[1] / "data" / "real" / "kitti00_ground_truth"
 

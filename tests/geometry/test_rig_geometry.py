@@ -8,7 +8,8 @@ import pytest
 from pancam_graph.sim import simulate
 from pancam_graph.solve.pipeline import run_traverse
 from pancam_graph.solve.results import RunOptions
-from pancam_graph.store.observation_folder import read_observations, write_observations
+from pancam_graph.store.observation_folder import read_observations
+from pancam_graph.store.observation_writer import write_observations
 
 
 @pytest.mark.slow

@@ -20,7 +20,8 @@ from pancam_graph.orbital.maps import MapBias
 from pancam_graph.records import MapRaster
 from pancam_graph.sim import simulate
 from pancam_graph.solve.pipeline import RunOptions, run_traverse
-from pancam_graph.store.observation_folder import read_observations, write_observations
+from pancam_graph.store.observation_folder import read_observations
+from pancam_graph.store.observation_writer import write_observations
 
 ORBITAL = "vo+sites+orbital"
 

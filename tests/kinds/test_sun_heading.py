@@ -13,7 +13,8 @@ from pancam_graph.geometry.geodesy import LocalFrame
 from pancam_graph.kinds.sun_heading import SunSensor, start_utc_s, sun_directions_enu
 from pancam_graph.sim import simulate
 from pancam_graph.solve.pipeline import RunOptions, run
-from pancam_graph.store.observation_folder import read_observations, write_observations
+from pancam_graph.store.observation_folder import read_observations
+from pancam_graph.store.observation_writer import write_observations
 
 DENVER = LocalFrame(39.7392, -105.1450, 1705.0)
 WITH_SUN = "dead_reckoning+wheel_slip+sun_heading"
