@@ -230,7 +230,7 @@ def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, ta
                                       save=checkpoints, resume=states, vo_motions=data.vo_motions,
                                       # the wall time counts the source's reading (an image source's front-end)
                                       started=None if states else time.perf_counter() - data.load_s)
-                # the report's plotting imports matplotlib (27 MB resident): not while the groups run
+                # the report's plotting imports matplotlib (tens of MB resident): not while the groups run
                 from ..viz.report import write_report
 
                 with writing(folder, "the results"):

@@ -27,8 +27,7 @@ NEES_BOUND_99 = float(chi2.quantile(0.99, POSITION_DOF))  # a position's 99 % el
 
 class PointsByTrack(Mapping[int, np.ndarray]):
     """Some tracks' true landmark positions, copied out of the truth's array: the bound reads
-    rows, not the whole array (mission_traverse: the truth's 2.2 million landmarks, 53 MB,
-    which a worker maps and had resident at its end)."""
+    rows, not the whole array, which a worker maps and would otherwise keep resident."""
 
     def __init__(self, tracks: np.ndarray, positions: np.ndarray):
         self.tracks = np.asarray(tracks, dtype=np.int64)  # sorted

@@ -64,14 +64,13 @@ def landmark_anchor(range_m: float, sigma_m: float = 3.0) -> gtsam.noiseModel.Ba
     across the line of sight. Along it, that is 3 % of one WAC stereo view's information at 40 m
     (0.56 m range sigma at 0.3 px) and less nearer; across it, far less. So it does not bias the
     estimate; it keeps the landmark's block non-singular if a Gauss-Newton step carries it
-    behind the cameras, where stereo factors give zero Jacobians (denver_trail seed 18 diverged to
-    1e168 m and then stopped iSAM2 without it).
+    behind the cameras, where stereo factors give zero Jacobians (without it a run can diverge).
 
     It must be relative to the observing site: a world-frame prior at the first triangulation
     feeds the site's drifted position back in as if it were news. About 150 new landmarks per
     site, each with a 3 m world prior, carry the information of a 0.24 m prior on where VO had
-    put the site: vo_sites on denver_trail was over-confident (ANEES 2.83 over 30 seeds, now
-    1.07) and its bound looked 3.6x tighter than the graph's own (seed 0: 0.11 vs 0.39 m)."""
+    put the site, and the configuration becomes over-confident (README.md, "What made `vo_sites`
+    over-confident")."""
     bearing_rad = sigma_m / max(range_m, sigma_m)
     return gtsam.noiseModel.Diagonal.Sigmas(np.array([bearing_rad, bearing_rad, sigma_m]))
 

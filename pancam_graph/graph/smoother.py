@@ -16,11 +16,9 @@ from .frozen import FrozenRows, row_of, value_of
 from .keys import E, L, S, T, X
 from .update_log import Rebuild, UpdateLog
 
-# The window moves in steps of half its length. Each step's update re-eliminates the window
-# (30-180 ms for `full` on mission_traverse): with quarters there were four a km, and the
-# 99th percentile of a km's updates was one of them in 1-3 of its 51 km (31-41 ms); with
-# halves there are two a km and every km's p99 was at most 14, 18 and 19 ms in three runs
-# (docs/performance.md).
+# The window moves in steps of half its length: each step's update re-eliminates the window,
+# and fewer, larger steps keep those costly updates out of a kilometre's 99th percentile
+# (docs/performance.md, the window's steps).
 WINDOW_STEPS = 2
 _POSE_CHR = gtsam.Symbol(X(0)).chr()
 
@@ -103,11 +101,9 @@ class Smoother:
         params.enablePartialRelinearizationCheck = self.partial_check
         params.setOptimizationParams(gtsam.ISAM2GaussNewtonParams(self.wildfire_threshold))
         params.setFactorization(self.factorization)  # see the class docstring
-        # iSAM2 keeps a null slot for every factor it removed (marginalized ones: about 16 a stop
-        # for vo_sites), 16 bytes each in its two graphs, growing by doubling; new factors in
-        # the empty slots keep them to the window's (mission_traverse: the groups with sites grew
-        # 2.35 -> 1.65 and 1.35 -> 0.97 MB a km; the estimates the same to 1e-10, round-off
-        # from the factors' order)
+        # iSAM2 keeps a null slot for every factor it removed (the marginalized ones), growing by
+        # doubling: new factors in the empty slots keep its graphs to the window's size
+        # (docs/performance.md measures the memory it saves)
         params.findUnusedFactorSlots = True
         return gtsam.IncrementalFixedLagSmoother(self.window_m, params)
 
@@ -378,8 +374,8 @@ class Smoother:
 
         The updates are replayed one window step at a time: variables leave by steps, so each
         step's first update is where they do. Factorized as this smoother's updates are:
-        Cholesky where GPS bounds the graph (`full` on long_traverse: 4.4 -> 3.5 s), and QR
-        where Cholesky fails (see the class docstring)."""
+        Cholesky where GPS bounds the graph (faster there), and QR where Cholesky fails (see the
+        class docstring)."""
         try:
             return self._marginals_at(values, keys, self.factorization)
         except GraphError:

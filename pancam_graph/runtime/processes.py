@@ -1,6 +1,6 @@
 """Where the run's worker processes come from: forked from a server that imported GTSAM, OpenCV
 and this package once and did nothing else. No fork of a process that has run OpenCV (its
-threads), and no fresh interpreter per worker (each spent 1.5 s of a core importing). Spawned
+threads), and no fresh interpreter per worker (each would pay the imports again). Spawned
 where there is no fork server (Windows)."""
 
 from __future__ import annotations
@@ -55,9 +55,8 @@ def hold_malloc_thresholds() -> None:
     By default glibc raises its mmap threshold to the largest mapped block freed so far (up to
     32 MB) and its trim threshold to twice that; after that, blocks up to that size come from
     the heap, and the heap's free space goes back to the system only from its top. iSAM2's
-    updates and numpy free such blocks all the time: long_traverse's process tree held 60 MB
-    more (summed RSS 1,211 against 1,148-1,153 MB, the same wall). Elsewhere than glibc,
-    nothing."""
+    updates and numpy free such blocks all the time, and the process tree held more for it
+    (docs/performance.md). Elsewhere than glibc, nothing."""
     if not _glibc():
         return
     libc = ctypes.CDLL("libc.so.6")
@@ -74,11 +73,9 @@ def start_process_server() -> None:
 
 def call_apart(function: Callable[..., T], *args) -> T:
     """`function(*args)` in a process of its own, forked from the fork server, which exits when
-    it is done. What the call imported and the scraps of its allocations go with that process: a
-    scenario's simulation imports pvlib and pandas for its sun (96 MB resident), and
-    long_traverse's run process held 332 MB after simulating, 256 MB after unpickling the same
-    data and 193 MB after reading it back as below (its imports: 146). Its errors are raised
-    here as they were there.
+    it is done. What the call imported and the scraps of its allocations go with that process (a
+    scenario's simulation imports pvlib and pandas for its sun; docs/performance.md measures the
+    run process with and without). Its errors are raised here as they were there.
 
     The result comes back through files: its objects pickled, and the contents of its arrays
     written apart, each at an aligned offset of one file that this process maps read-only. Its
@@ -107,9 +104,8 @@ def _glibc() -> bool:
 
 
 # Reading mapped arrays in order maps in the pages around them too (the kernel's fault-around), and
-# they stay resident: without a release every so often, the mission's run process had 358 MB of
-# the source's file resident by the end of the VO, and a worker's motions (side_by_side's mapped
-# inputs) grew it 0.2 MB a km.
+# they stay resident: released every so often, they do not pile up along a long traverse
+# (docs/performance.md).
 RELEASE_EVERY_STOPS = 2048
 
 
@@ -139,9 +135,8 @@ def release_library_pages() -> int:
     and never wrote to (the shared libraries' code and constants, the modules' compiled code):
     a page used again comes back from the page cache, as it is. For a process done with most of
     the code it ran: the fork server after its imports, the run's process while it waits for its
-    groups. Those pages count in every process's resident memory (long_traverse: 82-134 MB a
-    process on a fresh install, 50-86 MB in the working copy's, installed 13 hours before,
-    part of which had left the page cache). Returns the kB released (0 where not Linux with glibc)."""
+    groups. Those pages count in every process's resident memory (docs/performance.md: tens of MB
+    a process). Returns the kB released (0 where not Linux with glibc)."""
     if not _glibc():
         return 0
     try:

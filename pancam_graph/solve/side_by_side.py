@@ -3,10 +3,9 @@
 The configurations of a run share the traverse and its motions and nothing else. Each worker
 runs a group over the whole traverse, saves its own checkpoints and evaluates its
 configurations. The pool has one worker per core and no more: the group without VO and the
-stereo VO's blocks of stops first, then the groups with VO on the motions. More processes
-than cores, each taking a share of a core (the VO's motions streamed to the groups as they
-came in), made long_traverse 28 % slower: iSAM2 lives in the caches, and each switch to
-another process empties them (the dead-reckoning group: 96 s of a core instead of 55).
+stereo VO's blocks of stops first, then the groups with VO on the motions. Not more processes
+than cores: iSAM2 lives in the caches, and each switch to another process empties them
+(docs/performance.md measures what that cost).
 
 A group's estimate is the one it would get in a single process: the same motions in the same
 order, the same updates (group.run_group is the loop either way).
@@ -82,7 +81,7 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
                                  dr_motions if reads_dr else Motions([None]), vo_s, records)
             futures[g] = pool.submit(_run_group_in_worker, handover.write(f"group-{g}", inputs), g, part, start)
             if len(futures) == len(groups) and any(_uses_vo(configs) for configs in groups):
-                dr_motions = None  # the groups have them; the run's are the VO's (33,589 of each: 40 MB)
+                dr_motions = None  # the groups have them; the run's are the VO's
             release_memory()  # what the inputs' pickling left, and read of the source's mapped arrays
             if len(futures) == len(groups):  # this process only waits for its groups now
                 release_library_pages()
@@ -132,11 +131,9 @@ MAPPED_BYTES = 1 << 20  # an input array this large is mapped from one file by e
 
 class Handover:
     """Groups' inputs handed to their workers in files: not through the pool's queue, whose
-    feeder thread keeps the last message it pickled until the next one (long_traverse: a group
-    with sites pickles to about 50 MB, held in the run's process for the rest of the run). Each
-    large array (the truth's landmarks: 53 MB on mission_traverse) is written once and mapped
-    read-only by every worker that reads it, one copy in the page cache instead of one in each
-    process."""
+    feeder thread keeps the last message it pickled (tens of MB) until the next one, for the rest
+    of the run. Each large array (the truth's landmarks) is written once and mapped read-only by
+    every worker that reads it, one copy in the page cache instead of one in each process."""
 
     def __init__(self):
         self._folder = temporary_folder("groups")
@@ -196,8 +193,7 @@ def read_once(path: Path) -> GroupInputs | GroupOutcome:
 def _job_of(job: GroupJob, configs: dict[str, list[str]]) -> GroupJob:
     """A group's job, its traverse without image records: the motions are given, so no stereo,
     and the panoramas, HRC frames and ground patches its configurations read come a stop at a
-    time (StopRecords). Less to pickle and to hold in the worker (long_traverse's stereo and
-    panoramas are 42 of its 48 MB pickled)."""
+    time (StopRecords): most of a traverse's pickle is its stereo and panoramas."""
     return replace(job, configs=configs, traverse=job.traverse.keeping(set()))
 
 

@@ -15,8 +15,7 @@ from .rerun_sink import OpenRecording
 
 # Every configuration is re-read, and what was logged sent, every this many stops (and at the
 # end). A browser's viewer takes in a few chunks per frame, and a software-rendered one draws a
-# few frames a second: sending a chunk per entity at every checkpoint (25 stops) and site left it
-# a minute behind a 10 s run.
+# few frames a second: sent more often, it falls behind the run.
 REFRESH_EVERY_STOPS = 100
 FEATURES = rr.AnnotationContext([(0, "new", (200, 200, 200)), (1, "tracked from the last stop", (60, 220, 60))])
 
@@ -199,8 +198,8 @@ class RerunRecorder:
         Every configuration's whole trajectory is logged when refreshed (the primary's landmarks
         and tie links too after a site; the others' once, at the end). The primary's ellipsoid
         is logged at every stop, and so is its trajectory since the last refresh (its tail): the
-        line follows the rover, without sending the whole line at every stop (on 10 km that was
-        hundreds of megabytes, more than a browser's viewer takes)."""
+        line follows the rover, without sending the whole line at every stop (more than a
+        browser's viewer takes on a long traverse)."""
         if refresh:
             snapshot = localizer.snapshot()
             self.positions[config] = snapshot.world_T_body[:, :3, 3]
