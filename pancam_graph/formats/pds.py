@@ -1,0 +1,196 @@
+"""Mars rover image products in PDS3 (MER, MSL): what a label says of its image, read with pdr
+(the Planetary Data Reader). The image's UTC time (START_TIME; the spacecraft clock is not
+UTC), the camera and eye, the rover motion counter (SITE, DRIVE, POSE), the rover's onboard pose
+in its site frame, the site's offset from the site before, the camera model (CAHVOR in the
+rover navigation frame) and the sun's direction the mission computed in the site frame (onboard,
+from the onboard attitude: a cross-check, never a measurement).
+
+Frames, as the missions have them: a site frame is x north, y east, z down at the site's
+origin; the rover navigation frame is x forward, y right, z down. An
+ORIGIN_ROTATION_QUATERNION (s, x, y, z) turns vectors of the frame it describes into its
+reference frame. `enu_T_site` and `BODY_R_ROVER` convert at the border to this project's
+east-north-up world and x-forward, y-left, z-up body.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..geometry.cahvor import CameraModel
+
+# a site frame (north, east, down) -> east, north, up; the rover frame (forward, right, down)
+# -> the body frame (forward, left, up)
+ENU_R_SITE = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+BODY_R_ROVER = np.diag([1.0, -1.0, -1.0])
+LABEL_SUFFIXES = (".LBL", ".lbl")
+
+
+@dataclass(frozen=True)
+class RoverImage:
+    """One image product as its label describes it."""
+
+    label: Path
+    utc_s: float
+    instrument: str  # INSTRUMENT_ID, e.g. NAV_LEFT_A
+    eye: str  # FRAME_ID: LEFT or RIGHT (MONO for a single camera)
+    site: int
+    drive: int
+    pose: int
+    site_T_rover: np.ndarray  # 4x4: the rover frame in its site frame (onboard, telemetry)
+    site_index: int  # the site frame the pose is in
+    site_origin: tuple[int, np.ndarray] | None  # (reference site, this site's origin in that site's frame)
+    camera: CameraModel  # in the rover navigation frame
+    width: int
+    height: int
+    sun_site_azimuth_deg: float | None  # clockwise from north, in the site frame (the mission's)
+    sun_site_elevation_deg: float | None
+
+    @property
+    def motion_counter(self) -> tuple[int, int, int]:
+        return self.site, self.drive, self.pose
+
+
+def _group(label, name: str, path: Path):
+    try:
+        return label[name]
+    except KeyError:
+        raise InputError(f"{path}: no {name} in the label") from None
+
+
+def _vector(group, name: str, size: int, path: Path, where: str) -> np.ndarray:
+    try:
+        value = np.array(group[name], dtype=float)
+    except KeyError:
+        raise InputError(f"{path}: {where} has no {name}") from None
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: {where} {name} is not {size} numbers: {group[name]!r}") from None
+    if value.shape != (size,) or not np.all(np.isfinite(value)):
+        raise InputError(f"{path}: {where} {name} is not {size} finite numbers: {group[name]!r}")
+    return value
+
+
+def _pose(group, path: Path, where: str) -> np.ndarray:
+    """A frame's pose in its reference frame from ORIGIN_OFFSET_VECTOR and
+    ORIGIN_ROTATION_QUATERNION (s, x, y, z)."""
+    from scipy.spatial.transform import Rotation
+
+    offset = _vector(group, "ORIGIN_OFFSET_VECTOR", 3, path, where)
+    s, x, y, z = _vector(group, "ORIGIN_ROTATION_QUATERNION", 4, path, where)
+    norm = float(np.sqrt(s * s + x * x + y * y + z * z))
+    if abs(norm - 1.0) > 1e-3:
+        raise InputError(f"{path}: {where} ORIGIN_ROTATION_QUATERNION has length {norm:.4f}, expected a unit "
+                         "quaternion")
+    out = np.eye(4)
+    out[:3, :3] = Rotation.from_quat([x, y, z, s]).as_matrix()
+    out[:3, 3] = offset
+    return out
+
+
+def _quantity(value) -> float | None:
+    if isinstance(value, dict):
+        value = value.get("value")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return None
+
+
+def read_pds3_label(path: Path) -> RoverImage:
+    """One PDS3 label (a detached .LBL or a product with an attached label)."""
+    import pdr
+
+    path = Path(path)
+    try:
+        label = pdr.read(path).metadata
+    except Exception as exc:  # noqa: BLE001  pdr raises whatever its parsers meet
+        raise InputError(f"{path}: not a readable PDS3 label ({type(exc).__name__}: {exc})") from None
+    try:
+        start = dt.datetime.fromisoformat(str(_group(label, "START_TIME", path)).rstrip("Z"))
+    except ValueError:
+        raise InputError(f"{path}: START_TIME {label['START_TIME']!r} is not a UTC time") from None
+    counter = _group(label, "ROVER_MOTION_COUNTER", path)
+    names = _group(label, "ROVER_MOTION_COUNTER_NAME", path)
+    index = {name: value for name, value in zip(names, counter, strict=False)}
+    if not {"SITE", "DRIVE"} <= index.keys():
+        raise InputError(f"{path}: ROVER_MOTION_COUNTER names no SITE and DRIVE: {names}")
+    rover = _group(label, "ROVER_COORD_SYSTEM_PARMS", path)
+    if rover.get("REFERENCE_COORD_SYSTEM_NAME") != "SITE_FRAME":
+        raise InputError(f"{path}: the rover's pose is in {rover.get('REFERENCE_COORD_SYSTEM_NAME')!r}, "
+                         "expected SITE_FRAME")
+    site_group = label.get("SITE_COORD_SYSTEM_PARMS")
+    site_origin = None
+    if site_group is not None:
+        reference = int(site_group.get("REFERENCE_COORD_SYSTEM_INDEX", -1))
+        if reference >= 0 and int(site_group["COORDINATE_SYSTEM_INDEX"]) != reference:
+            site_origin = (reference, _vector(site_group, "ORIGIN_OFFSET_VECTOR", 3, path, "SITE_COORD_SYSTEM_PARMS"))
+    model = label.get("GEOMETRIC_CAMERA_MODEL_PARMS")
+    if model is None:
+        raise InputError(f"{path}: no camera model (GEOMETRIC_CAMERA_MODEL_PARMS)")
+    kind = str(model.get("MODEL_TYPE", ""))
+    parts = {"CAHV": 4, "CAHVOR": 6, "CAHVORE": 7}.get(kind)
+    if parts is None:
+        raise InputError(f"{path}: camera model type {kind!r}: expected CAHV, CAHVOR or CAHVORE")
+    components = [_vector(model, f"MODEL_COMPONENT_{i}", 3, path, "GEOMETRIC_CAMERA_MODEL_PARMS")
+                  for i in range(1, parts + 1)]
+    if model.get("REFERENCE_COORD_SYSTEM_NAME") not in (None, "ROVER_NAV_FRAME"):
+        raise InputError(f"{path}: the camera model is in {model.get('REFERENCE_COORD_SYSTEM_NAME')!r}, expected "
+                         "ROVER_NAV_FRAME")
+    camera = CameraModel(*components, name=str(path))
+    image = _group(label, "IMAGE", path)
+    sun = label.get("SITE_DERIVED_GEOMETRY_PARMS") or {}
+    return RoverImage(
+        label=path, utc_s=start.replace(tzinfo=dt.UTC).timestamp(),
+        instrument=str(label.get("INSTRUMENT_ID", "")), eye=str(label.get("FRAME_ID", "MONO")),
+        site=int(index["SITE"]), drive=int(index["DRIVE"]), pose=int(index.get("POSE", 0)),
+        site_T_rover=_pose(rover, path, "ROVER_COORD_SYSTEM_PARMS"),
+        site_index=int(rover.get("REFERENCE_COORD_SYSTEM_INDEX", index["SITE"])),
+        site_origin=site_origin, camera=camera,
+        width=int(image["LINE_SAMPLES"]), height=int(image["LINES"]),
+        sun_site_azimuth_deg=_quantity(sun.get("SOLAR_AZIMUTH")),
+        sun_site_elevation_deg=_quantity(sun.get("SOLAR_ELEVATION")))
+
+
+def read_rover_images(folder: Path) -> list[RoverImage]:
+    """Every PDS3 label under `folder`, in time order."""
+    folder = Path(folder)
+    labels = sorted(p for p in folder.rglob("*") if p.suffix in LABEL_SUFFIXES)
+    if not labels:
+        raise InputError(f"{folder}: no PDS3 labels (*.LBL)")
+    return sorted((read_pds3_label(p) for p in labels), key=lambda image: image.utc_s)
+
+
+def site_origins(images: list[RoverImage]) -> dict[int, np.ndarray]:
+    """Each site's origin in the first site's frame (north, east, down), chained through the
+    offsets the labels give. Site frames are all level and north-aligned, parallel to within
+    the distance over Mars' radius (0.02 deg a kilometre)."""
+    first = min(image.site_index for image in images)
+    links = {image.site_index: image.site_origin for image in images if image.site_origin is not None}
+    out = {first: np.zeros(3)}
+    for site in sorted({image.site_index for image in images}):
+        chain, at = [], site
+        while at not in out:
+            if at not in links:
+                raise InputError(f"{images[0].label.parent}: site {at}'s origin is not given relative to an "
+                                 f"earlier site in any label (needed to chain site {site} to site {first})")
+            reference, offset = links[at]
+            chain.append((at, offset))
+            at = reference
+        for at_site, offset in reversed(chain):
+            out[at_site] = out[links[at_site][0]] + offset
+    return out
+
+
+def enu_T_body(image: RoverImage, origins: dict[int, np.ndarray]) -> np.ndarray:
+    """The rover body's pose (x forward, y left, z up) in east-north-up at the first site's
+    origin, as the onboard estimate has it."""
+    site_T_rover = image.site_T_rover.copy()
+    site_T_rover[:3, 3] += origins[image.site_index]
+    out = np.eye(4)
+    out[:3, :3] = ENU_R_SITE @ site_T_rover[:3, :3] @ BODY_R_ROVER
+    out[:3, 3] = ENU_R_SITE @ site_T_rover[:3, 3]
+    return out
