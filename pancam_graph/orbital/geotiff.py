@@ -57,8 +57,21 @@ def read_map_raster(path: Path) -> MapRaster:
             crs_wkt = source.crs.to_wkt()
     except RasterioError as exc:
         raise InputError(f"{path}: not a readable GeoTIFF ({exc})") from None
-    if values.dtype != np.uint8:
-        values = values.astype(np.float32)
-        if nodata is not None and not np.isnan(nodata):
-            values[values == nodata] = np.nan
+    if values.dtype == np.uint8:
+        if not values.any():
+            raise InputError(f"{path}: every grey level is 0 (no data): an orthoimage with nothing to correlate")
+        return MapRaster(values, float(t.c), float(t.f), float(t.a), crs_wkt)
+    if np.issubdtype(values.dtype, np.integer) and nodata is None:
+        raise InputError(f"{path}: {values.dtype} heights with no nodata value: expected float heights in metres "
+                         "with NaN (or a stated nodata value) where there are none")
+    values = values.astype(np.float32)
+    if nodata is not None and not np.isnan(nodata):
+        values[values == nodata] = np.nan
+    infinite = np.isinf(values)
+    if infinite.any():
+        row, col = np.argwhere(infinite)[0]
+        raise InputError(f"{path}: {int(infinite.sum())} infinite heights (the first at row {row}, column {col}): "
+                         "expected finite heights, NaN or the nodata value where there are none")
+    if np.isnan(values).all():
+        raise InputError(f"{path}: no height at any post (all nodata)")
     return MapRaster(values, float(t.c), float(t.f), float(t.a), crs_wkt)

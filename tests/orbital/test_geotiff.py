@@ -70,14 +70,30 @@ def test_at_measurement_level_the_dtm_is_the_ground_the_landmarks_lie_on(terrain
     assert np.std(residual) == pytest.approx(scenario.terrain.roughness_m, rel=0.1)
 
 
-def _write(path, values, crs="EPSG:32632", transform=None, count=1):
+def _write(path, values, crs="EPSG:32632", transform=None, count=1, dtype="float32"):
     profile = {"driver": "GTiff", "height": values.shape[0], "width": values.shape[1], "count": count,
-               "dtype": "float32", "transform": transform or from_origin(456000.0, 5428000.0, 1.0, 1.0)}
+               "dtype": dtype, "transform": transform or from_origin(456000.0, 5428000.0, 1.0, 1.0)}
     if crs is not None:
         profile["crs"] = crs
     with rasterio.open(path, "w", **profile) as out:
         for band in range(1, count + 1):
-            out.write(values.astype("float32"), band)
+            out.write(values.astype(dtype), band)
+
+
+@pytest.mark.parametrize("values, dtype, message", [
+    (np.array([[1.0, np.inf, 2.0], [-np.inf, 3.0, 4.0]]), "float32",
+     r"2 infinite heights \(the first at row 0, column 1\): expected finite heights"),
+    (np.full((3, 3), np.nan), "float32", r"no height at any post \(all nodata\)"),
+    (np.array([[100, 120], [130, 90]]), "int16", r"int16 heights with no nodata value: expected float heights"),
+    (np.zeros((4, 4)), "uint8", r"every grey level is 0 \(no data\): an orthoimage with nothing to correlate"),
+])
+def test_a_map_with_nothing_usable_in_it_is_refused(tmp_path, values, dtype, message):
+    """What used to pass the reader: infinite heights (then scipy's 'must not contain infs' deep in
+    the registration), an all-nodata DTM, integer heights with no nodata value (read as heights
+    of 0 where the map has none), an all-black orthoimage (silently unused)."""
+    _write(tmp_path / "map.tif", values, dtype=dtype)
+    with pytest.raises(InputError, match=r"map.tif: " + message):
+        read_map_raster(tmp_path / "map.tif")
 
 
 @pytest.mark.parametrize("fault, message", [
