@@ -72,12 +72,15 @@ def write_kml(path: Path, lat_lon_h: np.ndarray, name: str) -> None:
     ET.ElementTree(kml).write(path, encoding="utf-8", xml_declaration=True)
 
 
-def write_trajectory_exports(folder: Path, name: str, origin: LocalFrame, times_s: np.ndarray,
+def write_trajectory_exports(folder: Path, name: str, origin: LocalFrame | None, times_s: np.ndarray,
                              world_T_body: np.ndarray) -> None:
     """`<name>.kitti`, `<name>_wgs84.csv`, `<name>.geojson` and `<name>.kml` in `folder`. On
     Mars, `<name>_mars_iau2015.csv` (planetocentric latitude, east longitude, height above the
-    IAU 2015 sphere) instead of the three, whose formats are WGS84 by definition."""
+    IAU 2015 sphere) instead of the three, whose formats are WGS84 by definition. Without an
+    origin (a frame placed nowhere on a body) the KITTI file only."""
     write_kitti(folder / f"{name}.kitti", world_T_body)
+    if origin is None:
+        return
     llh = geodetic(origin, world_T_body)
     if origin.body != "earth":
         write_csv(folder / f"{name}_{origin.body}_iau2015.csv", ["time_s", "lat_deg", "lon_deg", "h_m"],

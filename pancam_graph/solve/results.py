@@ -48,6 +48,7 @@ class SourceInfo:
     options: dict = field(default_factory=dict)
     # What the world frame's first two axes are (plots' axis names): ENU, or a recorded frame
     axes: tuple[str, str] = ("east", "north")
+    georeferenced: bool = True  # the local frame's origin is a place on the body (else no geographic file)
 
 
 @dataclass(frozen=True)

@@ -74,8 +74,9 @@ def traverse_from_sequence(sequence, stops: list[Stop], tracker: StereoTracker, 
         wheel_slip=SlipPrior(), body_T_nav_left=BODY_T_FORWARD_CAMERA,
     )
     info = SourceInfo("kitti_odometry", str(sequence.folder), "poses.txt (KITTI ground truth)" if truth else "none",
-                      notes=("no geodetic origin: the local frame is the first camera's, WGS84 exports are "
-                             "placeholders at 0 N 0 E",
+                      georeferenced=False,
+                      notes=("no geodetic origin: the local frame is the first camera's, so no geographic file "
+                             "(WGS84 CSV, GeoJSON, KML) is written",
                              f"front-end {frontend.detector}: median {median_frame_ms(tracker):.1f} ms per frame",
                              *notes),
                       options={"detector": frontend.detector},

@@ -222,10 +222,12 @@ def load_stereo_bag(path: Path, left_topic: str, right_topic: str, left_info: st
             origin=origin, stops=tuple(stops), traverse_tilt_rad=0.0, image_noise_px=0.5,
             gps_lever_arm_m=np.zeros(3), start_world_T_body=np.eye(4), start_sigmas=np.array([1e-4] * 3 + [1e-3] * 3),
             measurements={"gps": tuple(sorted(fixes, key=lambda f: f.time_s))}, body_T_nav_left=BODY_T_FORWARD_CAMERA)
+        placed = ("the start pose is the local frame's origin (the bag gives no surveyed start)" if fixes else
+                  "no GPS fix in the bag: the local frame has no geodetic origin, so no geographic file (WGS84 "
+                  "CSV, GeoJSON, KML) is written")
         info = SourceInfo("rosbag", str(path), "none", notes=(
-            f"stereo pairs from {left_topic} + {right_topic} ({unpaired} unpaired left images)",
-            "the start pose is the local frame's origin (the bag gives no surveyed start)", *notes),
-            options={"stereo_topics": (left_topic, right_topic)})
+            f"stereo pairs from {left_topic} + {right_topic} ({unpaired} unpaired left images)", placed, *notes),
+            options={"stereo_topics": (left_topic, right_topic)}, georeferenced=bool(fixes))
         return SourceData(traverse, None, REAL_IMAGE_ESTIMATOR, 0, info)
 
     stops = [Stop(k, time_s, StereoObservations.empty()) for k, (time_s, _, _) in enumerate(pairs)]

@@ -260,7 +260,8 @@ def write_run(result: RunResult, folder: Path) -> None:
     (folder / "reproduce.sh").write_text(f"#!/bin/sh\n# reproduces this run\n{reproduce_command(result)}\n",
                                          encoding="utf-8")
     for name, c in result.configurations.items():
-        write_trajectory_exports(folder, f"trajectory_{name}", result.traverse.origin, times, c.world_T_body)
+        write_trajectory_exports(folder, f"trajectory_{name}", result.traverse.origin if result.source.georeferenced
+                                 else None, times, c.world_T_body)
 
 
 @dataclass(frozen=True)

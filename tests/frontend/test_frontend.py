@@ -103,6 +103,22 @@ def test_a_recorded_sequence_is_titled_without_a_seed_and_plotted_in_its_own_fra
 
 @needs_sequence
 @pytest.mark.slow
+def test_a_sequence_placed_nowhere_writes_no_geographic_file_and_says_so(kitti_run, tmp_path):
+    """KITTI odometry has no geodetic origin: its trajectories are local only (no WGS84 CSV, GeoJSON
+    or KML at 0 N 0 E, off West Africa), and the source's notes say why in one line."""
+    from pancam_graph.store.results_folder import write_run
+
+    _, result = kitti_run
+    assert result.source.georeferenced is False
+    assert any("no geographic file" in note for note in result.source.notes)
+    write_run(result, tmp_path)
+    written = {p.name for p in tmp_path.iterdir()}
+    assert "trajectory_vo.kitti" in written and "trajectory_vo.tum" in written
+    assert not [name for name in written if name.endswith(("_wgs84.csv", ".geojson", ".kml"))]
+
+
+@needs_sequence
+@pytest.mark.slow
 def test_vo_from_real_pixels_beats_viso2_and_its_covariance_holds(kitti_run):
     data, result = kitti_run
     vo = result.configurations["vo"]
