@@ -5,6 +5,7 @@ stop by stop, then evaluate each against the reference, the GPS fixes and the he
 
 from __future__ import annotations
 
+import difflib
 import time
 from dataclasses import replace
 
@@ -46,7 +47,9 @@ def select_configurations(estimator: EstimatorConfig, traverse: Traverse, reques
         kinds = list(defined[name]) if name in defined else name.split("+")
         problem = configuration_problem(kinds)
         if problem:
-            raise ConfigError(f"--configs {name}: {problem}; defined configurations: {', '.join(defined)}")
+            close = difflib.get_close_matches(name, list(defined), n=1)
+            hint = f"did you mean {close[0]}? " if close else ""
+            raise ConfigError(f"--configs {name}: {problem}; {hint}defined configurations: {', '.join(defined)}")
         reason = unavailable(kinds, traverse)
         if reason:
             raise ConfigError(f"--configs {name}: this traverse cannot feed it ({reason})")

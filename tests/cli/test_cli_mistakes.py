@@ -45,6 +45,7 @@ MISTAKES = [
     (["track", "no_images", "--out", "t", "--detector", "surf"], ["--detector 'surf'"]),
     (["run", "short_trail", "--holdout-every", "-2"], ["Invalid value for '--holdout-every'"]),
     (["run", "short_trail", "--configs", "vo+lidar"], ["--configs vo+lidar", "'lidar'"]),
+    (["run", "short_trail", "--configs", "vo_site"], ["--configs vo_site", "did you mean vo_sites?"]),
     (["run", "short_trail", "--configs", "hrc+vo"], ["'hrc' needs 'sites' (it adds views of the site landmarks)"]),
     (["run", "no_such_scenario"], ["unknown scenario 'no_such_scenario'"]),
     (["run", "short_trail", "--rerun", "spawn"], ["--rerun spawn: no display"]),
