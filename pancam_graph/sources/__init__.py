@@ -29,7 +29,7 @@ def source_for(text: str) -> Source:
     if path.is_dir() and any(is_kitti_drive(p) for p in path.iterdir() if p.is_dir()):
         drives = sorted(p.name for p in path.iterdir() if is_kitti_drive(p))
         raise ConfigError(f"{path}: a KITTI date folder; give one drive folder inside it ({', '.join(drives)})")
-    expected = ", ".join(s.describes for s in SOURCES if s.name != "scenario")
+    expected = ", ".join(s.describes for s in SOURCES)
     raise ConfigError(f"{path}: not a source: expected {expected}")
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from ..config import load_scenario, resolve_scenario
 from ..solve.pipeline import simulated, worth_simulating_apart
 from ..solve.results import SourceData
@@ -14,8 +16,14 @@ def load(name_or_path: str, seed: int | None = None) -> SourceData:
     return SourceData(traverse, truth, scenario.estimator, resolved.seed, info, scenario=resolved)
 
 
-# Last: whatever is not a folder of another kind is a scenario name or file (config says which).
-SOURCES = (Source("scenario", 100, frozenset({"seed"}), lambda path: not path.is_dir(),
+def matches(path: Path) -> bool:
+    """A TOML file (there or not: config says which), or a name that is no file (a bundled
+    scenario's); an existing file of another kind is not a scenario (an image, a log)."""
+    return not path.is_dir() and (path.suffix.lower() == ".toml" or not path.exists())
+
+
+# Last: what no other source took, when it is a scenario name or TOML file.
+SOURCES = (Source("scenario", 100, frozenset({"seed"}), matches,
                   lambda text, options, progress: load(text, options.seed),
                   "a bundled scenario name or a scenario TOML file",
                   lambda text: worth_simulating_apart(load_scenario(resolve_scenario(text)))),)

@@ -48,6 +48,7 @@ MISTAKES = [
     (["run", "short_trail", "--configs", "vo_site"], ["--configs vo_site", "did you mean vo_sites?"]),
     (["run", "short_trail", "--configs", "hrc+vo"], ["'hrc' needs 'sites' (it adds views of the site landmarks)"]),
     (["run", "no_such_scenario"], ["unknown scenario 'no_such_scenario'"]),
+    (["run", "a_file"], ["a_file: not a source: expected", "a scenario TOML file"]),
     (["run", "short_trail", "--rerun", "spawn"], ["--rerun spawn: no display"]),
     (["analyze", "--out", "full_folder"], ["--out full_folder", "not empty"]),
     (["simulate", "short_trail", "--out", "full_folder"], ["full_folder", "not empty"]),
