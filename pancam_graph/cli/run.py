@@ -82,8 +82,8 @@ def run_command(
     source: str | None = typer.Argument(None, help="bundled scenario name, a scenario TOML file, an "
                                         "observation folder, a rendered image folder, a ROS bag, a KITTI raw "
                                         "drive folder or a KITTI odometry sequence folder [default: denver_trail]"),
-    out: Path | None = typer.Option(None, "--out", help="results folder (default: "
-                                    "results/<name>-<YYYYmmdd-HHMMSS>)"),
+    out: Path | None = typer.Option(None, "--out", help="results folder (default: results/<name>-seed<N>-"
+                                    "<YYYYmmdd-HHMMSS> for a scenario, results/<name>-<YYYYmmdd-HHMMSS> otherwise)"),
     configs: str | None = typer.Option(None, "--configs", help="configurations to run, comma-separated: names "
                                        "(vo, vo_sites, full, ...) or kinds joined by '+' (vo+gps); default: "
                                        "every configuration the source can feed"),

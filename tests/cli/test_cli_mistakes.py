@@ -111,6 +111,17 @@ def test_version_and_help(tmp_path):
     assert result.returncode == 0 and "--configs" in result.stdout
 
 
+def test_the_default_results_folder_is_the_one_help_names(tmp_path):
+    import re
+
+    helped = " ".join(_cli("run", "--help", cwd=tmp_path, env={"COLUMNS": "200"}).stdout.split())
+    assert "results/<name>-seed<N>-<YYYYmmdd-HHMMSS> for a scenario" in helped
+    result = _cli("run", "short_trail", "--configs", "vo", "--quiet", "--no-plots", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    (made,) = (tmp_path / "results").iterdir()
+    assert re.fullmatch(r"short_trail-seed0-\d{8}-\d{6}", made.name), made.name
+
+
 def test_show_config_prints_the_resolved_scenario(tmp_path):
     import tomllib
 
