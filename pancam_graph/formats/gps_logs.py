@@ -235,6 +235,8 @@ def read_gpx(path: Path, sigma_horizontal_m: float, sigma_vertical_m: float, geo
                     raise InputError(f"{where}: no <ele> elevation; a fix needs a height")
                 if p.time is None:
                     raise InputError(f"{where}: no <time>")
+                if not (-90.0 <= p.latitude <= 90.0 and -180.0 <= p.longitude <= 360.0):
+                    raise InputError(f"{where}: latitude or longitude out of range")
                 stamp = p.time if p.time.tzinfo is not None else p.time.replace(tzinfo=dt.UTC)
                 fixes.append(GpsFix(stamp.timestamp(), float(p.latitude), float(p.longitude),
                                     float(p.elevation) + geoid_separation_m, sigma_horizontal_m, sigma_vertical_m))

@@ -220,10 +220,13 @@ class SunHeading(Kind):
 
     @classmethod
     def from_rows(cls, rows, traverse: Traverse) -> tuple[SunSighting, ...]:
-        out = []
+        out, seen = [], {}
         for line, (stop, utc_s, *numbers) in rows:
             if stop != int(stop) or not 0 <= stop < len(traverse.stops):
                 raise RowError(line, f"stop {stop:g} is not one of the traverse's stops 0..{len(traverse.stops) - 1}")
+            if int(stop) in seen:
+                raise RowError(line, f"stop {int(stop)} has a sighting already (line {seen[int(stop)]}): one a stop")
+            seen[int(stop)] = line
             if not _EPHEMERIS_UTC_S[0] <= utc_s < _EPHEMERIS_UTC_S[1]:
                 raise RowError(line, f"utc_s {utc_s:g} is outside the years {EPHEMERIS_YEARS[0]}-"
                                      f"{EPHEMERIS_YEARS[1]} the sun's ephemerides are used for")

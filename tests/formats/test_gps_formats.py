@@ -125,6 +125,17 @@ def test_gpx_point_without_elevation_is_named(tmp_path):
         read_gpx(path, 1.0, 2.0)
 
 
+def test_gpx_point_off_the_globe_is_named(tmp_path):
+    t0 = dt.datetime(2020, 1, 1, tzinfo=dt.UTC)
+    points = [gpxpy.gpx.GPXTrackPoint(30.0, 114.0, elevation=20.0, time=t0),
+              gpxpy.gpx.GPXTrackPoint(95.0, 114.0, elevation=20.0, time=t0 + dt.timedelta(seconds=1))]
+    path = tmp_path / "north.gpx"
+    path.write_text(_gpx(points))
+    with pytest.raises(InputError, match=r"north.gpx: track 0, segment 0, point 1 \(95.0, 114.0\): latitude or "
+                                         r"longitude out of range"):
+        read_gpx(path, 1.0, 2.0)
+
+
 def test_a_byte_order_mark_and_crlf_read_the_same_and_other_bytes_are_named(tmp_path):
     """What Windows tools and spreadsheets write (issue 15): NMEA, GPX, KF-GINS and GPS CSV."""
     fixes = read_kfgins(KFGINS)[:50]

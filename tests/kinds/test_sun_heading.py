@@ -96,6 +96,7 @@ def test_the_table_reads_back_bit_for_bit_and_bad_rows_are_named(short_scenario,
         assert np.array_equal(a.sun_body, b.sun_body) and np.array_equal(a.up_body, b.up_body)
     table = tmp_path / "sun_heading.csv"
     lines = table.read_text().splitlines()
+    original = list(lines)
     lines[2] = ",".join(lines[2].split(",")[:2] + ["0.1", "0.1", "0.1"] + lines[2].split(",")[5:])
     table.write_text("\n".join(lines) + "\n")
     with pytest.raises(InputError, match=r"sun_heading.csv: line 3: sun_x, sun_y, sun_z must be a unit vector"):
@@ -104,8 +105,12 @@ def test_the_table_reads_back_bit_for_bit_and_bad_rows_are_named(short_scenario,
     table.write_text("\n".join(lines) + "\n")
     with pytest.raises(InputError, match=r"sun_heading.csv: line 3: stop 9999 is not one of"):
         read_observations(tmp_path)
+    lines[2] = lines[1]  # a repeated row was dropped without a word
+    table.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=r"sun_heading.csv: line 3: stop \d+ has a sighting already \(line 2\)"):
+        read_observations(tmp_path)
     for utc_s in ("1e20", "-1e11"):  # beyond the ephemerides' years (pandas refused them deep inside)
-        lines[2] = ",".join(lines[1].split(",")[:1] + [utc_s] + lines[1].split(",")[2:])
+        lines[2] = ",".join(original[2].split(",")[:1] + [utc_s] + original[2].split(",")[2:])
         table.write_text("\n".join(lines) + "\n")
         with pytest.raises(InputError, match=r"sun_heading.csv: line 3: utc_s .* outside the years 1960-2199"):
             read_observations(tmp_path)
