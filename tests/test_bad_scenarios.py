@@ -111,3 +111,14 @@ def test_the_cli_says_which_field_and_writes_nothing(tmp_path):
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "camera.vo_range_m" in result.stderr and "min <= max" in result.stderr
     assert not (tmp_path / "out").exists() and not (tmp_path / "out.partial").exists()
+
+
+def test_an_orbital_map_near_a_pole_is_refused_before_the_run(tmp_path):
+    """mars_excerpt moved to the south pole: the simulated map's equirectangular projection has no
+    width there (it raised numpy's 'negative dimensions' deep in the map's sampling)."""
+    text = bundled_scenarios()["mars_excerpt"].read_text().replace("lat_deg = 18.4447", "lat_deg = -90.0", 1)
+    assert "lat_deg = -90.0" in text
+    path = tmp_path / "polar.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=r"\[orbital\] at latitude -90: a simulated orbital map is equirectangular"):
+        load_scenario(path)

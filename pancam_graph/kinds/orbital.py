@@ -182,6 +182,15 @@ class Orbital(Kind):
     order = 8
     absolute = True
     cost = 0.5
+    MAX_MAP_LATITUDE_DEG = 80.0  # the equirectangular map projection a simulated map uses degenerates at a pole
+
+    @classmethod
+    def check_scenario(cls, scenario) -> None:
+        sensor = getattr(scenario, cls.name, None)
+        if sensor is not None and sensor.enabled and abs(scenario.origin.lat_deg) > cls.MAX_MAP_LATITUDE_DEG:
+            raise ValueError(f"[orbital] at latitude {scenario.origin.lat_deg:g}: a simulated orbital map is "
+                             f"equirectangular, which holds within {cls.MAX_MAP_LATITUDE_DEG:g} deg of the equator "
+                             "(polar stereographic maps are not made here)")
     stop_records = frozenset({"ground"})
     Settings = OrbitalSettings
     Sensor = OrbitalSensor
