@@ -10,6 +10,7 @@ plain VoResults; the run turns them into motions in order, as before.
 from __future__ import annotations
 
 import multiprocessing
+import os
 import uuid
 from collections import deque
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -22,7 +23,7 @@ from ..config import EstimatorConfig
 from ..errors import FrontendError
 from ..geometry.rig import Rig
 from ..records import StereoObservations, Traverse
-from ..runtime.processes import cores, hold_malloc_thresholds, process_context
+from ..runtime.processes import cores, process_context, start_worker
 from .stereo_vo import StereoVO, VoResult
 
 BLOCK_STOPS = 64  # stops per task: enough to hide the pickling, few enough to start at once
@@ -72,7 +73,8 @@ class VoAhead:
         self.next = max(first, 1)
         self.own_pool = pool is None
         if pool is None:
-            pool = ProcessPoolExecutor(1, mp_context=process_context(), initializer=hold_malloc_thresholds)
+            pool = ProcessPoolExecutor(1, mp_context=process_context(), initializer=start_worker,
+                                       initargs=(os.getpid(),))
         self.pool = pool
         setup = VoSetup.of(traverse, estimator)
         self.blocks: deque[tuple[int, Future]] = deque()

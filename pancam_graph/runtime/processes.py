@@ -12,6 +12,8 @@ import multiprocessing.context
 import os
 import pickle
 import platform
+import threading
+import time
 import weakref
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
@@ -64,6 +66,33 @@ def hold_malloc_thresholds() -> None:
     libc.mallopt(M_MMAP_THRESHOLD, MALLOC_THRESHOLD_BYTES)
 
 
+WATCH_EVERY_S = 0.2  # how often a worker looks for the run's process
+
+
+def watch_the_run(run_pid: int, also: Callable[[], bool] = lambda: False) -> None:
+    """In a worker: exit at once when the run's process is gone, whatever killed it (SIGKILL
+    too, which runs no clean-up), or when `also()` says so. A worker waiting for work holds its
+    own end of the pool's pipe open, and a busy one reads no pipe: neither would notice."""
+
+    def watch() -> None:
+        while True:
+            time.sleep(WATCH_EVERY_S)
+            if also():
+                os._exit(1)
+            try:
+                os.kill(run_pid, 0)
+            except ProcessLookupError:
+                os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="watch-the-run").start()
+
+
+def start_worker(run_pid: int) -> None:
+    """A pool worker's start: glibc's malloc thresholds held, and the run watched."""
+    hold_malloc_thresholds()
+    watch_the_run(run_pid)
+
+
 def start_process_server() -> None:
     """Start the fork server now: it imports while the run loads its source."""
     if "forkserver" in multiprocessing.get_all_start_methods():
@@ -83,7 +112,8 @@ def call_apart(function: Callable[..., T], *args) -> T:
     read, and `release_mapped_pages` hands them back to the page cache."""
     with temporary_folder("apart") as folder:
         folder = Path(folder)
-        with ProcessPoolExecutor(1, mp_context=process_context(), initializer=hold_malloc_thresholds) as pool:
+        with ProcessPoolExecutor(1, mp_context=process_context(), initializer=start_worker,
+                                 initargs=(os.getpid(),)) as pool:
             try:
                 pool.submit(_call_into, folder, function, args).result()
             except BrokenProcessPool as exc:

@@ -39,6 +39,7 @@ from ..runtime.processes import (
     process_context,
     release_library_pages,
     release_mapped_pages,
+    watch_the_run,
 )
 from ..runtime.scratch import temporary_folder
 from .group import GroupJob, GroupOutcome, ProgressCallback, new_state, run_group
@@ -285,20 +286,14 @@ def _start_worker(done, pids, run_pid: int) -> None:
     with pids.get_lock():
         free = list(pids[:]).index(0)
         pids[free] = os.getpid()
-    # An idle worker waits for work on a pipe that it holds open itself: it would outlive a
-    # killed run (and keep the fork server alive) without this watch.
-    threading.Thread(target=_watch_the_run, daemon=True).start()
-
-
-def _watch_the_run() -> None:
-    while True:
-        time.sleep(1.0)
-        _stop_if_the_run_stopped()
+    # gone with the run (killed: stop before its resumption starts saving too), and when the run
+    # was interrupted or another group failed
+    watch_the_run(run_pid, also=lambda: bool(_stops_done[-1]))
 
 
 def _stop_if_the_run_stopped() -> None:
-    """Exit when the run's process is gone (killed: stop before its resumption starts saving
-    too), was interrupted, or another group failed."""
+    """At a stop: exit when the run's process is gone, was interrupted, or another group failed
+    (the watch does the same between stops)."""
     if _stops_done is not None and _stops_done[-1]:
         os._exit(1)
     try:
