@@ -122,3 +122,14 @@ def test_an_orbital_map_near_a_pole_is_refused_before_the_run(tmp_path):
     path.write_text(text)
     with pytest.raises(ConfigError, match=r"\[orbital\] at latitude -90: a simulated orbital map is equirectangular"):
         load_scenario(path)
+
+
+def test_a_traverse_far_beyond_what_a_run_takes_is_refused_at_once_with_its_predicted_cost(tmp_path):
+    """1,000 km at a stop a metre (about 1e6 stops): refused when the scenario loads, with the
+    predicted time and memory; it used to print nothing for minutes while its simulation grew."""
+    path = _scenario(tmp_path, lambda data: data["path"].update(
+        waypoints=[[0.0, 0.0, 0.0], [1_000_000.0, 0.0, 0.0]], stop_spacing_m=[1.0, 1.0], sharp_turns=[]))
+    with pytest.raises(ConfigError, match=r"1,000 km at 1-1 m a stop: about 1,000,000 stops, more than the 200,000 "
+                                          r"a run takes \(predicted at least 2.7 h on 2 cores and a simulation that "
+                                          r"grows past 27 GB"):
+        load_scenario(path)
