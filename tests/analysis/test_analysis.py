@@ -3,12 +3,12 @@ marginals on the same geometry, against Monte Carlo of our own VO, and Table 3.2
 
 import dataclasses
 
+import gtsam_graphs as graphs
 import numpy as np
 import pytest
+from vo_montecarlo import vo_monte_carlo
 
-from pancam_graph.analysis import graphs
 from pancam_graph.analysis.design import AnalysisRig, Assumptions, max_site_spacing, optimal_fov, two_site_ba, vo_growth
-from pancam_graph.analysis.montecarlo import vo_monte_carlo
 from pancam_graph.analysis.stereo import error_ellipse, hrc_point_covariance, point_covariance
 from pancam_graph.analysis.transform import position_covariance, propagate, transform_covariance
 from pancam_graph.geometry.rig import rig_preset

@@ -1,4 +1,4 @@
-"""The closed-form geometries of `design` as GTSAM factor graphs, to check the closed form
+"""A test oracle: the closed-form geometries of `pancam_graph.analysis.design` as GTSAM factor graphs, to check the closed form
 against GTSAM's marginals: stereo factors on (x_l, x_r, y) with the seed's planar points
 (Y = 0, at camera height) and rigid 3-D poses.
 
@@ -11,8 +11,8 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from ..graph.keys import L, X
-from .design import AnalysisRig, Assumptions, tie_point_layout
+from pancam_graph.analysis.design import AnalysisRig, Assumptions, tie_point_layout
+from pancam_graph.graph.keys import L, X
 
 _FIXED = gtsam.noiseModel.Isotropic.Sigma(6, 1e-9)  # site 1 / the camera: the gauge
 

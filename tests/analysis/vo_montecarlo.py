@@ -1,4 +1,4 @@
-"""Monte Carlo of our own stereo VO (`frontend.stereo_vo.StereoVO`) on the closed form's
+"""A test oracle: Monte Carlo of our own stereo VO (`frontend.stereo_vo.StereoVO`) on the closed form's
 geometry, to check the VO error growth of (3.12)-(3.13) against the estimator itself."""
 
 from __future__ import annotations
@@ -6,12 +6,12 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from ..config import EstimatorConfig
-from ..errors import EvaluationError
-from ..frontend.stereo_vo import StereoVO
-from ..geometry.rig import Rig
-from ..records import StereoObservations
-from .design import Assumptions, fov_grid
+from pancam_graph.analysis.design import Assumptions, fov_grid
+from pancam_graph.config import EstimatorConfig
+from pancam_graph.errors import EvaluationError
+from pancam_graph.frontend.stereo_vo import StereoVO
+from pancam_graph.geometry.rig import Rig
+from pancam_graph.records import StereoObservations
 
 
 def vo_monte_carlo(rig: Rig, a: Assumptions, stops: int, trials: int, seed: int = 0, fov_deg: float | None = None,
