@@ -87,6 +87,10 @@ def rerun_help(default_file: str) -> str:
             "viewer, e.g. rerun+http://host:9876/proxy)")
 
 
+def has_display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
 def rerun_target(text: str | None, memory_limit: str) -> RerunTarget | None:
     """Parse --rerun; bad values are usage errors. `save` alone leaves the path to the library."""
     from ..viz.rerun_sink import RerunTarget
@@ -95,7 +99,7 @@ def rerun_target(text: str | None, memory_limit: str) -> RerunTarget | None:
         return None
     mode, _, arg = text.partition(":")
     if mode == "spawn" and not arg:
-        if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        if not has_display():
             raise ConfigError("--rerun spawn: no display (DISPLAY is not set); use --rerun save (then open the "
                               ".rrd elsewhere) or --rerun serve (a web viewer)")
         return RerunTarget(mode, memory_limit=memory_limit)

@@ -18,6 +18,7 @@ from .app import EXIT_FAILURE, app, console, leave_without_rerun, user_input
 from .common import (
     SERVE_FOR_HELP,
     announce_viewer,
+    has_display,
     progress_bar,
     rerun_help,
     rerun_target,
@@ -29,7 +30,8 @@ from .common import (
 @app.command("view")
 def view_command(
     results: Path = typer.Argument(..., help="a results folder written by `pancam-graph run`"),
-    rerun: str = typer.Option("spawn", "--rerun", help=rerun_help("replay.rrd")),
+    rerun: str | None = typer.Option(None, "--rerun", help=rerun_help("replay.rrd") + " [default: spawn where "
+                                     "there is a display, else save]"),
     viewer_memory: str = typer.Option("25%", "--viewer-memory", help="memory limit of a spawned or served viewer"),
     serve_for: float | None = typer.Option(None, "--serve-for", min=0.0, help=SERVE_FOR_HELP),
 ) -> None:
@@ -38,8 +40,13 @@ def view_command(
     from ..store.results_folder import read_run
 
     with user_input():
+        saved = read_run(results)  # a folder that is not a run is the first thing to hear of
+        if rerun is None:
+            rerun = "spawn" if has_display() else "save"
+            if rerun == "save":
+                console.print(f"note: no display: the replay is saved to {results / 'replay.rrd'} (or give "
+                              "--rerun serve for a web viewer)")
         target = rerun_target(rerun, viewer_memory)
-        saved = read_run(results)
     recording = view(results, target, saved, on_viewer=announce_viewer)
     if recording.failure is not None:  # the replay is all view makes
         leave_without_rerun()

@@ -1,4 +1,5 @@
-"""A test oracle: the closed-form geometries of `pancam_graph.analysis.design` as GTSAM factor graphs, to check the closed form
+"""A test oracle: the closed-form geometries of `pancam_graph.analysis.design` as GTSAM factor
+graphs, to check the closed form
 against GTSAM's marginals: stereo factors on (x_l, x_r, y) with the seed's planar points
 (Y = 0, at camera height) and rigid 3-D poses.
 

@@ -98,9 +98,20 @@ def test_mistake_exits_2_names_the_argument_and_writes_nothing(mistakes, case):
     assert len(result.stderr.strip().splitlines()) <= 4  # a short message (click adds usage lines), not a dump
 
 
-def test_view_without_a_display_fails_at_once(tmp_path):
-    """It says so before it tries to spawn a viewer (which would wait for one that never comes)."""
-    result = _cli("view", str(tmp_path), cwd=tmp_path, env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
+def test_view_without_a_display_saves_the_replay_and_says_so(tmp_path):
+    """A headless machine: a folder that is no run is named first; by default the replay is saved
+    beside the results with one line saying where; an explicit spawn is refused before it would
+    wait for a viewer that never comes."""
+    headless = {"DISPLAY": "", "WAYLAND_DISPLAY": ""}
+    result = _cli("view", str(tmp_path / "nowhere"), cwd=tmp_path, env=headless)
+    _assert_usage_error(result, "nowhere: not a results folder")
+    ran = _cli("run", "short_trail", "--configs", "vo", "--out", "res", "--quiet", "--no-plots", cwd=tmp_path)
+    assert ran.returncode == 0, ran.stderr
+    result = _cli("view", "res", cwd=tmp_path, env=headless)
+    assert result.returncode == 0, result.stderr
+    assert "no display: the replay is saved to res/replay.rrd" in " ".join(result.stderr.split())
+    assert (tmp_path / "res" / "replay.rrd").stat().st_size > 10_000
+    result = _cli("view", "res", "--rerun", "spawn", cwd=tmp_path, env=headless)
     _assert_usage_error(result, "no display", "--rerun save", "--rerun serve")
 
 
