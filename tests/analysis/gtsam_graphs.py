@@ -1,7 +1,6 @@
 """A test oracle: the closed-form geometries of `pancam_graph.analysis.design` as GTSAM factor
-graphs, to check the closed form
-against GTSAM's marginals: stereo factors on (x_l, x_r, y) with the seed's planar points
-(Y = 0, at camera height) and rigid 3-D poses.
+graphs, to check the closed form against GTSAM's marginals: stereo factors on (x_l, x_r, y)
+with the dissertation's planar points (Y = 0, at camera height) and rigid 3-D poses.
 
 Frames: the site frame is the straight-ahead camera's (x right, y down, z forward); a pair
 pointed at bearing b (right of forward) is that frame turned by b about y.
