@@ -16,8 +16,8 @@ from ..errors import WriteFailed
 
 def write_atomically(path: Path, write: Callable[[BinaryIO], None], durable: bool = True) -> None:
     """`write(file)` into `path`'s temporary, then the rename; `durable`: on disk before the
-    rename (fsync), so a power cut leaves the old file or the new one. An OSError leaves no
-    temporary behind and is the caller's to name."""
+    rename (fsync), so a power cut leaves the old file or the new one. A failure (an OSError,
+    which is the caller's to name, or Ctrl-C mid-write) leaves no temporary behind."""
     temporary = path.with_name(path.name + ".tmp")
     try:
         with temporary.open("wb") as f:
@@ -26,7 +26,7 @@ def write_atomically(path: Path, write: Callable[[BinaryIO], None], durable: boo
                 f.flush()
                 os.fsync(f.fileno())
         os.replace(temporary, path)
-    except OSError:
+    except BaseException:
         temporary.unlink(missing_ok=True)
         raise
 
