@@ -40,3 +40,18 @@ def test_the_readme_example_runs_and_matches_the_cli(tmp_path, monkeypatch, caps
     assert _numbers(library) == _numbers(cli)
     ate = library["configs"]["vo_sites"]["ate_rmse_m"]
     assert f"vo_sites: ATE {ate:.3f} m" in printed
+
+
+@pytest.mark.slow
+def test_the_readme_example_with_a_bigger_scenario_runs_as_a_script(tmp_path):
+    """A user swaps in denver_trail (run on both cores, worker processes importing the script
+    again) and runs the example as a file: it runs, and leaves its results only."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "example.py"
+    script.write_text(_example().replace('"short_trail"', '"denver_trail"').replace("results/short", "results/denver"))
+    ran = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=900)
+    assert ran.returncode == 0, ran.stderr[-2000:]
+    assert "vo_sites: ATE" in ran.stdout and (tmp_path / "results/denver/metrics.json").is_file()
+    assert sorted(p.name for p in (tmp_path / "results").iterdir()) == ["denver"]
