@@ -12,6 +12,9 @@
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ElementTree
+from pathlib import Path
+
 import numpy as np
 
 MARS_A_M, MARS_B_M = 3_396_190.0, 3_376_200.0  # IAU 2015 ellipsoid (Archinal et al. 2018, Table 5)
@@ -115,3 +118,13 @@ def angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angles between rows of two (N, 3) arrays of directions, in degrees."""
     a, b = np.atleast_2d(a), np.atleast_2d(b)
     return np.rad2deg(np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.sum(a * b, axis=1)))
+
+
+def mslice_locations(path: Path) -> dict[tuple[int, int], tuple[float, float]]:
+    """MSLICE's ground-updated positions (the mission's science operations tool): (site, drive) ->
+    planetocentric latitude, east longitude."""
+    out = {}
+    for location in ElementTree.parse(path).getroot():
+        fields = {child.tag: child.text for child in location}
+        out[(int(fields["site"]), int(fields["drive"]))] = (float(fields["lat"]), float(fields["lon"]))
+    return out

@@ -126,7 +126,7 @@ def read_pds3_label(path: Path) -> RoverImage:
     site_origin = None
     if site_group is not None:
         reference = int(site_group.get("REFERENCE_COORD_SYSTEM_INDEX", -1))
-        if reference >= 0 and int(site_group["COORDINATE_SYSTEM_INDEX"]) != reference:
+        if reference >= 0 and int(site_group.get("COORDINATE_SYSTEM_INDEX", reference)) != reference:
             site_origin = (reference, _vector(site_group, "ORIGIN_OFFSET_VECTOR", 3, path, "SITE_COORD_SYSTEM_PARMS"))
     model = label.get("GEOMETRIC_CAMERA_MODEL_PARMS")
     if model is None:

@@ -138,18 +138,27 @@ class CameraModel:
             theta = theta - step
             if np.all(np.abs(step) < _CONVERGED):
                 break
-        lin = self.linearity
-        if lin < -1e-15:
-            chi = np.sin(lin * theta) / lin
-        elif lin > 1e-15:
-            chi = np.tan(lin * theta) / lin
-        else:
-            chi = theta
+        chi = self._chi(theta)
         chi2 = chi * chi
         mu = self.r[0] + self.r[1] * chi2 + self.r[2] * chi2 * chi2
         small = theta < 1e-8
         zetap = np.where(small, zeta, lam / np.where(small, 1.0, chi))
         return zetap[:, None] * self.o + (1.0 + mu)[:, None] * lam_vec
+
+    def _chi(self, theta: np.ndarray) -> np.ndarray:
+        """CAHVORE's angle as the lens maps it: tan for a perspective lens (linearity 1), the
+        angle itself for a fisheye (0), sin beyond (negative)."""
+        lin = self.linearity
+        if abs(lin) <= 1e-15:
+            return theta
+        return (np.sin(lin * theta) if lin < 0 else np.tan(lin * theta)) / lin
+
+    def _theta(self, chi: np.ndarray) -> np.ndarray:
+        """The inverse of `_chi`."""
+        lin = self.linearity
+        if abs(lin) <= 1e-15:
+            return chi
+        return (np.arcsin(lin * chi) if lin < 0 else np.arctan(lin * chi)) / lin
 
     def rays(self, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(origins (N, 3), unit directions (N, 3)) of the rays through pixels (N, 2): the
@@ -203,13 +212,7 @@ class CameraModel:
             chi = chi - step
             if np.all(np.abs(step) < _CONVERGED):
                 break
-        lin = self.linearity
-        if lin < -1e-15:
-            theta = np.arcsin(lin * chi) / lin
-        elif lin > 1e-15:
-            theta = np.arctan(lin * chi) / lin
-        else:
-            theta = chi
+        theta = self._theta(chi)
         t2 = theta * theta
         small = chip < 1e-8
         sin = np.sin(theta)

@@ -3,11 +3,11 @@ motion counters, the onboard poses chained through the site frames and turned in
 checked against MSLICE's ground-updated positions (an independent reference: 2.1 m median over
 site 4, a 0.27 deg rotation and a 0.27 % scale, as the data's README states); bad labels named."""
 
-import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
 import numpy as np
 import pytest
+from mars_reference import mslice_locations
 
 from pancam_graph.errors import InputError
 from pancam_graph.formats.pds import enu_T_body, read_pds3_label, read_rover_images, site_origins
@@ -47,14 +47,6 @@ def test_site_frames_chain_into_the_first(images):
         assert abs(forward[2]) < 0.2
 
 
-def _mslice(path: Path) -> dict[tuple[int, int], tuple[float, float]]:
-    out = {}
-    for location in ElementTree.parse(path).getroot():
-        fields = {child.tag: child.text for child in location}
-        out[(int(fields["site"]), int(fields["drive"]))] = (float(fields["lat"]), float(fields["lon"]))
-    return out
-
-
 def _similarity_2d(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     """(rotation deg, scale) of the least-squares similarity taking points a onto b (Umeyama)."""
     ma, mb = a.mean(axis=0), b.mean(axis=0)
@@ -68,7 +60,7 @@ def _similarity_2d(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
 def test_the_onboard_positions_against_mslice_over_site_4(images):
     """Every (site 4, drive) the labels and MSLICE share: the onboard position relative to site
     4's origin against MSLICE's (its latitude and longitude in a Mars frame at its site 4)."""
-    mslice = _mslice(CURIOSITY / "mslice_locations_sol0_59.xml")
+    mslice = mslice_locations(CURIOSITY / "mslice_locations_sol0_59.xml")
     origins = site_origins(images)
     frame = LocalFrame(*mslice[(4, 0)], 0.0, body="mars")
     onboard, ground = {}, {}

@@ -2,15 +2,15 @@
 independent ephemeris (astropy with the IAU 2015 rotation of Mars, tests/mars_reference.py) over
 a whole Mars year, the sun's direction the mission computed in the site frame of every real
 Curiosity Navcam label beside its MSLICE position, and the IAU 2015 ellipsoid's normal. On Earth,
-NREL's published SPA example."""
+NREL's published SPA example. The labels are read with formats/pds.py (tests/formats/test_pds.py
+checks that reader against the labels' text and MSLICE)."""
 
 import datetime as dt
-import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
 import numpy as np
 import pytest
-from mars_reference import angle_deg, ellipsoid_normal, enu_axes, sphere_point, sun_mars_fixed
+from mars_reference import angle_deg, ellipsoid_normal, enu_axes, mslice_locations, sphere_point, sun_mars_fixed
 
 from pancam_graph.geometry.geodesy import LocalFrame
 from pancam_graph.kinds.sun_heading import sun_directions_enu
@@ -45,35 +45,9 @@ def test_the_sun_on_mars_is_within_a_hundredth_of_a_degree_of_an_independent_eph
     ours = sun_directions_enu("mars", LocalFrame(lat_deg, lon_deg, -2000.0, body="mars"), a_mars_year)
     error = angle_deg(ours, _reference_enu(lat_deg, lon_deg, -2000.0, a_mars_year))
     # measured: at most 0.0043 deg at every latitude (Mars24's fit to the ephemeris, light time and
-    # aberration included); before: 0.247 deg (the planetographic declination and the sphere's
-    # vertical) at 45 deg
+    # aberration included); before: 0.25 deg at the equator, 0.45 at +-18, 0.58 at +-45 (the
+    # planetographic declination and the sphere's vertical)
     assert error.max() < 0.01, f"largest {error.max():.4f} deg at {lat_deg} N"
-
-
-def _mslice_site_origins(path: Path) -> dict[int, tuple[float, float]]:
-    """Each site's origin (drive 0) from MSLICE's locations: planetocentric latitude, east longitude."""
-    out = {}
-    for location in ElementTree.parse(path).getroot():
-        fields = {child.tag: child.text for child in location}
-        if int(fields["drive"]) == 0:
-            out[int(fields["site"])] = (float(fields["lat"]), float(fields["lon"]))
-    return out
-
-
-def _curiosity_labels() -> list[tuple[Path, float, int, float, float]]:
-    """(label, UTC s, site, the sun's azimuth and elevation in the site frame, deg) of each label,
-    read with pdr (the Planetary Data Reader)."""
-    import pdr
-
-    out = []
-    for label_path in sorted(CURIOSITY.glob("sol*/*.LBL")):
-        label = pdr.read(label_path).metadata
-        # START_TIME is UTC (the spacecraft clock is not)
-        start = dt.datetime.fromisoformat(label["START_TIME"]).replace(tzinfo=dt.UTC)
-        site = label["SITE_DERIVED_GEOMETRY_PARMS"]
-        out.append((label_path, start.timestamp(), int(site["REFERENCE_COORD_SYSTEM_INDEX"]),
-                    float(site["SOLAR_AZIMUTH"]["value"]), float(site["SOLAR_ELEVATION"]["value"])))
-    return out
 
 
 @pytest.mark.real_data
@@ -82,14 +56,17 @@ def test_the_sun_in_the_site_frame_of_every_curiosity_label():
     """The label's site frame is x north, y east, z down at the site's origin; azimuth clockwise
     from north. The project's sun at the label's time, in a local frame at MSLICE's position of
     that site's origin, against it."""
-    origins = _mslice_site_origins(CURIOSITY / "mslice_locations_sol0_59.xml")
-    labels = _curiosity_labels()
-    assert len(labels) == 122 and {site for _, _, site, _, _ in labels} == {3, 4}
+    from pancam_graph.formats.pds import read_rover_images
+
+    mslice = mslice_locations(CURIOSITY / "mslice_locations_sol0_59.xml")
+    images = read_rover_images(CURIOSITY)
+    assert len(images) == 122 and {image.site_index for image in images} == {3, 4}
     errors = []
-    for _, utc_s, site, azimuth, elevation in labels:
-        az, el = np.deg2rad(azimuth), np.deg2rad(elevation)
+    for image in images:
+        az, el = np.deg2rad(image.sun_site_azimuth_deg), np.deg2rad(image.sun_site_elevation_deg)
         label_enu = np.array([np.cos(el) * np.sin(az), np.cos(el) * np.cos(az), np.sin(el)])
-        ours = sun_directions_enu("mars", LocalFrame(*origins[site], 0.0, body="mars"), [utc_s])[0]
+        frame = LocalFrame(*mslice[(image.site_index, 0)], 0.0, body="mars")  # the site frame's origin
+        ours = sun_directions_enu("mars", frame, [image.utc_s])[0]
         errors.append(angle_deg(ours, label_enu)[0])
     errors = np.array(errors)
     # measured: median 0.0025, largest 0.0030 deg over the 122 labels (sites 3 and 4, sols 26-57);
