@@ -75,8 +75,8 @@ class SunSensor(Section):
     def _check(self) -> SunSensor:
         if self.planet == "mars" and self.start_utc is None:
             raise ValueError("planet 'mars' needs start_utc (local solar time on Mars is not derived here)")
-        years = [self.date.year] if self.start_utc is None else [self.start_utc.year]
-        if not all(EPHEMERIS_YEARS[0] <= y <= EPHEMERIS_YEARS[1] for y in years):
+        year = self.date.year if self.start_utc is None else self.start_utc.year
+        if not EPHEMERIS_YEARS[0] <= year <= EPHEMERIS_YEARS[1]:
             what = f"date {self.date}" if self.start_utc is None else f"start_utc {self.start_utc}"
             raise ValueError(f"{what}: the sun's ephemerides are used for years {EPHEMERIS_YEARS[0]}-"
                              f"{EPHEMERIS_YEARS[1]}")
