@@ -16,7 +16,7 @@ import numpy as np
 
 from pancam_graph.config import load_scenario, resolve_scenario
 from pancam_graph.evaluation.consistency import Consistency, monte_carlo_summary
-from pancam_graph.solve.pipeline import run
+from pancam_graph.solve.pipeline import run_scenario
 from pancam_graph.solve.results import RunOptions
 
 PAIRS = {"dead_reckoning": "dead_reckoning+wheel_slip+sun_heading", "vo_sites": "vo+sites+sun_heading"}
@@ -42,7 +42,7 @@ def main() -> None:
     rows = []
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         t0 = time.perf_counter()
-        result = run(scenario, RunOptions(seed=seed, configs=configs, processes=2))
+        result = run_scenario(scenario, RunOptions(seed=seed, configs=configs, processes=2))
         truth = result.truth.world_T_body
         sightings = result.traverse.measurements.get("sun_heading", ())
         row = {"seed": seed, "sightings": len(sightings), "wall_s": time.perf_counter() - t0, "configs": {}}

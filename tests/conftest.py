@@ -1,7 +1,7 @@
 import pytest
 
 from pancam_graph.config import load_scenario, resolve_scenario
-from pancam_graph.solve.pipeline import RunOptions, run
+from pancam_graph.solve.pipeline import RunOptions, run_scenario
 
 
 @pytest.fixture(scope="session")
@@ -12,4 +12,4 @@ def short_scenario():
 @pytest.fixture(scope="session")
 def short_run(short_scenario):
     """All four configurations of the short scenario, seed 0 (shared by several tests)."""
-    return run(short_scenario, RunOptions(seed=0))
+    return run_scenario(short_scenario, RunOptions(seed=0))

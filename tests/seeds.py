@@ -2,12 +2,12 @@
 as in one process, so the results do not depend on where they ran."""
 
 from pancam_graph.runtime.processes import cores, process_context
-from pancam_graph.solve.pipeline import RunOptions, run
+from pancam_graph.solve.pipeline import RunOptions, run_scenario
 
 
 def _configurations(scenario, seed, configs):
     """One seed's configuration results (in a worker process)."""
-    return run(scenario, RunOptions(seed=seed, configs=configs)).configurations
+    return run_scenario(scenario, RunOptions(seed=seed, configs=configs)).configurations
 
 
 def over_seeds(scenario, seeds, configs=None) -> list[dict]:

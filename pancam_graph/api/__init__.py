@@ -163,7 +163,7 @@ def run(source: str | Path = "denver_trail", *, out: Path | str | None = None, s
                                                                                    progress, vo_error_model,
                                                                                    options.processes)
     select_configurations(data.estimator, data.traverse, options.configs)  # before anything is written
-    return _run_into_folder(data, options, out, rerun, checkpoint_every_s, figures, progress, on_viewer=on_viewer)
+    return _into_folder(data, options, out, rerun, checkpoint_every_s, figures, progress, on_viewer=on_viewer)
 
 
 def resume_point(resume: Path | str) -> ResumePoint:
@@ -193,15 +193,15 @@ def resume(point: ResumePoint | Path | str, *, processes: int | None = None, rer
     options = point.options if processes is None else dataclasses.replace(point.options, processes=processes)
     if options.processes > 1:
         start_process_server()
-    return _run_into_folder(point.data, options, point.out, rerun, checkpoint_every_s, figures, progress,
+    return _into_folder(point.data, options, point.out, rerun, checkpoint_every_s, figures, progress,
                             point.states, on_viewer)
 
 
-def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, target: RerunTarget | None,
+def _into_folder(data: SourceData, options: RunOptions, out: Path | None, target: RerunTarget | None,
                      checkpoint_every_s: float, figures: bool, progress: ProgressCallback | None,
                      states: list[RunState] | None = None,
                      on_viewer: Callable[[str], None] | None = None) -> RunOutcome:
-    from ..solve.pipeline import run_traverse
+    from ..solve import pipeline
     from ..store.checkpoint import CheckpointWriter, RunInputs, remove_checkpoint
     from ..store.results_folder import results_folder, write_run
 
@@ -225,7 +225,7 @@ def _run_into_folder(data: SourceData, options: RunOptions, out: Path | None, ta
                 except ViewerUnavailable as exc:  # the results are the product, the viewer is not
                     warnings.append(f"{exc}; running without it")
             try:
-                result = run_traverse(data.traverse, data.truth, data.estimator, data.seed, options, progress,
+                result = pipeline.run(data.traverse, data.truth, data.estimator, data.seed, options, progress,
                                       listener, source=data.info, scenario=data.scenario, held_out=data.held_out,
                                       save=checkpoints, resume=states, vo_motions=data.vo_motions,
                                       # the wall time counts the source's reading (an image source's front-end)

@@ -34,7 +34,7 @@ def bench_runs(scenario: str, seed: int | None = None, seeds: int = 1, rerun: bo
     seeds. The load average before and after goes with the figures."""
     import numpy as np
 
-    from ..solve.pipeline import run
+    from ..solve.pipeline import run_scenario
     from ..solve.results import RunOptions, cost_along, memory_along, percentiles
 
     seeds = max(seeds, monte_carlo)
@@ -48,7 +48,7 @@ def bench_runs(scenario: str, seed: int | None = None, seeds: int = 1, rerun: bo
         start_process_server()
     for s in range(first, first + seeds):
         start = time.perf_counter()
-        results.append(run(sc, dataclasses.replace(options, seed=s)))
+        results.append(run_scenario(sc, dataclasses.replace(options, seed=s)))
         walls.append(time.perf_counter() - start)
         if rerun:
             recorded_walls.append(_time_recorded_run(sc, s))
@@ -366,7 +366,7 @@ def _stereo_frames(folder: Path, kind: str):
 
 
 def _time_recorded_run(scenario, seed: int) -> float:
-    from ..solve.pipeline import run
+    from ..solve.pipeline import run_scenario
     from ..solve.results import RunOptions
     from ..viz.rerun_live import RerunRecorder
     from ..viz.rerun_sink import RerunTarget, open_recording
@@ -374,6 +374,6 @@ def _time_recorded_run(scenario, seed: int) -> float:
     with temporary_folder("bench") as tmp:
         start = time.perf_counter()
         recording = open_recording(RerunTarget("save", path=Path(tmp) / "bench.rrd"), "bench")
-        run(scenario, RunOptions(seed=seed), listener=RerunRecorder(recording))
+        run_scenario(scenario, RunOptions(seed=seed), listener=RerunRecorder(recording))
         recording.close()
         return time.perf_counter() - start

@@ -59,7 +59,7 @@ class GroupOutcome:
     process: ProcessUse
 
 
-def run_group(job: GroupJob, state: RunState | None, known: VoMotions | None, save: Checkpoints | None,
+def localize_group(job: GroupJob, state: RunState | None, known: VoMotions | None, save: Checkpoints | None,
               progress: ProgressCallback | None, listener: RunListener | None, start: float,
               label: str = "run", records: StopRecords | None = None) -> GroupOutcome:
     """A group's configurations stop by stop in this process, then evaluated. Motions the

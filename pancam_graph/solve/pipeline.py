@@ -17,10 +17,10 @@ from ..records import GpsFix, GroundTruth, Traverse
 from ..runtime.memory import peak_rss_mb
 from ..runtime.processes import call_apart
 from ..sim import simulate
-from .group import GroupJob, ProgressCallback, run_group
+from .group import GroupJob, ProgressCallback, localize_group
 from .listener import RunListener
 from .results import ConfigurationResult, RunOptions, RunResult, SourceInfo
-from .side_by_side import MemoryWatch, run_side_by_side
+from .side_by_side import MemoryWatch, localize_side_by_side
 from .state import Checkpoints, RunState
 
 
@@ -57,7 +57,7 @@ def select_configurations(estimator: EstimatorConfig, traverse: Traverse, reques
     return chosen, {}
 
 
-def run(scenario: Scenario, options: RunOptions = RunOptions(), progress: ProgressCallback | None = None,
+def run_scenario(scenario: Scenario, options: RunOptions = RunOptions(), progress: ProgressCallback | None = None,
         listener: RunListener | None = None) -> RunResult:
     """Simulate the scenario and run every configuration on it (with more than one process,
     the simulation in a process of its own: processes.call_apart)."""
@@ -66,7 +66,7 @@ def run(scenario: Scenario, options: RunOptions = RunOptions(), progress: Progre
         traverse, truth, resolved, info = call_apart(simulated, scenario, options.seed)
     else:
         traverse, truth, resolved, info = simulated(scenario, options.seed)
-    return run_traverse(traverse, truth, scenario.estimator, resolved.seed, options, progress, listener,
+    return run(traverse, truth, scenario.estimator, resolved.seed, options, progress, listener,
                         source=info, scenario=resolved, started=start)
 
 
@@ -91,7 +91,7 @@ def simulated(scenario: Scenario, seed: int | None = None, name: str | None = No
     return traverse, truth, scenario.model_copy(update={"seed": seed}), info
 
 
-def run_traverse(
+def run(
     traverse: Traverse,
     truth: GroundTruth | None,
     estimator: EstimatorConfig,
@@ -131,9 +131,9 @@ def run_traverse(
     job = GroupJob(traverse, truth, estimator, seed, options, tuple(held_out), groups[0])
     memory = MemoryWatch()
     if len(groups) > 1 and options.processes > 1:
-        outcomes = run_side_by_side(job, groups, resume, known, save, progress, start, memory)
+        outcomes = localize_side_by_side(job, groups, resume, known, save, progress, start, memory)
     else:  # one group, or the groups of a resumed run one after another
-        outcomes = [run_group(replace(job, configs=configs), resume[g] if resume and g < len(resume) else None,
+        outcomes = [localize_group(replace(job, configs=configs), resume[g] if resume and g < len(resume) else None,
                               known, save.part(g) if save is not None and len(groups) > 1 else save, progress,
                               listener, start) for g, configs in enumerate(groups)]
     results: dict[str, ConfigurationResult] = {}

@@ -8,7 +8,7 @@ than cores: iSAM2 lives in the caches, and each switch to another process emptie
 (docs/performance.md measures what that cost).
 
 A group's estimate is the one it would get in a single process: the same motions in the same
-order, the same updates (group.run_group is the loop either way).
+order, the same updates (group.localize_group is the loop either way).
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from ..runtime.processes import (
     watch_the_run,
 )
 from ..runtime.scratch import temporary_folder
-from .group import GroupJob, GroupOutcome, ProgressCallback, new_state, run_group
+from .group import GroupJob, GroupOutcome, ProgressCallback, localize_group, new_state
 from .state import Checkpoints, RunState
 from .stop_records import StopRecords
 
@@ -50,7 +50,7 @@ _stops_done = None  # in a worker: the shared count of stops each group has step
 _run_pid = 0  # in a worker: the process it works for
 
 
-def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: list[RunState] | None,
+def localize_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: list[RunState] | None,
                      known: VoMotions | None, save: Checkpoints | None, progress: ProgressCallback | None,
                      start: float, memory: MemoryWatch) -> list[GroupOutcome]:
     """Each group of configurations in a worker of a pool of `job.options.processes` (its
@@ -80,7 +80,7 @@ def run_side_by_side(job: GroupJob, groups: list[dict[str, list[str]]], resume: 
             records = handover.records(f"group-{g}", job.traverse, fields) if fields else None
             inputs = GroupInputs(_job_of(job, groups[g]), state, motions,
                                  dr_motions if reads_dr else Motions([None]), vo_s, records)
-            futures[g] = pool.submit(_run_group_in_worker, handover.write(f"group-{g}", inputs), g, part, start)
+            futures[g] = pool.submit(_localize_group_in_worker, handover.write(f"group-{g}", inputs), g, part, start)
             if len(futures) == len(groups) and any(_uses_vo(configs) for configs in groups):
                 dr_motions = None  # the groups have them; the run's are the VO's
             release_memory()  # what the inputs' pickling left, and read of the source's mapped arrays
@@ -302,7 +302,7 @@ def _stop_if_the_run_stopped() -> None:
         os._exit(1)
 
 
-def _run_group_in_worker(inputs_path: Path, index: int, save: Checkpoints | None, start: float) -> Path:
+def _localize_group_in_worker(inputs_path: Path, index: int, save: Checkpoints | None, start: float) -> Path:
     inputs = read_once(inputs_path)
     job, state, motions, records = inputs.job, inputs.state, inputs.motions, inputs.records
     if save is not None:
@@ -320,7 +320,7 @@ def _run_group_in_worker(inputs_path: Path, index: int, save: Checkpoints | None
         if stage == "stops" and _stops_done is not None:
             _stops_done[index] = k
 
-    outcome = run_group(job, state, None, save, progress, None, start, f"group {index + 1}", records)
+    outcome = localize_group(job, state, None, save, progress, None, start, f"group {index + 1}", records)
     outcome.motions = Motions()  # the run's process has them: a traverse's worth of motions not sent back
     # Into a file, in frames, not back through the pool's pipe, which pickles it whole into
     # memory first: a group's results on the mission, in the worker at its end and in the run's

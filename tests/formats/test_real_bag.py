@@ -9,7 +9,7 @@ import pytest
 from pancam_graph.errors import InputError
 from pancam_graph.evaluation.gps_check import gps_enu
 from pancam_graph.formats.rosbag import read_navsatfix, read_odometry
-from pancam_graph.solve.pipeline import run_traverse
+from pancam_graph.solve.pipeline import run
 from pancam_graph.solve.results import RunOptions
 from pancam_graph.sources import SourceOptions, open_source
 
@@ -37,7 +37,7 @@ def test_reader_matches_the_published_description(bag):
 @pytest.fixture(scope="module")
 def bag_run():
     data = open_source(str(BAG), SourceOptions(gps_topic="/fix", odom_topic=ODOM))
-    return data, run_traverse(data.traverse, data.truth, data.estimator, data.seed, RunOptions(),
+    return data, run(data.traverse, data.truth, data.estimator, data.seed, RunOptions(),
                               source=data.info, held_out=data.held_out)
 
 

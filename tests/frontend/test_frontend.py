@@ -15,7 +15,7 @@ from pancam_graph.errors import InputError
 from pancam_graph.evaluation.consistency import nees
 from pancam_graph.frontend.tracker import StereoTracker
 from pancam_graph.geometry.rig import BODY_T_FORWARD_CAMERA
-from pancam_graph.solve.pipeline import run_traverse
+from pancam_graph.solve.pipeline import run
 from pancam_graph.solve.results import RunOptions
 from pancam_graph.sources import kitti_odometry
 
@@ -85,7 +85,7 @@ def test_stereo_disparities_on_middlebury_match_the_true_disparity():
 @pytest.fixture(scope="module")
 def kitti_run():
     data = kitti_odometry.load(SEQUENCE)
-    result = run_traverse(data.traverse, data.truth, data.estimator, data.seed, RunOptions(), source=data.info)
+    result = run(data.traverse, data.truth, data.estimator, data.seed, RunOptions(), source=data.info)
     return data, result
 
 
@@ -228,7 +228,7 @@ def test_stereo_images_from_a_ros_bag_run_the_same_front_end_and_vo(tmp_path):
     data = open_source(str(bag), SourceOptions(stereo_topics=("/stereo/left/image_rect",
                                                               "/stereo/right/image_rect/compressed")))
     assert len(data.traverse.stops) == 12 and data.traverse.rig.baseline_m == pytest.approx(0.53715, abs=1e-4)
-    result = run_traverse(data.traverse, data.truth, data.estimator, 0, RunOptions(), source=data.info)
+    result = run(data.traverse, data.truth, data.estimator, 0, RunOptions(), source=data.info)
     vo = result.configurations["vo"]
     assert vo.bridged_stops == 0
     # the KITTI truth of those frames (camera poses -> body poses)

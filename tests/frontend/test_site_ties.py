@@ -14,7 +14,7 @@ from pancam_graph.frontend.panorama import PanoramaMatcher, PanoramaView
 from pancam_graph.frontend.ties import TieMatcher, TieSettings
 from pancam_graph.render.scenario_images import render_scenario
 from pancam_graph.render.truth import RenderedTruth
-from pancam_graph.solve.pipeline import run_traverse
+from pancam_graph.solve.pipeline import run
 from pancam_graph.solve.results import RunOptions
 from pancam_graph.sources import image_folder
 from pancam_graph.sources.image_folder import FramePairs
@@ -110,7 +110,7 @@ def test_vo_sites_from_images(sites):
     est = tracked.estimator
     estimator = est.model_copy(update={"sites": est.sites.model_copy(update={"sigma_px": image_folder.TIE_SIGMA_PX}),
                                        "hrc": est.hrc.model_copy(update={"sigma_px": image_folder.HRC_SIGMA_PX})})
-    result = run_traverse(traverse, tracked.truth, estimator, tracked.seed,
+    result = run(traverse, tracked.truth, estimator, tracked.seed,
                           RunOptions(configs=("vo", "vo_sites", "vo_sites_hrc")))
     vo, vo_sites = result.configurations["vo"], result.configurations["vo_sites"]
     assert vo_sites.landmarks >= 9 * (len(report.sites) - 1)

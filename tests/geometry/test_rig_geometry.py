@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pancam_graph.sim import simulate
-from pancam_graph.solve.pipeline import run_traverse
+from pancam_graph.solve.pipeline import run
 from pancam_graph.solve.results import RunOptions
 from pancam_graph.store.observation_folder import read_observations
 from pancam_graph.store.observation_writer import write_observations
@@ -20,7 +20,7 @@ def test_a_body_fixed_pair_is_where_its_transform_puts_it(short_scenario, tmp_pa
     wrong = replace(traverse, traverse_tilt_rad=0.0)  # the mast, but at the wrong tilt
 
     def vo(t):
-        result = run_traverse(t, truth, short_scenario.estimator, 2, RunOptions(configs=("vo",)))
+        result = run(t, truth, short_scenario.estimator, 2, RunOptions(configs=("vo",)))
         return result.configurations["vo"]
 
     mast, body_fixed, mistaken = vo(traverse), vo(fixed), vo(wrong)

@@ -19,7 +19,7 @@ from pancam_graph.orbital.geotiff import read_map_raster, write_map_raster
 from pancam_graph.orbital.maps import MapBias
 from pancam_graph.records import MapRaster
 from pancam_graph.sim import simulate
-from pancam_graph.solve.pipeline import RunOptions, run_traverse
+from pancam_graph.solve.pipeline import RunOptions, run
 from pancam_graph.store.observation_folder import read_observations
 from pancam_graph.store.observation_writer import write_observations
 
@@ -100,7 +100,7 @@ def test_each_site_registers_within_half_a_metre_median_with_a_covariance_that_h
 @pytest.fixture(scope="module")
 def mars_run(mars_traverse, mars_scenario):
     traverse, truth = mars_traverse
-    return run_traverse(traverse, truth, mars_scenario.estimator, 7, RunOptions(configs=("vo_sites", ORBITAL)))
+    return run(traverse, truth, mars_scenario.estimator, 7, RunOptions(configs=("vo_sites", ORBITAL)))
 
 
 @pytest.mark.slow
@@ -123,7 +123,7 @@ def _with_map(traverse, **changes):
 
 
 def _run_orbital(traverse, truth, scenario):
-    return run_traverse(traverse, truth, scenario.estimator, 7, RunOptions(configs=(ORBITAL,))).configurations[ORBITAL]
+    return run(traverse, truth, scenario.estimator, 7, RunOptions(configs=(ORBITAL,))).configurations[ORBITAL]
 
 
 @pytest.mark.slow
@@ -133,7 +133,7 @@ def test_a_map_that_leaves_out_part_of_the_traverse_names_the_uncovered_sites(ma
     keep = dtm.values.shape[0] // 2  # the south half: the start, not the second leg's far end
     top = dtm.y0_m - keep * dtm.post_m
     cropped = MapRaster(dtm.values[keep:].copy(), dtm.x0_m, top, dtm.post_m, dtm.crs_wkt)
-    result = run_traverse(_with_map(traverse, dtm=cropped, orthoimage=None), truth, mars_scenario.estimator, 7,
+    result = run(_with_map(traverse, dtm=cropped, orthoimage=None), truth, mars_scenario.estimator, 7,
                           RunOptions(configs=(ORBITAL,)))
     counters = result.configurations[ORBITAL].counters
     north = traverse.origin.to_map(truth.positions)[:, 1]
@@ -227,7 +227,7 @@ def test_rerun_shows_the_orthoimage_on_the_dtm_and_as_the_2d_map(mars_traverse, 
 
     traverse, truth = mars_traverse
     recording = open_recording(RerunTarget("save", path=tmp_path / "run.rrd"), "test")
-    run_traverse(traverse, truth, mars_scenario.estimator, 1, RunOptions(configs=("vo_sites_orbital",)),
+    run(traverse, truth, mars_scenario.estimator, 1, RunOptions(configs=("vo_sites_orbital",)),
                  listener=RerunRecorder(recording))
     recording.close()
     rec = Recording(tmp_path / "run.rrd")
@@ -261,7 +261,7 @@ def test_neighbouring_registrations_share_an_error_so_the_bias_averages_less(mar
     assert settings.neighbour_correlation == 0.25
     independent_estimator = mars_scenario.estimator.model_copy(
         update={"orbital": settings.model_copy(update={"neighbour_correlation": 0.0})})
-    independent = run_traverse(traverse, truth, independent_estimator, 7, RunOptions(configs=(ORBITAL,)))
+    independent = run(traverse, truth, independent_estimator, 7, RunOptions(configs=(ORBITAL,)))
     shared = mars_run.configurations[ORBITAL].counters
     alone = independent.configurations[ORBITAL].counters
     assert shared["orbital_registrations_used"] == alone["orbital_registrations_used"] >= 6

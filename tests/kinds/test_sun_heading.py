@@ -12,7 +12,7 @@ from pancam_graph.errors import ConfigError, InputError
 from pancam_graph.geometry.geodesy import LocalFrame
 from pancam_graph.kinds.sun_heading import SunSensor, start_utc_s, sun_directions_enu
 from pancam_graph.sim import simulate
-from pancam_graph.solve.pipeline import RunOptions, run
+from pancam_graph.solve.pipeline import RunOptions, run_scenario
 from pancam_graph.store.observation_folder import read_observations
 from pancam_graph.store.observation_writer import write_observations
 
@@ -133,7 +133,7 @@ def test_a_bad_section_is_named(tmp_path, section, words):
 @pytest.fixture(scope="module")
 def denver_dead_reckoning():
     scenario = load_scenario(resolve_scenario("denver_trail"))
-    return run(scenario, RunOptions(seed=1, configs=("dead_reckoning", WITH_SUN)))
+    return run_scenario(scenario, RunOptions(seed=1, configs=("dead_reckoning", WITH_SUN)))
 
 
 def _heading_deg(world_T_body):

@@ -7,7 +7,7 @@ from pancam_graph.config import load_scenario, resolve_scenario
 from pancam_graph.records import GpsFix
 from pancam_graph.sim import simulate
 from pancam_graph.solve.localizer import Localizer
-from pancam_graph.solve.pipeline import run
+from pancam_graph.solve.pipeline import run_scenario
 from pancam_graph.solve.results import RunOptions
 
 
@@ -26,8 +26,8 @@ def driving():
 def test_fixes_between_stops_beat_attaching_them_to_the_nearest_stop(driving):
     """gps_driving: 1 Hz differential GPS (0.5 m) while driving between stops 2-10 m apart. Ignoring
     the fix times (the nearest stop takes each fix) costs twice the error."""
-    timed = run(driving, RunOptions(seed=0, configs=("full",))).configurations["full"]
-    nearest = run(_with(driving, time_association="nearest_stop"),
+    timed = run_scenario(driving, RunOptions(seed=0, configs=("full",))).configurations["full"]
+    nearest = run_scenario(_with(driving, time_association="nearest_stop"),
                   RunOptions(seed=0, configs=("full",))).configurations["full"]
     assert len(timed.interpolated) > 1000 and len(nearest.interpolated) == 0
     assert timed.counter("gps_fixes_used") == nearest.counter("gps_fixes_used") > 1500
@@ -41,7 +41,7 @@ def test_splitting_the_motion_keeps_its_information(short_scenario):
     must leave the stops' covariances as they are without them."""
     gps = short_scenario.gps.model_copy(update={"rate_hz": 0.5, "sigma_horizontal_m": 1e5, "sigma_vertical_m": 1e5})
     scenario = short_scenario.model_copy(update={"gps": gps})
-    result = run(scenario, RunOptions(seed=1, configs=("vo", "vo+gps")))
+    result = run_scenario(scenario, RunOptions(seed=1, configs=("vo", "vo+gps")))
     plain, split = result.configurations["vo"], result.configurations["vo+gps"]
     assert len(split.interpolated) > 100
     np.testing.assert_allclose(split.world_T_body[:, :3, 3], plain.world_T_body[:, :3, 3], atol=2e-3)

@@ -13,7 +13,7 @@ from pancam_graph.render.scenario_images import raw_stereo_pair, render_scenario
 from pancam_graph.render.terrain import terrain_tiles
 from pancam_graph.sim import simulate
 from pancam_graph.sim.world import dense_path
-from pancam_graph.solve.pipeline import run_traverse
+from pancam_graph.solve.pipeline import run
 from pancam_graph.solve.results import RunOptions
 from pancam_graph.sources import image_folder
 from pancam_graph.store.observation_folder import read_observations
@@ -104,7 +104,7 @@ def test_vo_from_rendered_images(rendered):
     assert 2 * len(data.traverse.stops) == n > 30  # images: a stereo pair per stop
     assert data.estimator.vo_error_model == "pixel_noise" and data.estimator.vo_rotation_floor_deg_per_m == 0.0
     assert np.median([len(s.stereo) for s in data.traverse.stops]) > 300
-    result = run_traverse(data.traverse, data.truth, data.estimator, data.seed, RunOptions(configs=("vo",)),
+    result = run(data.traverse, data.truth, data.estimator, data.seed, RunOptions(configs=("vo",)),
                           source=data.info)
     vo = result.configurations["vo"]
     # Searching each track where the wheel odometry says it went keeps every 2 m step: measured

@@ -14,7 +14,7 @@ from pancam_graph.config import load_scenario, resolve_scenario
 from pancam_graph.errors import ConfigError
 from pancam_graph.runtime import processes
 from pancam_graph.runtime.processes import call_apart, release_mapped_pages
-from pancam_graph.solve.pipeline import RunOptions, run_traverse, simulated, worth_simulating_apart
+from pancam_graph.solve.pipeline import RunOptions, run, simulated, worth_simulating_apart
 from pancam_graph.sources import source_for
 
 
@@ -36,11 +36,11 @@ def test_a_run_on_data_read_back_is_the_run_on_data_simulated_here():
     that wrote into its inputs would fail here, and one whose numbers depended on where its
     arrays live would differ."""
     scenario = load_scenario(resolve_scenario("short_trail"))
-    here = run_traverse(*simulated(scenario, 1)[:2], scenario.estimator, 1, RunOptions(configs=("vo_sites", "full")))
+    here = run(*simulated(scenario, 1)[:2], scenario.estimator, 1, RunOptions(configs=("vo_sites", "full")))
     traverse, truth, _, _ = call_apart(simulated, scenario, 1)
     assert not traverse.stops[5].stereo.uvv.flags.writeable
     release_mapped_pages()  # the arrays stay what they were
-    apart = run_traverse(traverse, truth, scenario.estimator, 1, RunOptions(configs=("vo_sites", "full")))
+    apart = run(traverse, truth, scenario.estimator, 1, RunOptions(configs=("vo_sites", "full")))
     for name in ("vo_sites", "full"):
         assert np.array_equal(apart.configurations[name].world_T_body, here.configurations[name].world_T_body)
         assert np.array_equal(apart.configurations[name].position_covariance,

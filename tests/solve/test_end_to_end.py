@@ -6,7 +6,7 @@ from seeds import over_seeds
 
 from pancam_graph.config import load_scenario, resolve_scenario
 from pancam_graph.evaluation.consistency import monte_carlo_summary
-from pancam_graph.solve.pipeline import RunOptions, run
+from pancam_graph.solve.pipeline import RunOptions, run_scenario
 
 pytestmark = pytest.mark.slow
 
@@ -63,7 +63,7 @@ def test_at_sparse_sites_the_hrc_ties_what_the_wac_cannot():
 def test_900m_vo_only_run_completes_without_indeterminate_system():
     """Cholesky iSAM2 throws 'indeterminate' near stop 400 of this chain; the run must not."""
     scenario = load_scenario(resolve_scenario("denver_trail"))
-    result = run(scenario, RunOptions(seed=0, configs=("dead_reckoning", "vo")))
+    result = run_scenario(scenario, RunOptions(seed=0, configs=("dead_reckoning", "vo")))
     assert list(result.configurations) == ["dead_reckoning", "vo"]
     vo = result.configurations["vo"]
     assert len(vo.world_T_body) == len(result.traverse.stops) > 500
@@ -79,7 +79,7 @@ def test_900m_vo_only_run_completes_without_indeterminate_system():
 
 def test_robust_gps_survives_multipath_outliers():
     scenario = load_scenario(resolve_scenario("gps_multipath"))
-    result = run(scenario, RunOptions(seed=0))
+    result = run_scenario(scenario, RunOptions(seed=0))
     full = result.configurations["full"]
     assert full.counter("gps_fixes_used") == len(result.traverse.gps_fixes) < len(result.traverse.stops)  # dropouts
     assert full.metrics.ate_rmse_m < 2.0
@@ -88,5 +88,5 @@ def test_robust_gps_survives_multipath_outliers():
 @pytest.mark.parametrize("name", ["straight_500m"])
 def test_other_bundled_scenarios_run(name):
     scenario = load_scenario(resolve_scenario(name))
-    result = run(scenario, RunOptions(seed=0, configs=("vo_sites",)))
+    result = run_scenario(scenario, RunOptions(seed=0, configs=("vo_sites",)))
     assert result.configurations["vo_sites"].metrics.relative_closure_pct < 0.5

@@ -5,7 +5,7 @@ same estimate."""
 import numpy as np
 import pytest
 
-from pancam_graph.solve.pipeline import configuration_groups, run_traverse, select_configurations
+from pancam_graph.solve.pipeline import configuration_groups, run, select_configurations
 from pancam_graph.solve.results import RunOptions
 from pancam_graph.sources import open_source
 from pancam_graph.store.checkpoint import CheckpointWriter, RunInputs, read_checkpoint
@@ -21,7 +21,7 @@ def short_trail():
 
 
 def _run(data, options, **kwargs):
-    return run_traverse(data.traverse, data.truth, data.estimator, data.seed, options, **kwargs)
+    return run(data.traverse, data.truth, data.estimator, data.seed, options, **kwargs)
 
 
 def _assert_same(a, b):

@@ -14,7 +14,7 @@ import pytest
 from pancam_graph.config import resolve_scenario
 from pancam_graph.errors import ConfigError
 from pancam_graph.evaluation.consistency import last_stop_summary, monte_carlo_summary
-from pancam_graph.solve.pipeline import RunOptions, run
+from pancam_graph.solve.pipeline import RunOptions, run_scenario
 from pancam_graph.sweep.spec import SweepSpec, plan
 
 pytestmark = pytest.mark.slow
@@ -65,7 +65,7 @@ def test_a_failing_run_is_recorded_and_the_others_finish(swept):
 def serial(short_scenario):
     """vo_sites over seeds 0 and 1, run one after another in this process, and their last
     stops' NEES."""
-    results = [run(short_scenario, RunOptions(seed=s, configs=("vo_sites",))).configurations["vo_sites"]
+    results = [run_scenario(short_scenario, RunOptions(seed=s, configs=("vo_sites",))).configurations["vo_sites"]
                for s in (0, 1)]
     return monte_carlo_summary([c.consistency for c in results]) | {
         "nees_last": last_stop_summary([c.nees.last for c in results])["nees_last"]}

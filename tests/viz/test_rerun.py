@@ -13,7 +13,7 @@ from rrd import Recording, array
 from scipy.stats import chi2
 
 from pancam_graph.geometry.geodesy import LocalFrame
-from pancam_graph.solve.pipeline import RunOptions, run
+from pancam_graph.solve.pipeline import RunOptions, run_scenario
 from pancam_graph.viz.rerun_live import RerunRecorder
 from pancam_graph.viz.rerun_sink import RerunTarget, open_recording
 
@@ -26,7 +26,7 @@ def recorded(short_scenario, tmp_path_factory):
     path = tmp_path_factory.mktemp("rerun") / "run.rrd"
     recording = open_recording(RerunTarget("save", path=path), "test")
     recorder = RerunRecorder(recording, refresh_every=REFRESH_TEST)  # short_trail: 140 stops
-    result = run(short_scenario, RunOptions(seed=0), listener=recorder)
+    result = run_scenario(short_scenario, RunOptions(seed=0), listener=recorder)
     recording.close()
     return result, recorder, Recording(path)
 
@@ -121,7 +121,7 @@ def test_series_hold_one_value_per_stop(recorded):
 KILLED_RUN = textwrap.dedent("""
     import os, signal, sys
     from pancam_graph.config import load_scenario, resolve_scenario
-    from pancam_graph.solve.pipeline import RunOptions, run
+    from pancam_graph.solve.pipeline import RunOptions, run_scenario
     from pancam_graph.viz.rerun_live import RerunRecorder
     from pancam_graph.viz.rerun_sink import RerunTarget, open_recording
 
@@ -135,7 +135,7 @@ KILLED_RUN = textwrap.dedent("""
 
     from pathlib import Path
     recording = open_recording(RerunTarget("save", path=Path(sys.argv[1])), "killed")
-    run(load_scenario(resolve_scenario("short_trail")), RunOptions(seed=0),
+    run_scenario(load_scenario(resolve_scenario("short_trail")), RunOptions(seed=0),
         listener=KilledAfterSecondSend(recording, refresh_every=40))
 """)
 
