@@ -24,9 +24,10 @@ from ..records import Traverse
 from ..runtime.atomic import writing
 from ..runtime.processes import cores, hold_malloc_thresholds, start_process_server
 from ..solve.group import ProgressCallback
-from ..solve.results import RunOptions, RunResult, SourceData
+from ..solve.results import RunOptions, RunResult
 from ..solve.state import RunState
 from ..sources import SourceOptions, open_source, source_for, stereo_image_sources
+from ..sources.registry import SourceData
 from ..viz.rerun_sink import OpenRecording as Recording
 from ..viz.rerun_sink import RerunTarget
 

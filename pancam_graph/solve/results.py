@@ -12,7 +12,7 @@ from ..config import EstimatorConfig, Scenario
 from ..evaluation.consistency import Consistency, NeesAlongRun
 from ..evaluation.gps_check import HoldoutScore
 from ..evaluation.metrics import TrajectoryMetrics
-from ..frontend.motion import Motions, VoMotions
+from ..frontend.motion import Motions
 from ..kinds import COUNTER_DEFAULTS
 from ..records import GpsFix, GroundTruth, Traverse
 from .localizer import InterpolatedPose
@@ -49,20 +49,6 @@ class SourceInfo:
     # What the world frame's first two axes are (plots' axis names): ENU, or a recorded frame
     axes: tuple[str, str] = ("east", "north")
     georeferenced: bool = True  # the local frame's origin is a place on the body (else no geographic file)
-
-
-@dataclass(frozen=True)
-class SourceData:
-    traverse: Traverse
-    truth: GroundTruth | None
-    estimator: EstimatorConfig
-    seed: int
-    info: SourceInfo
-    scenario: Scenario | None = None  # simulated sources
-    held_out: tuple[GpsFix, ...] = ()  # fixes kept out of every graph, for scoring
-    rejected: tuple[str, ...] = ()  # what the reader left out, with reasons
-    vo_motions: VoMotions | None = None  # estimated already by the source (image folders with sites)
-    load_s: float = 0.0  # what reading the source took (an image source's front-end): part of the run's wall
 
 
 @dataclass(frozen=True)

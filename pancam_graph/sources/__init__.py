@@ -13,9 +13,8 @@ from pathlib import Path
 from ..config import SourceOptions
 from ..errors import ConfigError
 from ..runtime.processes import call_apart
-from ..solve.results import SourceData
 from .recorded import is_kitti_drive
-from .registry import ProgressCallback, Source, registered
+from .registry import ProgressCallback, Source, SourceData, registered
 
 SOURCES: list[Source] = registered()
 

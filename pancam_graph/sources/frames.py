@@ -12,7 +12,7 @@ import numpy as np
 from ..errors import FrameError, InputError
 from ..frontend.tracker import CameraMotion, StereoTracker
 from ..records import Stop
-from ..solve.results import SourceData
+from .registry import SourceData
 
 # Reads stop k's (left, right) grayscale pair, rectified; raises InputError naming the file.
 ReadPair = Callable[[int], tuple[np.ndarray, np.ndarray]]

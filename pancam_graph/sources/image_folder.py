@@ -19,9 +19,9 @@ from ..formats.images import read_gray
 from ..frontend.motion import VoMotions
 from ..frontend.tracker import CameraMotion, StageTimes, StereoTracker
 from ..records import Stop, Traverse
-from ..solve.results import SourceData, SourceInfo
+from ..solve.results import SourceInfo
 from .frames import median_frame_ms, track_frames
-from .registry import Source, frontend_for
+from .registry import Source, SourceData, frontend_for
 from .site_images import with_site_panoramas
 
 # Pixel sigma of a landmark's views when its tie points were matched across sites from images:

@@ -16,9 +16,9 @@ from ..frontend.tracker import StereoTracker
 from ..geometry.geodesy import LocalFrame
 from ..geometry.rig import BODY_T_FORWARD_CAMERA, Rig
 from ..records import GroundTruth, SlipPrior, StereoObservations, Stop, Traverse
-from ..solve.results import SourceData, SourceInfo
+from ..solve.results import SourceInfo
 from .frames import median_frame_ms, track_frames
-from .registry import Source, frontend_for
+from .registry import Source, SourceData, frontend_for
 
 # The real KITTI frames' own VO error model (config.VO_ERROR_MODELS, docs/frontend.md, where it was
 # measured): with no sites or GPS, the one configuration is vo with its shared scale.

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..solve.results import SourceData, SourceInfo
+from ..solve.results import SourceInfo
 from ..store.observation_folder import is_observation_folder, read_observations
-from .registry import Source
+from .registry import Source, SourceData
 
 
 def matches(path: Path) -> bool:

@@ -24,8 +24,8 @@ from ..geometry.geodesy import LocalFrame
 from ..geometry.rig import Rig
 from ..kinds.onboard import OnboardSettings, OnboardTilt, step_covariance
 from ..records import DeadReckoning, GpsFix, SlipPrior, StereoObservations, Stop, Traverse
-from ..solve.results import SourceData, SourceInfo
-from .registry import Source
+from ..solve.results import SourceInfo
+from .registry import Source, SourceData
 
 NAVCAM_BASELINE_M = 0.424  # MSL Navcam stereo baseline (Maki et al. 2012); the products here give no partner
 PAIR_TOLERANCE_S = 1.0  # a left and a right image of one instrument this close in time are a stereo pair

@@ -18,8 +18,8 @@ from ..evaluation.timed import poses_at_times
 from ..geometry.geodesy import LocalFrame
 from ..geometry.rig import rig_preset
 from ..records import DeadReckoning, GpsFix, GroundTruth, OdometryTrack, SlipPrior, StereoObservations, Stop, Traverse
-from ..solve.results import SourceData, SourceInfo
-from .registry import Source, frontend_for
+from ..solve.results import SourceInfo
+from .registry import Source, SourceData, frontend_for
 
 _ALIGN_DISTANCE_M = 15.0  # odometry travelled before the initial heading is taken from GPS
 

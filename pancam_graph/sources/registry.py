@@ -10,10 +10,29 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..config import FrontendConfig, SourceOptions
-from ..solve.results import SourceData
+from ..config import EstimatorConfig, FrontendConfig, Scenario, SourceOptions
+from ..frontend.motion import VoMotions
+from ..records import GpsFix, GroundTruth, Traverse
+from ..solve.results import SourceInfo
 
 ProgressCallback = Callable[[str, int, int], None]
+
+
+@dataclass(frozen=True)
+class SourceData:
+    """What a source hands the run: the traverse, its truth when there is one, the estimator
+    configuration made for it, and its provenance."""
+
+    traverse: Traverse
+    truth: GroundTruth | None
+    estimator: EstimatorConfig
+    seed: int
+    info: SourceInfo
+    scenario: Scenario | None = None  # simulated sources
+    held_out: tuple[GpsFix, ...] = ()  # fixes kept out of every graph, for scoring
+    rejected: tuple[str, ...] = ()  # what the reader left out, with reasons
+    vo_motions: VoMotions | None = None  # estimated already by the source (image folders with sites)
+    load_s: float = 0.0  # what reading the source took (an image source's front-end): part of the run's wall
 
 
 @dataclass(frozen=True)

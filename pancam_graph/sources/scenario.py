@@ -6,8 +6,7 @@ from pathlib import Path
 
 from ..config import load_scenario, resolve_scenario
 from ..solve.pipeline import simulated, worth_simulating_apart
-from ..solve.results import SourceData
-from .registry import Source
+from .registry import Source, SourceData
 
 
 def load(name_or_path: str, seed: int | None = None) -> SourceData:

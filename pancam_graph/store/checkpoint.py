@@ -18,34 +18,42 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, BinaryIO
+from typing import TYPE_CHECKING, Any, BinaryIO, Protocol
 
 from ..errors import ResultsError, WriteFailed
 from ..runtime.atomic import write_atomically
 
 if TYPE_CHECKING:
     from ..records import GroundTruth, Traverse
-    from ..solve.results import RunOptions, SourceData
+    from ..solve.results import RunOptions
     from ..solve.state import RunState
 
 CHECKPOINT_DIR = "checkpoint"
 INPUTS_FILE = "inputs.pkl"
 STATE_FILE = "state.pkl"  # a run in one process; side by side, group g's is state-g.pkl
 STATE_HEADER = "pancam-graph state; next stop"
-FORMAT = 11  # a checkpoint of another format is refused, not misread (2: the smoother's window; 3: groups;
+FORMAT = 12  # a checkpoint of another format is refused, not misread (2: the smoother's window; 3: groups;
 # 4: the partial relinearization check; 5: the smoothers' update logs in files beside the states;
 # 6: the run loop's classes in pancam_graph.solve; 7: per-stop results and tie links as columns;
 # 8: the variables that left the window as rows, graph.frozen; 9: the motions as columns;
 # 10: the per-stop columns, stops, views and landmark tracks in files, spill.Column; 11: modules moved into
-# geometry/, runtime/ and orbital/, shared scalars numbered by graph.keys.shared)
+# geometry/, runtime/ and orbital/, shared scalars numbered by graph.keys.shared; 12: SourceData in sources/)
 LOG_DIR = "log"  # the smoothers' update logs, one folder per configuration
+
+
+class SourceInputs(Protocol):
+    """What a checkpoint needs of the source's data (sources.registry.SourceData, which lives
+    above the store): the traverse and truth its states refer to by name."""
+
+    traverse: Traverse
+    truth: GroundTruth | None
 
 
 @dataclass(frozen=True)
 class RunInputs:
     """What the run was started with: the source's data and the run options."""
 
-    data: SourceData
+    data: SourceInputs
     options: RunOptions
     format: int = FORMAT
 
