@@ -17,6 +17,7 @@ from .design import (
     optimal_fov,
     two_site_ba,
     two_stop_vo,
+    vo_growth,
 )
 from .stereo import error_ellipse
 
@@ -32,6 +33,7 @@ FOV_SCAN_DEG = np.arange(10.0, 176.0, 2.5)
 SPACING_SCAN_M = np.arange(5.0, 150.1, 2.5)
 STEP_SCAN_M = np.arange(0.5, 10.01, 0.5)
 RANGE_SCAN_M = np.arange(10.0, 20.01, 1.0)
+VO_GROWTH_STOPS = 10  # 20 m at the default 2 m step: past the 10 m over which MER's VO held 1 % (Xu 2004)
 
 
 @dataclass
@@ -56,6 +58,7 @@ class RigAnalysis:
     features_curve: Curve | None = None  # Fig. 3.8: stop-2 sigma vs number of features
     step_curve: Curve | None = None  # Fig. 3.9: stop-2 sigma vs distance travelled
     step_curve_hrc: Curve | None = None  # Fig. 3.11
+    vo_growth_curve: Curve | None = None  # (3.12)-(3.14): VO alone, DRMS at each stop of equal steps
 
     @property
     def name(self) -> str:
@@ -74,6 +77,9 @@ class RigAnalysis:
         if self.step_curve is not None:
             entry["two_stop_vo_sigma_m"] = {f"{x:g}": float(y) for x, y in zip(self.step_curve.x, self.step_curve.y,
                                                                                strict=True)}
+        if self.vo_growth_curve is not None:
+            entry["vo_drms_by_stop_m"] = {f"{x:g}": float(y) for x, y in zip(self.vo_growth_curve.x,
+                                                                             self.vo_growth_curve.y, strict=True)}
         if seed is not None:
             entry["seed"] = seed
             entry["spacing_vs_seed"] = self.max_site_spacing_m / seed["max_site_spacing_m"] - 1.0
@@ -105,6 +111,7 @@ def analyze_rig(rig: AnalysisRig, a: Assumptions, hrc: bool = False, wac_optimal
     result.features_curve = Curve(np.array(counts), np.array(sigmas), rig.name)
     result.step_curve = Curve(STEP_SCAN_M, np.array([two_stop_vo(rig, a, step_m=s).sigma_m for s in STEP_SCAN_M]),
                               "stereo WAC" if rig.has_hrc else rig.name)
+    result.vo_growth_curve = Curve(np.arange(1, VO_GROWTH_STOPS + 1), vo_growth(rig, a, VO_GROWTH_STOPS), rig.name)
     if rig.has_hrc:
         result.step_curve_hrc = Curve(STEP_SCAN_M, np.array(
             [two_stop_vo(rig, a, step_m=s, hrc_fov_deg=rig.hrc_fov_deg).sigma_m for s in STEP_SCAN_M]),

@@ -296,13 +296,14 @@ def _camera_info(path: Path) -> tuple[np.ndarray, tuple[int, int]]:
 
 # -- shared -------------------------------------------------------------------------------------
 
-def read_stereo_calibration(path: Path, right: Path | None = None,
-                            image_size: tuple[int, int] | None = None) -> RectifiedStereo:
+def read_stereo_calibration(path: Path, right: Path | None = None, image_size: tuple[int, int] | None = None
+                            ) -> tuple[StereoCalibration | None, RectifiedStereo]:
     """Any supported calibration, told apart by content: a Kalibr camchain (cam0/cam1), a pair
-    of camera_info files (`right` given), OpenCV FileStorage YAML/XML, or a MATLAB .mat; as the
+    of camera_info files (`right` given), OpenCV FileStorage YAML/XML, or a MATLAB .mat. Returns
+    it as calibrated (None for a camera_info pair, whose images come rectified) and as the
     rectified pair."""
     raw = read_raw_calibration(path, right, image_size)
-    return read_camera_info_pair(Path(path), Path(right)) if raw is None else raw.rectified()
+    return raw, (read_camera_info_pair(Path(path), Path(right)) if raw is None else raw.rectified())
 
 
 def read_raw_calibration(path: Path, right: Path | None = None,

@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
 from ..geometry.geodesy import LocalFrame
 from .tables import write_csv
 
@@ -41,21 +40,6 @@ def write_geojson(path: Path, lat_lon_h: np.ndarray, name: str, times_s: np.ndar
     doc = {"type": "FeatureCollection", "features": [
         {"type": "Feature", "properties": properties, "geometry": {"type": "LineString", "coordinates": coords}}]}
     path.write_text(json.dumps(doc) + "\n", encoding="utf-8")
-
-
-def read_geojson_line(path: Path) -> np.ndarray:
-    """(N, 3) latitude, longitude, height of the first LineString in a GeoJSON file."""
-    try:
-        doc = json.loads(Path(path).read_text(encoding="utf-8"))
-        features = doc["features"] if doc.get("type") == "FeatureCollection" else [doc]
-        for feature in features:
-            geometry = feature["geometry"] if feature.get("type") == "Feature" else feature
-            if geometry.get("type") == "LineString":
-                lon_lat_h = np.array(geometry["coordinates"], dtype=float)
-                return lon_lat_h[:, [1, 0, 2]]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise InputError(f"{path}: not a GeoJSON LineString: {exc}") from None
-    raise InputError(f"{path}: no LineString feature")
 
 
 def write_kml(path: Path, lat_lon_h: np.ndarray, name: str) -> None:

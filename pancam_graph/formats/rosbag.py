@@ -1,5 +1,6 @@
-"""ROS1 and ROS2 bags through the `rosbags` package: GPS fixes, wheel odometry, IMU samples,
-camera images and stereo camera_info."""
+"""ROS1 and ROS2 bags through the `rosbags` package: GPS fixes, wheel odometry, camera images
+and stereo camera_info. (No IMU reader: nothing reads a bag's IMU yet; the one that was, with
+its test on the real Husky bag, is in git history before the commit that removed it.)"""
 
 from __future__ import annotations
 
@@ -90,43 +91,6 @@ def read_odometry(path: Path, topic: str | None) -> OdometryTrack:
         order = np.argsort(times, kind="stable")
         times, poses = times[order], [poses[i] for i in order]
     return OdometryTrack(f"{path}:{topic or 'Odometry'}", times, np.stack(poses))
-
-
-@dataclass(frozen=True)
-class ImuSamples:
-    """`sensor_msgs/Imu` as recorded, in the IMU's own frame."""
-
-    source: str
-    times_s: np.ndarray  # (N,) increasing
-    angular_velocity: np.ndarray  # (N, 3) rad/s
-    linear_acceleration: np.ndarray  # (N, 3) m/s^2, gravity included (at rest about +9.81 along up)
-    orientation_xyzw: np.ndarray  # (N, 4); NaN rows where the driver gives no orientation
-
-    def __len__(self) -> int:
-        return len(self.times_s)
-
-
-def read_imu(path: Path, topic: str | None) -> ImuSamples:
-    """`sensor_msgs/Imu` messages. A covariance whose first element is -1 marks a quantity the
-    driver does not provide (the message definition); such orientations are NaN, and a bag
-    without rates or accelerations is an error, since those are what an IMU is read for."""
-    times, rates, accels, quats = [], [], [], []
-    for i, t, m in _messages(path, topic, "Imu"):
-        if m.angular_velocity_covariance[0] == -1 or m.linear_acceleration_covariance[0] == -1:
-            raise InputError(f"{path}: {topic} message {i}: no angular velocity or linear acceleration "
-                             "(covariance[0] = -1)")
-        q = m.orientation
-        quats.append([np.nan] * 4 if m.orientation_covariance[0] == -1 else [q.x, q.y, q.z, q.w])
-        w, a = m.angular_velocity, m.linear_acceleration
-        rates.append([w.x, w.y, w.z])
-        accels.append([a.x, a.y, a.z])
-        times.append(t)
-    if not times:
-        raise InputError(f"{path}: topic {topic} has no IMU messages")
-    times = np.asarray(times)
-    order = np.argsort(times, kind="stable")
-    return ImuSamples(f"{path}:{topic or 'Imu'}", times[order], np.asarray(rates)[order], np.asarray(accels)[order],
-                      np.asarray(quats)[order])
 
 
 @dataclass(frozen=True)

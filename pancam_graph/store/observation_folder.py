@@ -180,11 +180,10 @@ def _rig(folder: Path, source: RigSource) -> tuple[Rig, StereoCalibration | None
             return preset, None
     from dataclasses import replace
 
-    from ..formats.calibration import read_camera_info_pair, read_raw_calibration
+    from ..formats.calibration import read_stereo_calibration
 
     right = folder / source.calibration_right if source.calibration_right else None
-    raw = read_raw_calibration(folder / source.calibration, right, source.calibration_image_size)
-    stereo = read_camera_info_pair(folder / source.calibration, right) if raw is None else raw.rectified()
+    raw, stereo = read_stereo_calibration(folder / source.calibration, right, source.calibration_image_size)
     rotation = None if raw is None or raw.is_rectified else tuple(stereo.raw_R_rectified.ravel().tolist())
     if source.rectification is not None:
         given = np.array(source.rectification, dtype=float)

@@ -121,3 +121,14 @@ def test_table_3_2_and_the_optimal_fov():
     assert max_site_spacing(wac_820, a, fov, hrc=True) == pytest.approx(65.2, rel=0.05)
     # 16 tie points: a clearly smaller optimal FOV (seed: about 70 deg)
     assert optimal_fov(AnalysisRig.preset("exomars"), Assumptions(ba_rays=4, ba_ranges=4)) < 75
+
+
+def test_the_design_document_carries_vo_growth_over_stops():
+    """`analyze` states VO alone over ten equal steps ((3.12)-(3.14)), the curve the Monte Carlo above checks."""
+    from pancam_graph.analysis.trades import VO_GROWTH_STOPS, analyze_rig
+
+    rig, a = AnalysisRig.preset("mer_navcam"), Assumptions()
+    curve = analyze_rig(rig, a).as_dict()["vo_drms_by_stop_m"]
+    assert list(curve) == [str(k) for k in range(1, VO_GROWTH_STOPS + 1)]
+    np.testing.assert_allclose(list(curve.values()), vo_growth(rig, a, VO_GROWTH_STOPS), rtol=1e-12)
+    assert np.all(np.diff(list(curve.values())) > 0)

@@ -71,14 +71,14 @@ def test_opencv_yaml_and_kalibr_rectify_to_kittis_baseline(kitti, tmp_path):
     rectified = ours.rectified()
     # KITTI's own rectification (P_rect_02/03) says 0.53273 m; OpenCV's, from the raw calibration, agrees.
     assert rectified.baseline_m == pytest.approx(kitti["rectified"].baseline_m, abs=1e-4)
-    assert read_stereo_calibration(tmp_path / "stereo.yml") == rectified
+    assert read_stereo_calibration(tmp_path / "stereo.yml")[1] == rectified
     camchain = tmp_path / "camchain.yaml"
     camchain.write_text(yaml.safe_dump(_camchain(kitti)))
     kalibr = read_kalibr_camchain(camchain)
     np.testing.assert_allclose(kalibr.translation, kitti["T"])
     # Kalibr's radtan has no k3: KITTI's k3 is dropped, the geometry of the pair is the same.
     assert kalibr.rectified().baseline_m == pytest.approx(rectified.baseline_m, abs=1e-9)
-    assert read_stereo_calibration(camchain).baseline_m == pytest.approx(rectified.baseline_m, abs=1e-9)
+    assert read_stereo_calibration(camchain)[1].baseline_m == pytest.approx(rectified.baseline_m, abs=1e-9)
 
 
 def _camera_info(p: np.ndarray, size, drop: str = "") -> dict:

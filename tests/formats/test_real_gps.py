@@ -1,5 +1,6 @@
 """Real GPS logs through the readers, pyproj and the GIS writers."""
 
+import json
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -8,7 +9,6 @@ import pytest
 
 from pancam_graph.errors import InputError
 from pancam_graph.formats.export import (
-    read_geojson_line,
     write_geojson,
     write_kitti,
     write_kml,
@@ -18,6 +18,14 @@ from pancam_graph.formats.gps_logs import read_gps_csv, read_kfgins
 from pancam_graph.geometry.geodesy import LocalFrame
 
 pytestmark = pytest.mark.real_data
+
+
+def read_geojson_line(path: Path) -> np.ndarray:
+    """(N, 3) latitude, longitude, height of a written track's LineString, read with plain json."""
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    features = doc["features"] if doc["type"] == "FeatureCollection" else [doc]
+    line = next(f["geometry"] for f in features if f["geometry"]["type"] == "LineString")
+    return np.array(line["coordinates"], dtype=float)[:, [1, 0, 2]]
 
 REAL = Path(__file__).parents[1] / "data" / "real"
 KFGINS = REAL / "kfgins" / "GNSS-RTK.txt"

@@ -52,7 +52,7 @@ def test_calibration_recovers_the_rendered_pair(field):
     rms = [float(line.split()[2]) for line in printed.splitlines() if line.strip().startswith("RMS px")][0]
     assert rms < 0.2, printed
     # What `run` and `track` make of it: the rectified pair's focal length and baseline.
-    ours, theirs = read_stereo_calibration(folder / "calib.yaml"), truth.rectified()
+    ours, theirs = read_stereo_calibration(folder / "calib.yaml")[1], truth.rectified()
     assert ours.camera.fx == pytest.approx(theirs.camera.fx, rel=0.002)
     assert ours.baseline_m == pytest.approx(theirs.baseline_m, abs=0.001)
 
