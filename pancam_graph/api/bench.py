@@ -311,9 +311,10 @@ def bench_frontend(source: str | None, detector: str | None = None, progress: Pr
     if source is None or not source_for(source).stereo_images:
         raise ConfigError(f"bench frontend {source or ''}: give stereo images ({stereo_image_sources()}, e.g. "
                           "../shared/data/real/kitti_odometry_51)")
-    kind = source_for(source).name
     config = FrontendConfig(detector=detector or "gftt")
-    stops, read_raw, size, rectify, camera_motion = _stereo_frames(Path(source), kind)
+    frames = source_for(source).frames(Path(source))
+    stops, read_raw, size, rectify, camera_motion = (frames.stops, frames.read_raw, frames.size, frames.rectify,
+                                                     frames.camera_motion)
     tracker = StereoTracker(config)
     read_ms: list[float] = []
 
@@ -343,26 +344,6 @@ def bench_frontend(source: str | None, detector: str | None = None, progress: Pr
                 "not included); gftt: corner detection runs beside temporal tracking, whose time includes "
                 "the overlap, and detect is what is left of it",
     }
-
-
-def _stereo_frames(folder: Path, kind: str):
-    """(the stops, a reader of stop k's raw pair, (height, width), the rectification or None,
-    the camera's motion from dead reckoning or None) of an image source."""
-    if kind == "kitti_odometry":
-        from ..formats.kitti import read_kitti_odometry
-        from ..records import StereoObservations, Stop
-
-        sequence = read_kitti_odometry(folder)
-        cam = sequence.stereo.camera
-        stops = [Stop(k, float(sequence.times_s[k]), StereoObservations.empty()) for k in range(len(sequence))]
-        return stops, sequence.stereo_pair, (cam.height, cam.width), None, None
-    from ..sources.image_folder import FramePairs, odometry_camera_motion
-    from ..store.observation_folder import read_observations
-
-    obs = read_observations(folder)
-    pairs = FramePairs(obs)
-    rectify = None if pairs.rectify is None else pairs.rectified
-    return obs.traverse.stops, pairs.read, pairs.size, rectify, odometry_camera_motion(obs.traverse)
 
 
 def _time_recorded_run(scenario, seed: int) -> float:

@@ -21,7 +21,7 @@ from ..frontend.tracker import CameraMotion, StageTimes, StereoTracker
 from ..records import Stop, Traverse
 from ..solve.results import SourceInfo
 from .frames import median_frame_ms, track_frames
-from .registry import Source, SourceData, frontend_for
+from .registry import Source, SourceData, StereoFrames, frontend_for
 from .site_images import with_site_panoramas
 
 # Pixel sigma of a landmark's views when its tie points were matched across sites from images:
@@ -158,5 +158,14 @@ def _load(text: str, options: SourceOptions, progress) -> SourceData:
 
 
 # Before observation folders: an image folder is one, with frames.csv for its stereo pairs.
+def stereo_frames(folder: Path) -> StereoFrames:
+    from ..store.observation_folder import read_observations
+
+    obs = read_observations(folder)
+    pairs = FramePairs(obs)
+    return StereoFrames(list(obs.traverse.stops), pairs.read, pairs.size,
+                        None if pairs.rectify is None else pairs.rectified, odometry_camera_motion(obs.traverse))
+
+
 SOURCES = (Source("image_folder", 30, frozenset({"detector", "skip_bad_frames"}), matches, _load,
-                  "an image folder (traverse.toml with frames.csv)", stereo_images=True),)
+                  "an image folder (traverse.toml with frames.csv)", frames=stereo_frames),)

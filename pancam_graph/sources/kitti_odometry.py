@@ -18,7 +18,7 @@ from ..geometry.rig import BODY_T_FORWARD_CAMERA, Rig
 from ..records import GroundTruth, SlipPrior, StereoObservations, Stop, Traverse
 from ..solve.results import SourceInfo
 from .frames import median_frame_ms, track_frames
-from .registry import Source, SourceData, frontend_for
+from .registry import Source, SourceData, StereoFrames, frontend_for
 
 # The real KITTI frames' own VO error model (config.VO_ERROR_MODELS, docs/frontend.md, where it was
 # measured): with no sites or GPS, the one configuration is vo with its shared scale.
@@ -84,10 +84,20 @@ def traverse_from_sequence(sequence, stops: list[Stop], tracker: StereoTracker, 
     return SourceData(traverse, truth, REAL_IMAGE_ESTIMATOR, 0, info)
 
 
+def stereo_frames(folder: Path) -> StereoFrames:
+    from ..formats.kitti import read_kitti_odometry
+
+    sequence = read_kitti_odometry(folder)
+    cam = sequence.stereo.camera
+    stops = [Stop(k, float(sequence.times_s[k]), StereoObservations.empty()) for k in range(len(sequence))]
+    return StereoFrames(stops, sequence.stereo_pair, (cam.height, cam.width))
+
+
 def _load(text: str, options: SourceOptions, progress) -> SourceData:
     frontend = frontend_for(options)
     return load(Path(text), frontend, progress, bool(options.skip_bad_frames))
 
 
 SOURCES = (Source("kitti_odometry", 50, frozenset({"detector", "skip_bad_frames"}), matches, _load,
-                  "a KITTI odometry sequence (calib.txt with image_0/image_1 or image_l/image_r)", stereo_images=True),)
+                  "a KITTI odometry sequence (calib.txt with image_0/image_1 or image_l/image_r)",
+                  frames=stereo_frames),)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from ..config import EstimatorConfig, FrontendConfig, Scenario, SourceOptions
 from ..frontend.motion import VoMotions
-from ..records import GpsFix, GroundTruth, Traverse
+from ..records import GpsFix, GroundTruth, Stop, Traverse
 from ..solve.results import SourceInfo
 
 ProgressCallback = Callable[[str, int, int], None]
@@ -36,6 +36,17 @@ class SourceData:
 
 
 @dataclass(frozen=True)
+class StereoFrames:
+    """A stereo image source's frames as the front-end reads them (`bench frontend` times it)."""
+
+    stops: list[Stop]
+    read_raw: Callable  # stop k -> its (left, right) images as stored
+    size: tuple[int, int]  # (height, width)
+    rectify: Callable | None = None  # (pair, stage times) -> the rectified pair; None: stored rectified
+    camera_motion: Callable | None = None  # the camera's motion from dead reckoning, for aided tracking
+
+
+@dataclass(frozen=True)
 class Source:
     name: str  # as metrics.json's source.kind says it
     order: int  # recognition order: the first whose `matches` says yes reads the path
@@ -47,7 +58,12 @@ class Source:
     # (processes.call_apart): loading it reports no progress and leaves behind nothing the run
     # needs (a long simulation).
     apart: Callable[[str], bool] = lambda text: False
-    stereo_images: bool = False  # it reads stereo images, which the front-end tracks (track, bench frontend)
+    # Its stereo frames, when it reads stereo images the front-end tracks (track, bench frontend).
+    frames: Callable[[Path], StereoFrames] | None = None
+
+    @property
+    def stereo_images(self) -> bool:
+        return self.frames is not None
 
 
 def frontend_for(options: SourceOptions) -> FrontendConfig | None:
