@@ -149,8 +149,7 @@ class Serpentine(_Strict):
 
 
 # A traverse's size limit (six mission_traverses), and what the refusal predicts from measured
-# costs: the run's time a stop on 2 cores with all configurations (mission_traverse, docs/
-# performance.md) and the simulation's memory a stop (long_traverse: 186 MB for 6,961 stops)
+# costs a stop (docs/performance.md, "Figures behind the code")
 MAX_STOPS = 200_000
 SECONDS_PER_STOP = 0.0097
 SIMULATION_BYTES_PER_STOP = 27_000

@@ -173,7 +173,7 @@ def bench_monte_carlo_sweep(scenario: str, seed: int | None, seeds: int, workers
 
 def bench_sites(source: str | None, compared_sites: int = 3, progress: ProgressCallback | None = None) -> dict:
     """The site panoramas of an image folder: pan/tilt-aided against unaided (SIFT) matching of
-    overlapping frames on the first `compared_sites` sites (SIFT takes about 25 s a site), and
+    overlapping frames on the first `compared_sites` sites (SIFT is slow: a few sites), and
     the tie points between every pair of sites; each checked against the renderer's truth when
     the folder names a bundled scenario."""
     import numpy as np

@@ -82,7 +82,7 @@ def align(est: np.ndarray, ref: np.ndarray, kind: Alignment) -> tuple[np.ndarray
 
 def rotation_angle_deg(rot: np.ndarray) -> float:
     """Angle of a rotation matrix by its log map (arccos of the trace loses small angles).
-    GTSAM's, not scipy's Rotation: scipy.spatial would add 12 MB to every worker process."""
+    GTSAM's, not scipy's Rotation: scipy.spatial would be one more import in every worker."""
     return float(np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(gtsam.Rot3(rot)))))
 
 

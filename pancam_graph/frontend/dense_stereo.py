@@ -1,10 +1,8 @@
 """A site panorama's dense local elevation map: OpenCV's semi-global matching (SGBM) on each
 rectified WAC pair, the disparities sampled on a grid and triangulated into the body frame.
 
-The orbital DTM it is registered to has 1 m posts, so the pairs are matched at half resolution
-(a quarter of the pixels, half the disparity range: about eight times faster, 50 ms a pair);
-the grid still puts a point every 2 cm on the near ground, and SGBM's 1/16 px disparity step is
-0.6 % of the range at 40 m.
+The orbital DTM it is registered to has 1 m posts, so the pairs are matched at half resolution,
+which still samples the near ground far finer than the map (docs/performance.md).
 
 Runs do not use it yet: on rendered sites it registers no better than the image front-end's
 tie points and its covariance is too small (docs/orbital.md, "From rendered images"); the

@@ -44,9 +44,8 @@ _SOURCES = ("vo", "dead_reckoning", "constant_velocity")
 
 class Motions:
     """Every stop's motion from the previous one (None for the first) as columns of numbers,
-    appended a stop at a time and read back as `Motion`s. As a list of `Motion` objects a
-    traverse's motions took 2.1 KB a stop (mission_traverse: 71 MB in each worker and in the
-    run's process); here 48 numbers and 3 integers, in blocks of `BLOCK` stops (a large array
+    appended a stop at a time and read back as `Motion`s (a list of `Motion` objects costs
+    kilobytes a stop): 48 numbers and 3 integers, in blocks of `BLOCK` stops (a large array
     of a group's inputs is mapped by its worker, not copied: side_by_side.Handover)."""
 
     BLOCK = 4096

@@ -4,8 +4,7 @@ points, the previous pose held fixed, solved by Levenberg-Marquardt on the Schur
 It is the system GTSAM builds from two `GenericStereoFactor3D`s a point (the previous pose
 fixed by a prior, the points eliminated first), written with numpy because its structure is
 fixed: one 6-dof pose and a 3x3 block per point. Built in Python factor by factor, GTSAM's
-adjustment was 80 % of the VO's time (cProfile, denver_trail: 2.24 of 2.78 s over 593 stops,
-64 inliers a stop); here every point is one row of a few arrays.
+adjustment dominated the VO's time; here every point is one row of a few arrays.
 tests/frontend/test_two_stop_adjustment.py holds it to GTSAM's optimum, marginal and residuals.
 
 Frames: points in the previous stop's left camera frame; the pose is the body's prev_T_curr,

@@ -1,9 +1,7 @@
 """What the smoother keeps of the variables that left its window: a row of numbers a variable
 (its estimate as it left, or its pose's marginal position covariance), the latest rows in
 memory and every `CHUNK_ROWS` of them in files mapped read-only, so the run's memory does not
-grow with the traverse (the issue's "stops that left the window stream their results to
-disk"; as a `gtsam.Values`, a pose took 192 bytes and a landmark 128: with the rows in files,
-mission_traverse's groups with sites grew 0.9 and 0.5 MB a km less).
+grow with the traverse (a `gtsam.Values` holds every variable in memory).
 
 The files are unlinked once mapped (spill.mapped): nothing is left behind, however the run
 ends; a checkpoint carries their rows."""
@@ -21,8 +19,7 @@ from ..runtime.spill import mapped
 from .keys import value_type
 
 # rows a file; the environment may set it (tests). The rows in memory before they go are the
-# sawtooth of a group's memory along the mission: with 16,384 its groups grew 0.23 / 0.75 /
-# 0.42 MB a km from 10 to 50 km, with 4,096 0.10 / 0.65 / 0.33 (one run each, docs/performance.md)
+# sawtooth of a group's memory along the mission (docs/performance.md)
 CHUNK_ROWS = int(os.environ.get("PANCAM_GRAPH_FROZEN_CHUNK_ROWS", "4096"))
 _SYMBOL_SHIFT = 56  # a gtsam.Symbol's character is the key's top byte
 

@@ -1,7 +1,6 @@
 """A smoother's update log: every update's new factors, the initial values it inserted and
 their clocks, in order. The newest updates are kept in memory; every `CHUNK_UPDATES` of them
-go to a file, so the log does not hold the whole traverse in memory (long_traverse's
-vo_sites: 110,000 factors, about 50 MB of the worker's memory, 63 MB on disk). Read back in
+go to a file, so the log does not hold the whole traverse in memory. Read back in
 order, it rebuilds the smoother (checkpoints, the Cholesky-to-QR fallback) and gives the
 bound (CRLB) and the batch polish their graph.
 

@@ -40,7 +40,7 @@ def absolute(kinds: list[str]) -> bool:
 
 
 def relative_cost(kinds: list[str]) -> float:
-    """A configuration's time per stop relative to plain VO's (measured on long_traverse): what
+    """A configuration's time per stop relative to plain VO's (each kind's `cost`): what
     balances the groups of configurations run side by side."""
     return 1.0 + sum(KINDS[k].cost for k in kinds)
 

@@ -32,8 +32,7 @@ def settle_garbage_collector() -> None:
     """Collect, then set aside every object that survived from Python's garbage collector
     (`gc.freeze`), which otherwise walks all of them at each of its full collections: the
     traverse's stops and everything the run built so far. Without this the collections came
-    at random stops and grew with the traverse (vo_sites beside full on long_traverse: median
-    update 0.19 ms in the first km, 0.53 in the eleventh, 0.39 with the collector off).
+    at random stops and grew with the traverse.
     Called at checkpoints, so each collection walks what a few stops made; `gc.unfreeze` at
     the end of the run hands the rest back."""
     gc.collect()

@@ -71,9 +71,8 @@ def run_scenario(scenario: Scenario, options: RunOptions = RunOptions(), progres
 
 
 # A scenario at least this long is simulated in a process of its own when the run has more than
-# one: that process waits for the fork server's imports, about 1 s (denver_trail's 0.9 km took
-# 7.6-7.8 s instead of 6.8), and gives back what the simulation leaves in memory (long_traverse's
-# 10.4 km: the run's process 369 -> 213 MB while the groups run).
+# one: that process waits about 1 s for the fork server's imports, which a short traverse does not
+# repay, and gives back what the simulation leaves in memory (docs/performance.md).
 SIMULATE_APART_M = 3000.0
 
 

@@ -14,7 +14,7 @@ from ..records import Stop, Traverse
 class StopRecords:
     """The image records a group reads (panoramas, HRC frames, ground patches) in a file, one
     pickle a stop: its worker reads a stop's as it comes to it and holds none for the rest of
-    the traverse (mission_traverse: 111 MB of panoramas, pickled, for a group with sites)."""
+    the traverse (a mission's panoramas are a hundred MB pickled)."""
 
     def __init__(self, path: Path, offsets: dict[int, int]):
         self.path = path

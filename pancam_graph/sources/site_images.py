@@ -105,8 +105,8 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
     ties = TieMatcher(rig, obs.traverse.image_noise_px)
     hrc_matcher = HrcMatcher(rig) if read_hrc is not None and rig.hrc is not None else None
     hrc_images = images_by_stop(obs, "hrc")
-    # the ground from above, for the orbital kind to correlate with an orthoimage: 3.7 s a site
-    # at load 4 (SGBM on every pair), so only when it will be used
+    # the ground from above, for the orbital kind to correlate with an orthoimage: SGBM on every
+    # pair, seconds a site, so only when it will be used
     orthoimage = vo.estimator.orbital.use_orthoimage and any(
         m.orthoimage is not None for m in obs.traverse.measurements.get("orbital", ()))
     recent: list[SitePanorama] = []

@@ -161,7 +161,7 @@ def log_static(
                                                colors=TRUTH_COLOUR), static=True)
         rec.log("map/truth", rr.GeoLineStrings(lat_lon=[lat_lon(origin, truth_positions)],
                                                radii=rr.Radius.ui_points(2.0), colors=TRUTH_COLOUR), static=True)
-    # Styles are static so the per-stop logs carry geometry only (from_fields: ~3x cheaper).
+    # Styles are static so the per-stop logs carry geometry only (from_fields is cheaper).
     for config in configs:
         rgb = colour(config)
         for path in (estimate_path(config, "trajectory"), estimate_path(config, "trajectory/tail")):
@@ -291,7 +291,7 @@ def frustum_segments(world_T_cam: np.ndarray, camera: Camera, depth_m: float = F
 def tie_strips(links: np.ndarray, landmark_ids: np.ndarray, landmarks: np.ndarray,
                site_positions: dict[int, np.ndarray]) -> np.ndarray:
     """A segment from each site to each landmark it tied, (N, 2, 3): one array, not a list of
-    small ones, which rerun converts 40x slower."""
+    small ones, which rerun converts far slower."""
     index = {int(t): i for i, t in enumerate(landmark_ids)}
     pairs = [(index[track], stop) for track, stop in links.tolist() if track in index and stop in site_positions]
     if not pairs:

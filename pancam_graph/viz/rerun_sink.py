@@ -16,7 +16,7 @@ from urllib.parse import quote
 
 from ..errors import ViewerUnavailable
 
-if TYPE_CHECKING:  # rerun is imported when a recording opens: 0.25 s a run without one
+if TYPE_CHECKING:  # rerun is imported when a recording opens: a run without one does not pay for it
     import rerun as rr
 
 DEFAULT_VIEWER_MEMORY = "25%"  # of system RAM; the viewer drops the oldest data beyond it
