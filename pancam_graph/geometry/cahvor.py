@@ -243,7 +243,8 @@ class Photogrammetric:
 
 def to_photogrammetric(model: CameraModel, width: int, height: int, grid: int = 25,
                        range_m: float = 10.0) -> Photogrammetric:
-    """The rotation and OpenCV pinhole (fx, fy, cx, cy, k1, k2, p1, p2) that best reproduce
+    """The rotation and OpenCV pinhole (fx, fy, cx, cy; k1, k2, p1, p2, k3 and the thin prism
+    s1..s4, which take up what the tilt of CAHVOR's O from A leaves) that best reproduce
     `model` over a width x height image: CAHV's frame (x along H', z along A) and its focal
     lengths and centre to start, then least squares over a grid x grid of pixels (corners
     included) against the model's own rays (SciPy). A CAHVORE's moving pupil is taken at its
@@ -262,12 +263,20 @@ def to_photogrammetric(model: CameraModel, width: int, height: int, grid: int = 
 
     def predicted(params: np.ndarray) -> np.ndarray:
         rotation = start_R @ Rotation.from_rotvec(params[:3]).as_matrix()
-        camera = Camera(*params[3:7], width, height, *params[7:11])
+        camera = Camera(*params[3:7], width, height, *params[7:])
         return camera.project((points - model.c) @ rotation)
 
-    start = np.array([0.0, 0.0, 0.0, model.hs, model.vs, model.hc, model.vc, 0.0, 0.0, 0.0, 0.0])
-    fit = least_squares(lambda p: (predicted(p) - pixels).ravel(), start, method="lm", xtol=1e-15, ftol=1e-15)
+    # the pinhole with radial and tangential terms first, then the rest from there: started
+    # together, rotation, centre and the decentering terms can settle in another minimum
+    start = np.array([0.0, 0.0, 0.0, model.hs, model.vs, model.hc, model.vc] + [0.0] * 9)
+    fit = None
+    for free in (11, 16):
+        fixed = start[free:]
+        fit = least_squares(lambda p, fixed=fixed: (predicted(np.concatenate([p, fixed])) - pixels).ravel(),
+                            start[:free], method="lm", xtol=1e-15, ftol=1e-15)
+        start = np.concatenate([fit.x, fixed])
+    fit.x = start
     error = np.linalg.norm(predicted(fit.x) - pixels, axis=1)
     rotation = start_R @ Rotation.from_rotvec(fit.x[:3]).as_matrix()
-    camera = Camera(*fit.x[3:7], width, height, *fit.x[7:11])
+    camera = Camera(*fit.x[3:7], width, height, *fit.x[7:])
     return Photogrammetric(rotation, model.c, camera, float(error.max()), float(np.sqrt(np.mean(error**2))))

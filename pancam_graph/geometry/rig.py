@@ -25,7 +25,9 @@ BODY_T_FORWARD_CAMERA[:3, :3] = HEAD_R_CAM
 
 @dataclass(frozen=True)
 class Camera:
-    """Pinhole camera with radial (k1, k2) and tangential (p1, p2) distortion, OpenCV order."""
+    """Pinhole camera with OpenCV's distortion: radial (k1, k2, k3), tangential (p1, p2) and thin
+    prism (s1..s4), OpenCV's order and formulas. The thin prism and k3 carry what a CAHVOR
+    model's tilted optical axis leaves (geometry/cahvor.to_photogrammetric)."""
 
     fx: float
     fy: float
@@ -37,11 +39,26 @@ class Camera:
     k2: float = 0.0
     p1: float = 0.0
     p2: float = 0.0
+    k3: float = 0.0
+    s1: float = 0.0
+    s2: float = 0.0
+    s3: float = 0.0
+    s4: float = 0.0
 
     def matrix(self) -> np.ndarray:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
+    @property
+    def _thin_prism(self) -> bool:
+        return any((self.s1, self.s2, self.s3, self.s4))
+
     def distortion(self) -> np.ndarray:
+        """OpenCV's distortion vector, as short as its terms allow (4, 5 or 12 numbers)."""
+        if self._thin_prism:
+            return np.array([self.k1, self.k2, self.p1, self.p2, self.k3, 0.0, 0.0, 0.0,
+                             self.s1, self.s2, self.s3, self.s4])
+        if self.k3:
+            return np.array([self.k1, self.k2, self.p1, self.p2, self.k3])
         return np.array([self.k1, self.k2, self.p1, self.p2])
 
     def project(self, p_cam: np.ndarray, distort: bool = True) -> np.ndarray:
@@ -52,8 +69,13 @@ class Camera:
         if distort:
             r2 = x * x + y * y
             radial = 1.0 + self.k1 * r2 + self.k2 * r2 * r2
+            if self.k3:
+                radial = radial + self.k3 * r2 * r2 * r2
             xd = x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x)
             yd = y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y
+            if self._thin_prism:
+                xd = xd + self.s1 * r2 + self.s2 * r2 * r2
+                yd = yd + self.s3 * r2 + self.s4 * r2 * r2
             x, y = xd, yd
         return np.column_stack([self.fx * x + self.cx, self.fy * y + self.cy])
 

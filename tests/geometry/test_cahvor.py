@@ -112,12 +112,35 @@ def test_a_bad_model_is_refused_by_name(change, words):
 
 @pytest.mark.real_data
 @needs_curiosity
-def test_the_photogrammetric_conversion_of_the_downsampled_navcam_models(navcam):
-    """The rotation and OpenCV pinhole (k1, k2, p1, p2) fitted to each 256 x 256 model (the
-    frames the rover's own VO used) reproduce its projection over a 25 x 25 grid within 0.05 px.
-    The full 1024 x 1024 frames are left at 0.16 px by these four coefficients (docs/cahvor.md:
-    the model's H-V skew and O's 1 deg off A); not yet within the 0.05 px asked."""
-    small = [m for m in navcam if m[1] == 256]
-    assert len(small) > 100
-    residuals = [to_photogrammetric(model, width, height).residual_px for model, width, height in small[::10]]
-    assert max(residuals) < 0.05, residuals
+def test_the_photogrammetric_conversion_of_every_navcam_model_within_0_05_px(navcam):
+    """The rotation and OpenCV pinhole (k1, k2, p1, p2, k3 and the thin prism s1..s4) fitted to
+    each of the 122 models reproduce its projection within 0.05 px over a 25 x 25 grid, corners
+    included (largest 0.012 px on the 256 x 256 VO frames, 0.049 px on the full frames), and on
+    a 61 x 61 grid of rays it was not fitted to, at 2 m and at 100 m, the same."""
+    residuals = {(width, height): [] for _, width, height in navcam}
+    for model, width, height in navcam:
+        fitted = to_photogrammetric(model, width, height)
+        residuals[(width, height)].append(fitted.residual_px)
+    assert max(residuals[(256, 256)]) < 0.05 and max(residuals[(1024, 1024)]) < 0.05, residuals
+    model, width, height = next(m for m in navcam if m[1] == 1024)
+    fitted = to_photogrammetric(model, width, height)
+    pixels = _grid(width, height, 61)
+    origins, directions = model.rays(pixels)
+    for range_m in (2.0, 100.0):
+        error = np.linalg.norm(fitted.project(origins + range_m * directions) - pixels, axis=1)
+        assert error.max() < 0.05
+
+
+def test_the_camera_s_distortion_is_opencv_s():
+    """Camera.project with every term against cv2.projectPoints given Camera.distortion()."""
+    import cv2
+
+    from pancam_graph.geometry.rig import Camera
+
+    camera = Camera(1227.0, 1226.5, 523.1, 515.3, 1024, 1024, -0.0049, 0.0222, 0.0036, 0.0080, -0.003,
+                    0.0011, -0.0004, 0.0009, 0.0002)
+    rng = np.random.default_rng(3)
+    points = np.column_stack([rng.uniform(-3, 3, (200, 2)), rng.uniform(4, 9, 200)])
+    theirs, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), camera.matrix(), camera.distortion())
+    np.testing.assert_allclose(camera.project(points), theirs.reshape(-1, 2), atol=1e-9)
+    assert len(camera.distortion()) == 12 and len(Camera(1, 1, 0, 0, 2, 2, k3=0.1).distortion()) == 5
