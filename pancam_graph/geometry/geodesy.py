@@ -91,13 +91,26 @@ class LocalFrame:
         """(N, 3) unit vectors of the vertical (the up ellipsoid's normal) at ENU points (N, 3),
         in this frame: (0, 0, 1) at the origin, turned by about distance / radius away from it."""
         geodetic = self.to_geodetic(enu)
+        lat, lon = np.deg2rad(self._vertical_latitude(geodetic)), np.deg2rad(geodetic[:, 1])
+        normal = np.column_stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)])
+        return normal @ self.enu_R_fixed().T
+
+    def vertical_latitude_deg(self, enu: np.ndarray) -> np.ndarray:
+        """(N,) latitude of the vertical (the up ellipsoid's normal) at ENU points (N, 3): the
+        planetographic latitude on Mars, the geodetic one on Earth."""
+        return self._vertical_latitude(self.to_geodetic(enu))
+
+    def _vertical_latitude(self, geodetic: np.ndarray) -> np.ndarray:
         try:
             _, lat, _ = self._to_up.transform(geodetic[:, 1], geodetic[:, 0], geodetic[:, 2], errcheck=True)
         except ProjError as exc:
             raise GeodesyError(f"the vertical at ENU points failed: {exc}") from exc
-        lat, lon = np.deg2rad(np.asarray(lat)), np.deg2rad(geodetic[:, 1])
-        normal = np.column_stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)])
-        return normal @ self.enu_R_fixed().T
+        return np.asarray(lat, dtype=float)
+
+    def geographic_crs(self) -> CRS:
+        """The body's geographic CRS the positions are on (WGS84; the IAU 2015 Mars sphere,
+        planetocentric)."""
+        return CRS.from_user_input(_GEOGRAPHIC[self.body])
 
     def map_crs(self) -> CRS:
         """The projected CRS of a map of this site: on Earth the UTM zone of the origin, on Mars

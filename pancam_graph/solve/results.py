@@ -49,6 +49,9 @@ class SourceInfo:
     # What the world frame's first two axes are (plots' axis names): ENU, or a recorded frame
     axes: tuple[str, str] = ("east", "north")
     georeferenced: bool = True  # the local frame's origin is a place on the body (else no geographic file)
+    # Each stop's rover motion counter (site, drive) when the source has one (rover products);
+    # else the localization product numbers sites by the panorama stops and drives from each.
+    stop_counters: tuple[tuple[int, int], ...] = ()
 
 
 @dataclass(frozen=True)

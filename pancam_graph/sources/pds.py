@@ -129,7 +129,8 @@ def load(folder: Path, progress: Callable[[str, int, int], None] | None = None) 
         wheel_slip=SlipPrior(0.0, 1e-6), body_T_nav_left=body_T_nav_left,
         measurements={"onboard": tilts})
     info = SourceInfo("pds", str(folder), "MSLICE ground-updated positions (held out)" if held_out else "none",
-                      notes=tuple(notes), georeferenced=georeferenced)
+                      notes=tuple(notes), georeferenced=georeferenced,
+                      stop_counters=tuple((group[0].site, group[0].drive) for group in groups))
     return SourceData(traverse, None, EstimatorConfig(configurations=CONFIGURATIONS), 0, info, held_out=held_out)
 
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import FolderInUse, GeodesyError, InputError, ResultsError, WriteFailed
 from ..formats.export import write_trajectory_exports
+from ..formats.localization import localization, write_localization
 from ..formats.tables import write_csv, write_json
 from ..geometry.geodesy import LocalFrame
 from ..geometry.rig import Camera, Rig
@@ -262,6 +263,22 @@ def write_run(result: RunResult, folder: Path) -> None:
     for name, c in result.configurations.items():
         write_trajectory_exports(folder, f"trajectory_{name}", result.traverse.origin if result.source.georeferenced
                                  else None, times, c.world_T_body)
+    if result.source.georeferenced and result.traverse.origin.body != "earth":  # Earth has WGS84's files
+        counters = np.array(result.source.stop_counters or site_drive_of(stops), dtype=int)
+        for name, c in result.configurations.items():
+            write_localization(folder, localization(name, result.traverse.origin, times, c.world_T_body,
+                                                    c.position_covariance, counters))
+
+
+def site_drive_of(stops) -> list[tuple[int, int]]:
+    """A motion counter for stops that have none: the site is the last panorama stop's site id
+    (0 before the first), the drive the stops since it."""
+    out, site, since = [], 0, 0
+    for stop in stops:
+        if stop.is_site:
+            site, since = stop.site_id, stop.index
+        out.append((site, stop.index - since))
+    return out
 
 
 @dataclass(frozen=True)

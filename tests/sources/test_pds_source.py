@@ -121,3 +121,24 @@ def test_a_broken_mslice_file_is_named(tmp_path):
     (folder / "mslice_locations_x.xml").write_text("<msl><location><site>3</site></location></msl>")
     with pytest.raises(InputError, match=r"mslice_locations_x.xml: location 1 has no <drive>"):
         load(folder)
+
+
+def test_the_localization_product_opens_in_iau_2015_with_the_labels_motion_counter_and_attitude(run, groups):
+    """The GeoPackage read back with pyogrio: 110 stops in the IAU 2015 Mars sphere's CRS, each with
+    its label's site and drive, and its roll, pitch and yaw those of the label's onboard
+    quaternion (site frame north-east-down, rover forward-right-down), within the tilt factors' pull."""
+    import pyogrio
+    from pyproj import CRS
+    from scipy.spatial.transform import Rotation
+
+    meta, _, _, fields = pyogrio.raw.read(run.folder / "localization_onboard.gpkg", layer="stops")
+    assert CRS.from_user_input(meta["crs"]).equals(CRS.from_user_input("IAU_2015:49900"))
+    column = dict(zip(meta["fields"], fields, strict=True))
+    assert len(column["stop"]) == 110
+    assert [(s, d) for s, d in zip(column["site"], column["drive"], strict=True)] == [
+        (g[0].site, g[0].drive) for g in groups]
+    yaw, pitch, roll = np.degrees(np.array([Rotation.from_matrix(g[0].site_T_rover[:3, :3]).as_euler("ZYX")
+                                            for g in groups]).T)
+    # measured: 0.0007 deg in yaw, 0.007 in pitch and roll
+    assert np.abs((column["yaw"] - yaw % 360 + 180) % 360 - 180).max() < 0.02
+    assert np.abs(column["pitch"] - pitch).max() < 0.02 and np.abs(column["roll"] - roll).max() < 0.02
