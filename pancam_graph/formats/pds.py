@@ -49,6 +49,8 @@ class RoverImage:
     height: int
     sun_site_azimuth_deg: float | None  # clockwise from north, in the site frame (the mission's)
     sun_site_elevation_deg: float | None
+    mission: str = ""  # INSTRUMENT_HOST_ID, e.g. MSL
+    image: Path | None = None  # the product's image beside its label, when there is one
 
     @property
     def motion_counter(self) -> tuple[int, int, int]:
@@ -152,16 +154,60 @@ def read_pds3_label(path: Path) -> RoverImage:
         site_origin=site_origin, camera=camera,
         width=int(image["LINE_SAMPLES"]), height=int(image["LINES"]),
         sun_site_azimuth_deg=_quantity(sun.get("SOLAR_AZIMUTH")),
-        sun_site_elevation_deg=_quantity(sun.get("SOLAR_ELEVATION")))
+        sun_site_elevation_deg=_quantity(sun.get("SOLAR_ELEVATION")),
+        mission=str(label.get("INSTRUMENT_HOST_ID", "")), image=image_beside(path))
+
+
+IMAGE_SUFFIXES = (".IMG", ".img", ".jpg", ".JPG", ".png", ".PNG")
+
+
+def image_beside(label: Path) -> Path | None:
+    """The image of a detached label: the same product name with an image suffix, or the browse
+    image archives name with the version character replaced by '_' (NLA_..._M1.LBL and
+    NLA_..._M_.jpg)."""
+    for stem in (label.stem, label.stem[:-1] + "_"):
+        for suffix in IMAGE_SUFFIXES:
+            candidate = label.with_name(stem + suffix)
+            if candidate.is_file():
+                return candidate
+    return None
+
+
+def image_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) of a browse image from its header (Pillow reads no pixels); None for a
+    PDS .IMG, whose size is its label's."""
+    if path.suffix.lower() == ".img":
+        return None
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as image:
+            return image.size
+    except (OSError, UnidentifiedImageError) as exc:
+        raise InputError(f"{path}: not a readable image ({exc})") from None
 
 
 def read_rover_images(folder: Path) -> list[RoverImage]:
-    """Every PDS3 label under `folder`, in time order."""
+    """Every PDS3 label under `folder`, in time order: one mission's, each image (where there is
+    one beside its label) of the size its label gives."""
     folder = Path(folder)
     labels = sorted(p for p in folder.rglob("*") if p.suffix in LABEL_SUFFIXES)
     if not labels:
         raise InputError(f"{folder}: no PDS3 labels (*.LBL)")
-    return sorted((read_pds3_label(p) for p in labels), key=lambda image: image.utc_s)
+    images = sorted((read_pds3_label(p) for p in labels), key=lambda image: image.utc_s)
+    missions: dict[str, Path] = {}
+    for image in images:
+        missions.setdefault(image.mission, image.label)
+        if image.image is not None:
+            size = image_size(image.image)
+            if size is not None and size != (image.width, image.height):
+                raise InputError(f"{image.image}: {size[0]} x {size[1]} px, but its label {image.label.name} says "
+                                 f"{image.width} x {image.height}")
+    if len(missions) > 1:
+        raise InputError(f"{folder}: products of more than one mission ("
+                         + ", ".join(f"{m or 'no INSTRUMENT_HOST_ID'}: {p.name}" for m, p in missions.items())
+                         + "): give one mission's products")
+    return images
 
 
 def site_origins(images: list[RoverImage]) -> dict[int, np.ndarray]:

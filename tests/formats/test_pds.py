@@ -106,3 +106,41 @@ def test_a_bad_label_is_refused_naming_it(tmp_path, change, words):
 def test_a_folder_without_labels_is_named(tmp_path):
     with pytest.raises(InputError, match=r"no PDS3 labels"):
         read_rover_images(tmp_path)
+
+
+def _two_products(tmp_path):
+    """Two real products (label and browse image) of sol 26 in a folder of their own."""
+    import shutil
+
+    folder = tmp_path / "products"
+    folder.mkdir()
+    for stem in ("NLA_399801979EDR_D0030382TRAV00006M", "NLA_399802006EDR_D0030386TRAV00006M"):
+        shutil.copy(CURIOSITY / "sol0026" / f"{stem}1.LBL", folder)
+        shutil.copy(CURIOSITY / "sol0026" / f"{stem}_.jpg", folder)
+    return folder
+
+
+def test_each_label_finds_its_browse_image(tmp_path):
+    images = read_rover_images(_two_products(tmp_path))
+    assert [i.image.name for i in images] == ["NLA_399801979EDR_D0030382TRAV00006M_.jpg",
+                                              "NLA_399802006EDR_D0030386TRAV00006M_.jpg"]
+    assert {i.mission for i in images} == {"MSL"}
+
+
+def test_an_image_whose_size_disagrees_with_its_label_is_named(tmp_path):
+    import cv2
+
+    folder = _two_products(tmp_path)
+    cv2.imwrite(str(folder / "NLA_399802006EDR_D0030386TRAV00006M_.jpg"), np.zeros((128, 256), np.uint8))
+    with pytest.raises(InputError, match=r"NLA_399802006EDR_D0030386TRAV00006M_.jpg: 256 x 128 px, but its label "
+                                         r"NLA_399802006EDR_D0030386TRAV00006M1.LBL says 256 x 256"):
+        read_rover_images(folder)
+
+
+def test_products_of_two_missions_are_refused(tmp_path):
+    folder = _two_products(tmp_path)
+    label = folder / "NLA_399802006EDR_D0030386TRAV00006M1.LBL"
+    label.write_text(label.read_text().replace('INSTRUMENT_HOST_ID                = "MSL"',
+                                               'INSTRUMENT_HOST_ID                = "MER2"'))
+    with pytest.raises(InputError, match=r"products of more than one mission \(MSL: .*M1.LBL, MER2: .*M1.LBL\)"):
+        read_rover_images(folder)
