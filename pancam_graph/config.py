@@ -414,7 +414,9 @@ class _EstimatorCore(_Strict):
     def _vo_error_model(cls, data):
         """A named VO error model sets its values (a file that sets them too is overruled: its
         own values go with vo_error_model = "pixel_noise")."""
-        if isinstance(data, dict) and data.get("vo_error_model") in VO_ERROR_MODELS:
+        # a list or table given for the name is left to the field's own check, which names it
+        if isinstance(data, dict) and isinstance(data.get("vo_error_model"), str) and \
+                data["vo_error_model"] in VO_ERROR_MODELS:
             data = dict(data)
             for key, value in VO_ERROR_MODELS[data["vo_error_model"]].items():
                 section = data.get(key)

@@ -150,7 +150,7 @@ def _check_packet(path: Path, packet: np.ndarray) -> None:
 def _read_timestamps(path: Path) -> np.ndarray:
     if not path.exists():
         raise InputError(f"{path}: missing")
-    times = []
+    times: list[float] = []
     for line, text in enumerate(read_text(path).splitlines(), start=1):
         if not text.strip():
             continue
@@ -158,7 +158,11 @@ def _read_timestamps(path: Path) -> np.ndarray:
             stamp = np.datetime64(text.strip().replace(" ", "T"), "ns")
         except ValueError:
             raise InputError(f"{path}: line {line}: expected 'YYYY-MM-DD hh:mm:ss.fffffffff', got {text!r}") from None
-        times.append(stamp.astype(np.int64) * 1e-9)
+        t = stamp.astype(np.int64) * 1e-9
+        if times and t <= times[-1]:
+            raise InputError(f"{path}: line {line}: {text.strip()} does not come after the line before (timestamps "
+                             "must increase)")
+        times.append(t)
     return np.asarray(times)
 
 

@@ -188,3 +188,16 @@ def test_kitti_odometry_bad_inputs_are_named(tmp_path):
         read_kitti_odometry(sequence)
     with pytest.raises(InputError, match="not a KITTI odometry sequence"):
         read_kitti_odometry(tmp_path)
+
+
+def test_timestamps_out_of_order_are_refused_naming_the_line(tmp_path):
+    drive = tmp_path / DATE.name / DRIVE.name
+    shutil.copytree(DRIVE, drive)
+    for calibration in DATE.glob("calib_*.txt"):
+        shutil.copy(calibration, drive.parent)
+    stamps = drive / "oxts" / "timestamps.txt"
+    lines = stamps.read_text().split("\n")
+    lines[5], lines[6] = lines[6], lines[5]
+    stamps.write_text("\n".join(lines))
+    with pytest.raises(InputError, match=r"timestamps.txt: line 7: .* does not come after the line before"):
+        read_kitti_raw(drive)
