@@ -459,13 +459,17 @@ class SweepPlan:
     folder: Path
 
 
-def plan_sweep(spec: Path | str, out: Path | str) -> SweepPlan:
+def plan_sweep(spec: Path | str, out: Path | str, scheduler: str | None = None) -> SweepPlan:
     """Read a sweep specification (scenarios x rigs x estimator variants x seeds) and lay out its
-    runs in the sweep folder `out` (runs already done there are skipped when it runs)."""
+    runs in the sweep folder `out` (runs already done there are skipped when it runs). A
+    `scheduler` address is checked first: nothing is written for one that is not there."""
+    from ..sweep.runner import check_scheduler
     from ..sweep.spec import load_spec, plan
 
     spec, out = Path(spec), Path(out)
     specification = load_spec(spec)
+    if scheduler is not None:
+        check_scheduler(scheduler)
     runs = plan(specification, out, spec.parent)
     (out / "sweep.toml").write_text(spec.read_text(encoding="utf-8"), encoding="utf-8")
     return SweepPlan(specification.timeout_s, runs, out)

@@ -133,7 +133,7 @@ def sweep_command(
     from ..api import plan_sweep, sweep
 
     with user_input():
-        planned = plan_sweep(spec, out)
+        planned = plan_sweep(spec, out, scheduler)
     start = time.perf_counter()
     with progress_bar(quiet) as bar:
         task = bar.add_task(f"{escape(spec.stem)}: runs", total=len(planned.runs))

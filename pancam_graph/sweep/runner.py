@@ -76,6 +76,30 @@ def _dask_errors_only():
         dask_log.setLevel(level)
 
 
+SCHEDULER_CONNECT_S = 5.0  # a scheduler that does not answer a TCP connection in this long is not there
+
+
+def check_scheduler(address: str) -> None:
+    """Refuse a scheduler address that is not one (tcp://host:port) or where nothing listens,
+    before anything is written: a closed port refuses at once, an unreachable host within
+    SCHEDULER_CONNECT_S."""
+    import socket
+
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        protocol, location = parse_address(address, strict=True)
+        host, port = parse_host_port(location)
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"--scheduler {address!r}: not a scheduler address like tcp://host:8786 ({exc})") from None
+    if protocol not in ("tcp", "tls"):
+        return  # other transports (inproc, ucx) are Dask's to check
+    try:
+        socket.create_connection((host, port), timeout=SCHEDULER_CONNECT_S).close()
+    except OSError as exc:
+        raise ConfigError(f"--scheduler {address}: nothing answers there ({exc.strerror or exc})") from None
+
+
 def _run_on_dask(todo: list[SweepRun], timeout_s: float, workers: int, scheduler: str | None, done: int,
                  total: int, progress: Callable[[RunRecord, int, int], None] | None) -> list[RunRecord]:
     from dask.distributed import Client, LocalCluster, as_completed

@@ -127,3 +127,26 @@ def test_a_bad_specification_is_refused_before_anything_is_written(tmp_path, tex
     with pytest.raises(ConfigError, match=re.escape(words)):
         plan_sweep(tmp_path / "spec.toml", tmp_path / "sweep")
     assert not (tmp_path / "sweep").exists()  # no scenarios/ folder left behind, no Dask run started
+
+
+@pytest.mark.parametrize("address, words", [
+    ("not a url", r"--scheduler 'not a url': not a scheduler address like tcp://host:8786"),
+    ("tcp://127.0.0.1:{closed}", r"--scheduler tcp://127.0.0.1:\d+: nothing answers there"),
+])
+def test_a_scheduler_that_is_not_there_is_refused_at_once_leaving_nothing(tmp_path, address, words):
+    import socket
+
+    from typer.testing import CliRunner
+
+    from pancam_graph.cli import app
+
+    with socket.socket() as probe:  # a port that was free a moment ago: nothing listens on it
+        probe.bind(("127.0.0.1", 0))
+        closed = probe.getsockname()[1]
+    spec = tmp_path / "spec.toml"
+    spec.write_text('scenarios = ["short_trail"]\nconfigs = ["vo"]\n')
+    result = CliRunner().invoke(app, ["sweep", str(spec), "--out", str(tmp_path / "sw"), "--scheduler",
+                                      address.format(closed=closed), "--quiet"])
+    assert result.exit_code == 2, result.output
+    assert re.search(words, result.output.replace("\n", " ")), result.output
+    assert not (tmp_path / "sw").exists()
