@@ -260,3 +260,9 @@ class OrbitalMap:
     offset_sigma_m: float = 3.0  # 1 sigma of its horizontal position, per axis
     rotation_sigma_deg: float = 0.02  # 1 sigma of its rotation about the traverse's origin
     vertical_sigma_m: float = 1.0  # 1 sigma of its heights' offset (its vertical datum)
+    source: str = ""  # the DTM's file when it was read from one (messages name it)
+
+    @property
+    def called(self) -> str:
+        """How messages name it: its DTM's file, else its name."""
+        return f"{self.source} (orbital map {self.name!r})" if self.source else f"orbital map {self.name!r}"

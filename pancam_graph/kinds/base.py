@@ -121,6 +121,11 @@ class Kind:
         return None
 
     @classmethod
+    def check_traverse(cls, traverse: Traverse) -> None:
+        """Raise InputError (naming the file) when the traverse's records break this kind's rules;
+        called when a configuration with it is chosen, before the run writes anything."""
+
+    @classmethod
     def check_scenario(cls, scenario) -> None:
         """Raise ValueError (the message for the user) when a scenario breaks this kind's rules
         (config.Scenario: its origin, its sections, its estimator's sections)."""

@@ -250,6 +250,20 @@ class Orbital(Kind):
 
     # -- the step ------------------------------------------------------------------------------
 
+    @classmethod
+    def check_traverse(cls, traverse: Traverse) -> None:
+        maps = traverse.measurements.get(cls.name, ())
+        if len(maps) > MAX_MAPS:
+            raise InputError(f"{len(maps)} orbital maps: at most {MAX_MAPS} in one traverse (merge them)")
+        frame, start = traverse.origin, traverse.start_world_T_body[:3, 3]
+        covering = []
+        for orbital_map in maps:
+            _check_map(orbital_map, frame)
+            covering.append(np.isfinite(orbital_map.dtm.at(frame.to_map(start[None, :]))[0]))
+        if maps and not any(covering):
+            raise InputError(f"{maps[0].called} does not cover the traverse's start ({start[0]:.1f} m east, "
+                             f"{start[1]:.1f} m north of the origin)")
+
     def __init__(self, localizer):
         super().__init__(localizer)
         settings: OrbitalSettings = localizer.estimator.orbital
@@ -257,23 +271,14 @@ class Orbital(Kind):
         self.errors = DtmErrors(settings.surface_sigma_m, settings.dtm_sigma_m, settings.dtm_correlation_m)
         self.gate = chi2.quantile(settings.gate_probability, 4)
         self.gate_2 = chi2.quantile(settings.gate_probability, 2)
-        frame = localizer.traverse.origin
-        start = localizer.traverse.start_world_T_body[:3, 3]
-        covering = []
-        if len(self.maps) > MAX_MAPS:
-            raise InputError(f"{len(self.maps)} orbital maps: at most {MAX_MAPS} in one traverse (merge them)")
+        self.check_traverse(localizer.traverse)
         for m, orbital_map in enumerate(self.maps):
-            _check_map(orbital_map, frame)
             sigmas = (orbital_map.offset_sigma_m, orbital_map.offset_sigma_m, orbital_map.vertical_sigma_m,
                       np.deg2rad(orbital_map.rotation_sigma_deg))
             for key, sigma in zip(bias_keys(m), sigmas, strict=True):
                 prior = gtsam.noiseModel.Isotropic.Sigma(1, max(sigma, 1e-6))
                 localizer.smoother.add(gtsam.PriorFactorDouble(key, 0.0, prior))
                 localizer.smoother.insert(key, 0.0, shared=True)
-            covering.append(np.isfinite(orbital_map.dtm.at(frame.to_map(start[None, :]))[0]))
-        if self.maps and not any(covering):
-            raise InputError(f"orbital map {self.maps[0].name!r} does not cover the traverse's start "
-                             f"({start[0]:.1f} m east, {start[1]:.1f} m north of the origin)")
         self._site: tuple | None = None  # (stop, points, ground) between update_before and add
         self.registrations: list[tuple[int, int, np.ndarray, np.ndarray]] = []  # stop, map, measured, covariance
         self.refused: list[int] = []
@@ -494,23 +499,23 @@ def _check_map(orbital_map: OrbitalMap, frame) -> None:
     try:
         crs = CRS.from_wkt(orbital_map.dtm.crs_wkt)
     except CRSError as exc:
-        raise InputError(f"orbital map {orbital_map.name!r}: unreadable CRS ({exc})") from None
+        raise InputError(f"{orbital_map.called}: unreadable CRS ({exc})") from None
     radius = crs.ellipsoid.semi_major_metre if crs.ellipsoid is not None else float("nan")
     expected = frame.map_crs().ellipsoid.semi_major_metre
     if not np.isclose(radius, expected, rtol=0.01):
-        raise InputError(f"orbital map {orbital_map.name!r}: its CRS is on a body of radius {radius:,.0f} m, the "
+        raise InputError(f"{orbital_map.called}: its CRS is on a body of radius {radius:,.0f} m, the "
                          f"traverse is on {frame.body} ({expected:,.0f} m)")
     if not np.isfinite(orbital_map.dtm.values).any():
-        raise InputError(f"orbital map {orbital_map.name!r}: its DTM has no data")
+        raise InputError(f"{orbital_map.called}: its DTM has no data")
     ortho = orbital_map.orthoimage
     if ortho is not None:
         if CRS.from_wkt(ortho.crs_wkt) != crs:
-            raise InputError(f"orbital map {orbital_map.name!r}: its orthoimage and DTM are in different CRSs")
+            raise InputError(f"{orbital_map.called}: its orthoimage and DTM are in different CRSs")
         dtm_box = _box(orbital_map.dtm)
         ortho_box = _box(ortho)
         overlap = np.minimum(dtm_box[2:], ortho_box[2:]) - np.maximum(dtm_box[:2], ortho_box[:2])
         if np.any(overlap <= 0):
-            raise InputError(f"orbital map {orbital_map.name!r}: its orthoimage and DTM do not overlap")
+            raise InputError(f"{orbital_map.called}: its orthoimage and DTM do not overlap")
 
 
 def _box(raster: MapRaster) -> np.ndarray:

@@ -12,7 +12,7 @@ from dataclasses import replace
 from ..config import EstimatorConfig, Scenario
 from ..errors import ConfigError
 from ..frontend.motion import VoMotions
-from ..kinds import configuration_problem, relative_cost, unavailable, uses_vo
+from ..kinds import KINDS, configuration_problem, relative_cost, unavailable, uses_vo
 from ..records import GpsFix, GroundTruth, Traverse
 from ..runtime.memory import peak_rss_mb
 from ..runtime.processes import call_apart
@@ -41,6 +41,7 @@ def select_configurations(estimator: EstimatorConfig, traverse: Traverse, reques
         if not chosen:
             raise ConfigError(f"{traverse.name}: no configuration can run on this traverse: "
                               + "; ".join(f"{n}: {r}" for n, r in skipped.items()))
+        check_traverse(chosen, traverse)
         return chosen, skipped
     chosen = {}
     for name in requested:
@@ -54,7 +55,15 @@ def select_configurations(estimator: EstimatorConfig, traverse: Traverse, reques
         if reason:
             raise ConfigError(f"--configs {name}: this traverse cannot feed it ({reason})")
         chosen[name] = kinds
+    check_traverse(chosen, traverse)
     return chosen, {}
+
+
+def check_traverse(chosen: dict[str, list[str]], traverse: Traverse) -> None:
+    """Every chosen kind's rules for the traverse's records (Kind.check_traverse), once each."""
+    for name in KINDS:
+        if any(name in kinds for kinds in chosen.values()):
+            KINDS[name].check_traverse(traverse)
 
 
 def run_scenario(scenario: Scenario, options: RunOptions = RunOptions(), progress: ProgressCallback | None = None,

@@ -413,7 +413,7 @@ def _read_maps(folder: Path, sources: list[MapSource]) -> tuple[OrbitalMap, ...]
             raise InputError(f"{folder / source.dtm}: 8-bit grey levels: expected a DTM of heights (float)")
         ortho = None if source.orthoimage is None else read_map_raster(folder / source.orthoimage)
         maps.append(OrbitalMap(source.name, dtm, ortho, source.offset_sigma_m, source.rotation_sigma_deg,
-                               source.vertical_sigma_m))
+                               source.vertical_sigma_m, str(folder / source.dtm)))
     return tuple(maps)
 
 
