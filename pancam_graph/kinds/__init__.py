@@ -67,6 +67,15 @@ def configuration_problem(kinds: list[str]) -> str | None:
     return None
 
 
+def scenario_unavailable(kinds: list[str], scenario) -> str | None:
+    """Why a simulation of the scenario cannot feed this configuration, or None (before simulating)."""
+    for name in kinds:
+        reason = KINDS[name].scenario_unavailable(scenario)
+        if reason:
+            return f"{name}: {reason}"
+    return None
+
+
 def unavailable(kinds: list[str], traverse: Traverse) -> str | None:
     """Why the traverse cannot feed this configuration, or None."""
     for name in kinds:
@@ -77,4 +86,4 @@ def unavailable(kinds: list[str], traverse: Traverse) -> str | None:
 
 
 __all__ = ["COUNTER_DEFAULTS", "KINDS", "STEP_COUNTERS", "Kind", "absolute", "configuration_problem", "relative_cost",
-           "stop_records", "unavailable", "uses_vo"]
+           "scenario_unavailable", "stop_records", "unavailable", "uses_vo"]

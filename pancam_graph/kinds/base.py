@@ -121,6 +121,17 @@ class Kind:
         return None
 
     @classmethod
+    def scenario_unavailable(cls, scenario) -> str | None:
+        """Why a simulation of this scenario (config.Scenario) cannot feed the kind, or None: by
+        default, a kind simulated from a scenario section (`Sensor`) needs that section enabled."""
+        if cls.Sensor is None:
+            return None
+        section = getattr(scenario, cls.name, None)
+        if section is None or not getattr(section, "enabled", True):
+            return f"the scenario simulates no {cls.records or cls.name} (its [{cls.name}] is not enabled)"
+        return None
+
+    @classmethod
     def check_traverse(cls, traverse: Traverse) -> None:
         """Raise InputError (naming the file) when the traverse's records break this kind's rules;
         called when a configuration with it is chosen, before the run writes anything."""

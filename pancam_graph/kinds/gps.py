@@ -40,6 +40,10 @@ class Gps(Kind):
     absolute = True
 
     @classmethod
+    def scenario_unavailable(cls, scenario) -> str | None:
+        return None if scenario.gps.enabled else "the scenario simulates no GPS fixes (its [gps] is not enabled)"
+
+    @classmethod
     def check_scenario(cls, scenario) -> None:
         if scenario.origin.body == "mars" and scenario.gps.enabled:
             raise ValueError("origin on mars: there is no GPS on Mars; set [gps] enabled = false")

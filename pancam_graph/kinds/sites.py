@@ -117,6 +117,10 @@ class Sites(Kind):
 
     records = "site panoramas"
 
+    @classmethod
+    def scenario_unavailable(cls, scenario) -> str | None:
+        return None if scenario.sites.enabled else "the scenario has no site panoramas (its [sites] is not enabled)"
+
     @staticmethod
     def has_records(traverse: Traverse) -> bool:
         return any(s.is_site for s in traverse.stops)

@@ -18,7 +18,7 @@ from ..config import (
     validation_problems,
 )
 from ..errors import ConfigError
-from ..kinds import configuration_problem
+from ..kinds import configuration_problem, scenario_unavailable
 
 RUN_TIMEOUT_S = 3600.0
 
@@ -99,6 +99,10 @@ def plan(spec: SweepSpec, out: Path, spec_folder: Path = Path(".")) -> list[Swee
                     if problem:
                         raise ConfigError(f"sweep: configs {config!r} ({scenario.name}, variant {variant.name}): "
                                           f"{problem}; defined: {', '.join(scenario.estimator.configurations)}")
+                    reason = scenario_unavailable(list(kinds), scenario)
+                    if reason:
+                        raise ConfigError(f"sweep: configs {config!r} cannot run on {scenario.name} (variant "
+                                          f"{variant.name}): {reason}")
                 combinations.append((f"{scenario.name}-{rig}-{variant.name}", scenario, rig, variant))
     scenario_folder = Path(out) / "scenarios"
     try:

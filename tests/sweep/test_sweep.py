@@ -150,3 +150,26 @@ def test_a_scheduler_that_is_not_there_is_refused_at_once_leaving_nothing(tmp_pa
     assert result.exit_code == 2, result.output
     assert re.search(words, result.output.replace("\n", " ")), result.output
     assert not (tmp_path / "sw").exists()
+
+
+def test_a_configuration_a_scenario_cannot_feed_is_refused_before_anything_is_written(tmp_path):
+    spec = SweepSpec(scenarios=["short_trail", "mars_excerpt"], configs=["full_mars"])
+    with pytest.raises(ConfigError, match=r"configs 'full_mars' cannot run on short_trail .*orbital: the scenario "
+                                          r"simulates no orbital maps"):
+        plan(spec, tmp_path / "sw")
+    assert not (tmp_path / "sw").exists()
+
+
+@pytest.mark.parametrize("name", ["short_trail", "mars_excerpt"])
+def test_what_a_scenario_can_feed_is_what_its_simulation_feeds(name):
+    """The check made before simulating (kinds.scenario_unavailable) against the one made on the
+    simulated traverse (kinds.unavailable), for every defined configuration."""
+    from pancam_graph.config import load_scenario
+    from pancam_graph.kinds import scenario_unavailable, unavailable
+    from pancam_graph.sim import simulate
+
+    scenario = load_scenario(resolve_scenario(name))
+    traverse, _ = simulate(scenario, 0)
+    for config, kinds in scenario.estimator.configurations.items():
+        before, after = scenario_unavailable(kinds, scenario), unavailable(kinds, traverse)
+        assert (before is None) == (after is None), (config, before, after)
