@@ -3,7 +3,9 @@ in the field (truncated, bytes flipped or inserted, numbers replaced by nan, inf
 negative values, lines dropped, duplicated or swapped, a byte-order mark, CRLF), each read by
 its reader. A reader may refuse a file only with the project's own errors (PancamGraphError);
 anything else escaping is a finding. `tests/formats/test_fuzz_readers.py` runs a few hundred; run
-`python tests/fuzz_inputs.py N` for more (the issue-15 figure: 20,000)."""
+`python tests/fuzz_inputs.py N` for more (the issue-15 figure: 20,000; issue 57's: 40,000).
+Besides the byte-level mutations, a TOML key's value is replaced by one of another type (a list or
+table where a scalar is expected)."""
 
 from __future__ import annotations
 
@@ -22,6 +24,7 @@ from pancam_graph.errors import PancamGraphError
 
 HERE = Path(__file__).parent
 REAL = HERE / "data" / "real"
+SHARED_REAL = HERE.resolve().parent.parent / "shared" / "data" / "real"  # ../shared beside the checkout
 NUMBER = re.compile(rb"-?\d+(\.\d+)?(e[-+]?\d+)?")
 TRANSFORMS = (b"start_world_T_body = [", b"body_T_left = [")  # 4x4s in a manifest, as tomli_w writes them
 REPLACEMENTS = [b"nan", b"inf", b"-inf", b"1e308", b"-1e308", b"-1", b"0", b"", b"abc", b"9223372036854775808",
@@ -29,7 +32,10 @@ REPLACEMENTS = [b"nan", b"inf", b"-inf", b"1e308", b"-1e308", b"-1", b"0", b"", 
 
 
 MUTATIONS = ("truncate", "flip", "insert", "number", "number", "number", "drop_line", "dup_line", "swap_lines", "bom",
-             "crlf", "huge_field", "transform", "transform")
+             "crlf", "huge_field", "transform", "transform", "type", "type")
+ASSIGNMENT = re.compile(rb"^([ \t]*[A-Za-z_][\w.]*[ \t]*=[ \t]*)(.+)$", re.M)
+# a TOML value of the wrong type: a list or a table where a scalar is expected, and the reverse
+WRONG_TYPES = [b"[1.0]", b"[]", b"{a = 1}", b'"x"', b"true", b"[[1, 2], [3]]", b"1.5", b'["a", 2]']
 
 
 def mutate(data: bytes, rng: random.Random, kinds: tuple[str, ...] = MUTATIONS) -> tuple[bytes, str]:
@@ -53,6 +59,11 @@ def mutate(data: bytes, rng: random.Random, kinds: tuple[str, ...] = MUTATIONS) 
             if matches:
                 m = rng.choice(matches)
                 data = data[:m.start()] + rng.choice(REPLACEMENTS) + data[m.end():]
+        elif kind == "type":  # a TOML key's value replaced by one of another type
+            matches = list(ASSIGNMENT.finditer(data))
+            if matches:
+                m = rng.choice(matches)
+                data = data[:m.start(2)] + rng.choice(WRONG_TYPES) + data[m.end(2):]
         elif kind == "transform":  # one entry of a rigid transform scaled, negated, zeroed or replaced
             starts = [data.find(key) + len(key) for key in TRANSFORMS if key in data]
             spans = [(a, data.find(b"\n]", a) % (len(data) + 1)) for a in starts]  # to its end, or the file's
@@ -179,8 +190,41 @@ def targets(work: Path) -> list[Target]:
     tum = np.column_stack([np.arange(len(q), dtype=float), truth.world_T_body[:, :3, 3], q])
     np.savetxt(poses / "truth.tum", tum, fmt="%.9f")
 
+    shutil.copy(bundled_scenarios()["mars_excerpt"], scenario_dir / "mars.toml")
+    mars = load_scenario(bundled_scenarios()["mars_excerpt"])
+    mars = mars.model_copy(update={"path": mars.path.model_copy(update={"waypoints": mars.path.waypoints[:3]})})
+    mars_traverse, _ = simulate(mars, 1)
+    mars_obs = work / "mars_observations"  # sun_heading.csv and the orbital map's GeoTIFFs: the image
+    # records and the truth left out, which the observations target reads already (and slowly)
+    write_observations(mars_obs, mars_traverse.keeping(set()), mars.estimator, 1, None, mars.rig)
+    maps = sorted(f"maps/{p.name}" for p in (mars_obs / "maps").iterdir())
+
+    from pancam_graph.formats.mslice import read_mslice_locations
+    from pancam_graph.formats.pds import read_rover_images, site_origins
+
+    curiosity = SHARED_REAL / "curiosity_navcam_sol26_57"
+    products = work / "pds"  # two real Curiosity products (labels and browse images) and MSLICE's file
+    products.mkdir()
+    if curiosity.is_dir():  # else the target is left out (../shared is not beside the checkout)
+        for stem in ("NLA_399801979EDR_D0030382TRAV00006M", "NLA_399802006EDR_D0030386TRAV00006M"):
+            shutil.copy(curiosity / "sol0026" / f"{stem}1.LBL", products)
+            shutil.copy(curiosity / "sol0026" / f"{stem}_.jpg", products)
+        locations = (curiosity / "mslice_locations_sol0_59.xml").read_text().split("</location>")
+        (products / "mslice_locations.xml").write_text("</location>".join(locations[:6]) + "</location>\n</msl>\n")
+
+    def read_products(d: Path):
+        images = read_rover_images(d)
+        site_origins(images)
+        return images, read_mslice_locations(d / "mslice_locations.xml")
+
     return [
         Target("scenario", scenario_dir, ["s.toml"], lambda d: load_scenario(d / "s.toml")),
+        Target("mars scenario", scenario_dir, ["mars.toml"], lambda d: load_scenario(d / "mars.toml")),
+        Target("mars folder", mars_obs, [n for n in ("traverse.toml", "sun_heading.csv") if (mars_obs / n).is_file()],
+               read_observations),
+        Target("geotiff maps", mars_obs, maps, read_observations),
+        *([Target("pds labels", products, sorted(p.name for p in products.iterdir()), read_products)]
+          if curiosity.is_dir() else []),
         Target("observations", obs, sorted(p.name for p in obs.iterdir()), read_observations),
         Target("image folder", images, sorted(p.name for p in images.iterdir()), read_observations),
         Target("transforms", images, ["traverse.toml"], read_observations, ("transform",)),

@@ -10,6 +10,6 @@ from fuzz_inputs import fuzz
 def test_every_reader_refuses_broken_files_with_its_own_errors():
     findings = fuzz(400, seed=0)
     assert findings.escaped == []
-    assert sum(findings.trials.values()) == 400 and len(findings.trials) == 12
+    assert sum(findings.trials.values()) == 400 and len(findings.trials) == 16
     for reader in findings.trials:
         assert findings.refused[reader] > 0, reader  # the mutations do break files
