@@ -10,7 +10,7 @@ import numpy as np
 
 from ..records import GpsFix, Traverse
 from .consistency import NeesAlongRun, nees
-from .metrics import GPS_REFERENCE_STEP_M, TrajectoryMetrics, compare, decimated_length
+from .metrics import GPS_REFERENCE_STEP_M, TrajectoryMetrics, compare, decimated_length, fit_similarity_2d
 from .timed import poses_at_times
 
 
@@ -21,10 +21,16 @@ class HoldoutScore:
     fixes: int
     rms_2d_m: float  # RMS horizontal distance of the estimate to the held-out fixes
     stated_drms_m: float  # the fixes' own stated 2-D RMS: what a perfect track would score
+    # The 2-D similarity taking the estimate onto the fixes (Umeyama): how far the track is turned
+    # (deg, anticlockwise) and scaled (%) against them, and what is left after it; None when degenerate.
+    rotation_deg: float | None = None
+    scale_pct: float | None = None
+    rms_2d_after_similarity_m: float | None = None
 
     def as_dict(self) -> dict:
         return {"held_out_fixes": self.fixes, "rms_2d_m": self.rms_2d_m, "stated_drms_m": self.stated_drms_m,
-                "drms_ratio": self.rms_2d_m / self.stated_drms_m}
+                "drms_ratio": self.rms_2d_m / self.stated_drms_m, "rotation_deg": self.rotation_deg,
+                "scale_pct": self.scale_pct, "rms_2d_after_similarity_m": self.rms_2d_after_similarity_m}
 
 
 def gps_enu(traverse: Traverse, fixes: tuple[GpsFix, ...] | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -66,7 +72,12 @@ def holdout_score(traverse: Traverse, world_T_body: np.ndarray, held_out: tuple[
     antenna = antenna_at_times(traverse, world_T_body, times)
     rms = float(np.sqrt(np.mean(np.sum((antenna[:, :2] - enu[:, :2]) ** 2, axis=1))))
     drms = float(np.sqrt(np.mean([2.0 * f.sigma_horizontal_m**2 for f in held_out])))
-    return HoldoutScore(len(held_out), rms, drms)
+    fit = fit_similarity_2d(antenna[:, :2], enu[:, :2])
+    if fit is None:
+        return HoldoutScore(len(held_out), rms, drms)
+    rotation, scale, residuals = fit
+    return HoldoutScore(len(held_out), rms, drms, float(np.degrees(rotation)), 100.0 * (scale - 1.0),
+                        float(np.sqrt(np.mean(residuals**2))))
 
 
 def nees_against_gps(traverse: Traverse, world_T_body: np.ndarray, covariances: np.ndarray,

@@ -74,6 +74,25 @@ def fit_alignment(est: np.ndarray, ref: np.ndarray, kind: Alignment) -> tuple[np
     return rot, mu_r - rot @ mu_e, "se3"
 
 
+def fit_similarity_2d(est: np.ndarray, ref: np.ndarray) -> tuple[float, float, np.ndarray] | None:
+    """Umeyama's (1991) similarity taking 2-D points est (N, 2) onto ref (N, 2): its rotation
+    (rad, anticlockwise), scale, and the residuals (N,) after it; None when degenerate (fewer
+    than three points, or all on one point)."""
+    if len(est) < 3:
+        return None
+    mu_e, mu_r = est.mean(axis=0), ref.mean(axis=0)
+    ce, cr = est - mu_e, ref - mu_r
+    spread = float(np.mean(np.sum(ce**2, axis=1)))
+    if spread <= 1e-12:
+        return None
+    u, singular, vt = np.linalg.svd(cr.T @ ce / len(est))
+    d = np.diag([1.0, np.sign(np.linalg.det(u @ vt))])
+    rot = u @ d @ vt
+    scale = float(np.trace(np.diag(singular) @ d) / spread)
+    residuals = np.linalg.norm(scale * ce @ rot.T - cr, axis=1)
+    return float(np.arctan2(rot[1, 0], rot[0, 0])), scale, residuals
+
+
 def align(est: np.ndarray, ref: np.ndarray, kind: Alignment) -> tuple[np.ndarray, str]:
     """est (N, 3) rigidly aligned to ref (N, 3), and the alignment applied."""
     rot, t, applied = fit_alignment(est, ref, kind)

@@ -78,6 +78,12 @@ def test_it_is_scored_against_mslice_at_every_drive(run, groups):
     assert metrics["held_out_fixes"] == 110
     assert metrics["rms_2d_m"] == pytest.approx(rms, abs=0.01)
     assert 4.0 < rms < 5.5  # site 4's origin alone was moved 3.3 m by the ground update
+    # the run's own similarity fit (evaluation.metrics.fit_similarity_2d, in the library's frame) against
+    # the one here on a sphere's local east-north: 0.434 deg and -0.489 %, the frames 0.0003 deg apart
+    rotation_all, scale_all = _similarity(estimate, reference)
+    assert metrics["rotation_deg"] == pytest.approx(rotation_all, abs=2e-3)
+    assert metrics["scale_pct"] == pytest.approx((scale_all - 1.0) * 100, abs=2e-3)
+    assert metrics["rms_2d_after_similarity_m"] < rms / 3
     on_site_4 = np.array([g[0].site == 4 for g in groups])
     rotation_deg, scale = _similarity(estimate[on_site_4], reference[on_site_4])
     # the data's README: over site 4 MSLICE is the onboard track turned 0.27 deg and shrunk 0.27 %
