@@ -1,5 +1,6 @@
 """What a group's run does between stops besides solving them: each stop's results into the
-state's tables; at every site and every CHECKPOINT_EVERY_STOPS a checkpoint (the garbage
+state's tables; at every site, every CHECKPOINT_EVERY_STOPS and after CHECKPOINT_EVERY_S of work
+a checkpoint (the garbage
 collector settled, the process's memory sampled, the state saved, the run's listener told);
 the mapped inputs' pages given back every RELEASE_EVERY_STOPS; progress."""
 
@@ -13,9 +14,10 @@ from ..frontend.motion import Motion
 from ..records import Stop
 from ..runtime.memory import peak_rss_mb, pss_mb, rss_mb, settle_garbage_collector
 from ..runtime.processes import RELEASE_EVERY_STOPS, release_mapped_pages
+from . import state as checkpoint_policy
 from .listener import RunListener
 from .localizer import StepResult
-from .state import CHECKPOINT_EVERY_STOPS, Checkpoints, RunState
+from .state import Checkpoints, RunState
 
 ProgressCallback = Callable[[str, int, int], None]
 
@@ -32,13 +34,17 @@ class Housekeeping:
                  progress: ProgressCallback | None, start: float):
         self.state, self.stops, self.save, self.listener = state, stops, save, listener
         self.progress, self.start = progress, start
+        self.last_checkpoint = time.perf_counter()
 
     def step(self, stop: Stop, motion: Motion | None, now: dict[str, StepResult]) -> None:
         k = stop.index
         for name, step in now.items():
             self.state.steps[name].append(step)
-        if stop.is_site or (k + 1) % CHECKPOINT_EVERY_STOPS == 0:
-            self.state.next_stop, self.state.elapsed_s = k + 1, time.perf_counter() - self.start
+        now_s = time.perf_counter()
+        if (stop.is_site or (k + 1) % checkpoint_policy.CHECKPOINT_EVERY_STOPS == 0
+                or now_s - self.last_checkpoint >= checkpoint_policy.CHECKPOINT_EVERY_S):
+            self.last_checkpoint = now_s
+            self.state.next_stop, self.state.elapsed_s = k + 1, now_s - self.start
             settle_garbage_collector()
             sample_memory(self.state, k)
             if self.save is not None and k + 1 < self.stops:

@@ -13,6 +13,9 @@ from .localizer import Localizer
 from .step_table import StepTable
 
 CHECKPOINT_EVERY_STOPS = 25  # checkpoints (and listeners' flushes) at every site and at least this often
+# ... and at the first stop after this many seconds of work since the last (slow stops: a Mars
+# site's registrations, an image run), so a kill loses at most about this much
+CHECKPOINT_EVERY_S = 60.0
 
 
 @dataclass
