@@ -15,6 +15,7 @@ east-north-up world and x-forward, y-left, z-up body.
 from __future__ import annotations
 
 import datetime as dt
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -108,7 +109,9 @@ def read_pds3_label(path: Path) -> RoverImage:
 
     path = Path(path)
     try:
-        label = pdr.read(path).metadata
+        with warnings.catch_warnings():  # pdr's notes on odd PVL: what is wrong is refused below, by name
+            warnings.simplefilter("ignore")
+            label = pdr.read(path).metadata
     except Exception as exc:  # noqa: BLE001  pdr raises whatever its parsers meet
         raise InputError(f"{path}: not a readable PDS3 label ({type(exc).__name__}: {exc})") from None
     try:
