@@ -65,16 +65,39 @@ def _group(label, name: str, path: Path):
         raise InputError(f"{path}: no {name} in the label") from None
 
 
+def _table(label, name: str, path: Path, required: bool = True):
+    """A group of the label (a mapping), or None when it is absent and not `required`."""
+    group = label.get(name)
+    if group is None and not required:
+        return None
+    if not hasattr(group, "get") or not hasattr(group, "__getitem__"):
+        raise InputError(f"{path}: no {name} group in the label" if group is None else
+                         f"{path}: {name} is {group!r}, expected a GROUP")
+    return group
+
+
 def _vector(group, name: str, size: int, path: Path, where: str) -> np.ndarray:
     try:
         value = np.array(group[name], dtype=float)
     except KeyError:
         raise InputError(f"{path}: {where} has no {name}") from None
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise InputError(f"{path}: {where} {name} is not {size} numbers: {group[name]!r}") from None
     if value.shape != (size,) or not np.all(np.isfinite(value)):
         raise InputError(f"{path}: {where} {name} is not {size} finite numbers: {group[name]!r}")
     return value
+
+
+def _integer(group, name: str, path: Path, where: str, default=None) -> int:
+    """A whole number of a label's group, or InputError naming it."""
+    try:
+        value = group[name] if default is None else group.get(name, default)
+    except (KeyError, TypeError):
+        raise InputError(f"{path}: {where} has no {name}") from None
+    try:
+        return int(value)
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"{path}: {where} {name} is not a whole number: {value!r}") from None
 
 
 def _pose(group, path: Path, where: str) -> np.ndarray:
@@ -120,20 +143,23 @@ def read_pds3_label(path: Path) -> RoverImage:
         raise InputError(f"{path}: START_TIME {label['START_TIME']!r} is not a UTC time") from None
     counter = _group(label, "ROVER_MOTION_COUNTER", path)
     names = _group(label, "ROVER_MOTION_COUNTER_NAME", path)
-    index = {name: value for name, value in zip(names, counter, strict=False)}
+    if not isinstance(counter, list | tuple) or not isinstance(names, list | tuple):
+        raise InputError(f"{path}: ROVER_MOTION_COUNTER and its _NAME must be lists, got {counter!r} and {names!r}")
+    index = {str(name): value for name, value in zip(names, counter, strict=False)}
     if not {"SITE", "DRIVE"} <= index.keys():
         raise InputError(f"{path}: ROVER_MOTION_COUNTER names no SITE and DRIVE: {names}")
-    rover = _group(label, "ROVER_COORD_SYSTEM_PARMS", path)
+    rover = _table(label, "ROVER_COORD_SYSTEM_PARMS", path)
     if rover.get("REFERENCE_COORD_SYSTEM_NAME") != "SITE_FRAME":
         raise InputError(f"{path}: the rover's pose is in {rover.get('REFERENCE_COORD_SYSTEM_NAME')!r}, "
                          "expected SITE_FRAME")
-    site_group = label.get("SITE_COORD_SYSTEM_PARMS")
+    site_group = _table(label, "SITE_COORD_SYSTEM_PARMS", path, required=False)
     site_origin = None
     if site_group is not None:
-        reference = int(site_group.get("REFERENCE_COORD_SYSTEM_INDEX", -1))
-        if reference >= 0 and int(site_group.get("COORDINATE_SYSTEM_INDEX", reference)) != reference:
+        where = "SITE_COORD_SYSTEM_PARMS"
+        reference = _integer(site_group, "REFERENCE_COORD_SYSTEM_INDEX", path, where, -1)
+        if reference >= 0 and _integer(site_group, "COORDINATE_SYSTEM_INDEX", path, where, reference) != reference:
             site_origin = (reference, _vector(site_group, "ORIGIN_OFFSET_VECTOR", 3, path, "SITE_COORD_SYSTEM_PARMS"))
-    model = label.get("GEOMETRIC_CAMERA_MODEL_PARMS")
+    model = _table(label, "GEOMETRIC_CAMERA_MODEL_PARMS", path, required=False)
     if model is None:
         raise InputError(f"{path}: no camera model (GEOMETRIC_CAMERA_MODEL_PARMS)")
     kind = str(model.get("MODEL_TYPE", ""))
@@ -146,16 +172,18 @@ def read_pds3_label(path: Path) -> RoverImage:
         raise InputError(f"{path}: the camera model is in {model.get('REFERENCE_COORD_SYSTEM_NAME')!r}, expected "
                          "ROVER_NAV_FRAME")
     camera = CameraModel(*components, name=str(path))
-    image = _group(label, "IMAGE", path)
-    sun = label.get("SITE_DERIVED_GEOMETRY_PARMS") or {}
+    image = _table(label, "IMAGE", path)
+    sun = _table(label, "SITE_DERIVED_GEOMETRY_PARMS", path, required=False) or {}
     return RoverImage(
         label=path, utc_s=start.replace(tzinfo=dt.UTC).timestamp(),
         instrument=str(label.get("INSTRUMENT_ID", "")), eye=str(label.get("FRAME_ID", "MONO")),
-        site=int(index["SITE"]), drive=int(index["DRIVE"]), pose=int(index.get("POSE", 0)),
+        site=_integer(index, "SITE", path, "ROVER_MOTION_COUNTER"),
+        drive=_integer(index, "DRIVE", path, "ROVER_MOTION_COUNTER"),
+        pose=_integer(index, "POSE", path, "ROVER_MOTION_COUNTER", 0),
         site_T_rover=_pose(rover, path, "ROVER_COORD_SYSTEM_PARMS"),
-        site_index=int(rover.get("REFERENCE_COORD_SYSTEM_INDEX", index["SITE"])),
+        site_index=_integer(rover, "REFERENCE_COORD_SYSTEM_INDEX", path, "ROVER_COORD_SYSTEM_PARMS", index["SITE"]),
         site_origin=site_origin, camera=camera,
-        width=int(image["LINE_SAMPLES"]), height=int(image["LINES"]),
+        width=_integer(image, "LINE_SAMPLES", path, "IMAGE"), height=_integer(image, "LINES", path, "IMAGE"),
         sun_site_azimuth_deg=_quantity(sun.get("SOLAR_AZIMUTH")),
         sun_site_elevation_deg=_quantity(sun.get("SOLAR_ELEVATION")),
         mission=str(label.get("INSTRUMENT_HOST_ID", "")), image=image_beside(path))

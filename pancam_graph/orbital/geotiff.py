@@ -36,7 +36,11 @@ def read_map_raster(path: Path) -> MapRaster:
     from rasterio.errors import RasterioError
 
     path = Path(path)
-    if not path.is_file():
+    try:
+        found = path.is_file()
+    except OSError as exc:  # a name the file system cannot hold (too long)
+        raise InputError(f"{path}: not a map file's name ({exc.strerror})") from None
+    if not found:
         raise InputError(f"{path}: no such map file")
     try:
         with rasterio.open(path) as source:

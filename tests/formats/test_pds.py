@@ -89,6 +89,15 @@ def test_the_onboard_positions_against_mslice_over_site_4(images):
      r"START_TIME 'yesterday' is not a UTC time"),
     (("GROUP                             = GEOMETRIC_CAMERA_MODEL_PARMS", "GROUP = SOMETHING_ELSE"),
      r"no camera model \(GEOMETRIC_CAMERA_MODEL_PARMS\)"),
+    # found by fuzzing: each once escaped as a KeyError, ValueError, TypeError or OverflowError
+    (("  LINE_SAMPLES                    = 256", "  SAMPLES = 256"), r"IMAGE has no LINE_SAMPLES"),
+    (("  LINE_SAMPLES                    = 256", '  LINE_SAMPLES = "x"'),
+     r"IMAGE LINE_SAMPLES is not a whole number"),
+    (("ROVER_MOTION_COUNTER              = (3,382,2,0,0,0,4,0,0,0)", "ROVER_MOTION_COUNTER = 3"),
+     r"ROVER_MOTION_COUNTER and its _NAME must be lists"),
+    (("  ORIGIN_OFFSET_VECTOR            = (-1.90435,33.2072,1.32141)",
+      "  ORIGIN_OFFSET_VECTOR            = (-1.90435,33.2072," + "9" * 400 + ")"),
+     r"ROVER_COORD_SYSTEM_PARMS ORIGIN_OFFSET_VECTOR is not 3 numbers"),
 ])
 def test_a_bad_label_is_refused_naming_it(tmp_path, change, words):
     source = CURIOSITY / "sol0026" / "NLA_399801979EDR_D0030382TRAV00006M1.LBL"
