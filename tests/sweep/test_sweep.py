@@ -21,9 +21,9 @@ pytestmark = pytest.mark.slow
 
 EXE = Path(sys.executable).parent / "pancam-graph"
 SPEC = """
-scenarios = ["short_trail", "no_sites.toml"]
+scenarios = ["short_trail", "no_gps.toml"]
 seeds = 2
-configs = ["vo_sites"]
+configs = ["full"]
 """
 
 
@@ -41,9 +41,10 @@ def _rows(path: Path) -> list[dict]:
 def swept(tmp_path_factory):
     folder = tmp_path_factory.mktemp("sweep")
     (folder / "spec.toml").write_text(SPEC)
-    # a scenario without sites: its vo_sites runs fail ("this traverse cannot feed it")
-    no_sites = resolve_scenario("short_trail").read_text().replace('name = "short_trail"', 'name = "no_sites"')
-    (folder / "no_sites.toml").write_text(no_sites + "\n[sites]\nenabled = false\n")
+    # a scenario whose GPS is out over the whole path: the plan cannot see that (its [gps] is on), so
+    # its `full` runs fail when they find no fix ("this traverse cannot feed it")
+    no_gps = resolve_scenario("short_trail").read_text().replace('name = "short_trail"', 'name = "no_gps"')
+    (folder / "no_gps.toml").write_text(no_gps + "\n[gps]\ndropouts = [[0.0, 100000.0]]\n")
     return folder, _sweep(folder)
 
 
@@ -53,7 +54,7 @@ def test_a_failing_run_is_recorded_and_the_others_finish(swept):
     assert "2 done, 0 skipped, 2 failed" in first.stderr
     status = {r["run"]: r for r in _rows(folder / "sweep" / "runs_status.csv")}
     assert {r["status"] for n, r in status.items() if n.startswith("short_trail")} == {"done"}
-    for name in ("no_sites-exomars-default-seed0", "no_sites-exomars-default-seed1"):
+    for name in ("no_gps-exomars-default-seed0", "no_gps-exomars-default-seed1"):
         assert status[name]["status"] == "failed" and "cannot feed it" in status[name]["message"]
     for seed in (0, 1):
         run = folder / "sweep" / "runs" / f"short_trail-exomars-default-seed{seed}"
@@ -63,9 +64,9 @@ def test_a_failing_run_is_recorded_and_the_others_finish(swept):
 
 @pytest.fixture(scope="module")
 def serial(short_scenario):
-    """vo_sites over seeds 0 and 1, run one after another in this process, and their last
-    stops' NEES."""
-    results = [run_scenario(short_scenario, RunOptions(seed=s, configs=("vo_sites",))).configurations["vo_sites"]
+    """full over seeds 0 and 1, run one after another in this process, and their last stops'
+    NEES."""
+    results = [run_scenario(short_scenario, RunOptions(seed=s, configs=("full",))).configurations["full"]
                for s in (0, 1)]
     return monte_carlo_summary([c.consistency for c in results]) | {
         "nees_last": last_stop_summary([c.nees.last for c in results])["nees_last"]}
@@ -74,7 +75,7 @@ def serial(short_scenario):
 def test_the_summary_is_bench_monte_carlos(swept, serial):
     folder, _ = swept
     (summary,) = _rows(folder / "sweep" / "summary.csv")
-    assert (summary["scenario"], summary["config"], summary["runs"]) == ("short_trail", "vo_sites", "2")
+    assert (summary["scenario"], summary["config"], summary["runs"]) == ("short_trail", "full", "2")
     assert float(summary["efficiency"]) == pytest.approx(serial["efficiency"], rel=1e-9)
     assert float(summary["anees"]) == pytest.approx(serial["anees"], rel=1e-9)
     assert float(summary["nees_last"]) == pytest.approx(serial["nees_last"], rel=1e-9)
@@ -87,9 +88,9 @@ def test_bench_monte_carlo_runs_as_a_sweep_with_workers(tmp_path, serial):
     assert result.returncode == 0, result.stderr
     report = json.loads(result.stdout)
     assert report["seeds"] == [0, 1] and report["workers"] == 2
-    assert report["monte_carlo"]["vo_sites"]["efficiency"] == pytest.approx(serial["efficiency"], rel=1e-9)
-    assert report["monte_carlo"]["vo_sites"]["anees"] == pytest.approx(serial["anees"], rel=1e-9)
-    assert report["monte_carlo"]["vo_sites"]["last_stop"]["nees_last"] == pytest.approx(serial["nees_last"], rel=1e-9)
+    assert report["monte_carlo"]["full"]["efficiency"] == pytest.approx(serial["efficiency"], rel=1e-9)
+    assert report["monte_carlo"]["full"]["anees"] == pytest.approx(serial["anees"], rel=1e-9)
+    assert report["monte_carlo"]["full"]["last_stop"]["nees_last"] == pytest.approx(serial["nees_last"], rel=1e-9)
 
 
 def test_a_second_invocation_skips_the_runs_done(swept):
