@@ -61,6 +61,8 @@ def read_map_raster(path: Path) -> MapRaster:
             crs_wkt = source.crs.to_wkt()
     except RasterioError as exc:
         raise InputError(f"{path}: not a readable GeoTIFF ({exc})") from None
+    except UnicodeError:  # GDAL hands over a CRS's text that is not UTF-8
+        raise InputError(f"{path}: its CRS's text is not UTF-8 (a damaged GeoTIFF)") from None
     if values.dtype == np.uint8:
         if not values.any():
             raise InputError(f"{path}: every grey level is 0 (no data): an orthoimage with nothing to correlate")

@@ -219,3 +219,15 @@ def _site_points(dtm, frame, crs, site, yaw, rng, n=1500):
     world_T_body[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]]
     world_T_body[:3, 3] = site
     return (ground - site) @ world_T_body[:3, :3], world_T_body
+
+
+def test_a_crs_whose_text_is_not_utf8_is_refused_by_name(tmp_path):
+    """Found by fuzzing: a damaged CRS citation made GDAL hand over bytes that are not UTF-8
+    (UnicodeDecodeError from rasterio)."""
+    _write(tmp_path / "map.tif", np.ones((4, 4)), crs=CRS.from_user_input("IAU_2015:49910").to_wkt())
+    data = (tmp_path / "map.tif").read_bytes()
+    at = data.find(b"Mars")
+    assert at > 0
+    (tmp_path / "map.tif").write_bytes(data[:at] + b"\xff\xcd" + data[at + 2:])
+    with pytest.raises(InputError, match=r"map.tif: its CRS's text is not UTF-8"):
+        read_map_raster(tmp_path / "map.tif")
