@@ -69,6 +69,30 @@ def ground_spacing_note(name: str, raster: MapRaster) -> str | None:
             "registered on the ground's distances")
 
 
+# A DTM whose height at the start is this far from the start's (and more than DATUM_SIGMAS times its
+# stated vertical sigma) has heights in other units or on another datum than the traverse's
+DATUM_MIN_M = 100.0
+DATUM_SIGMAS = 20.0
+
+
+def start_height_note(name: str, raster: MapRaster, frame: LocalFrame, start_enu: np.ndarray,
+                      vertical_sigma_m: float) -> str | None:
+    """One line when the DTM's height under the traverse's start is far from the start's own
+    height above the body's surface: the map's bias absorbs a datum offset only within its
+    stated vertical sigma, so registrations then fail as 'ambiguous' with no other hint."""
+    from pyproj import CRS
+
+    xy = frame.to_map(np.asarray(start_enu, dtype=float)[None, :], CRS.from_wkt(raster.crs_wkt))
+    dtm = float(raster.at(xy)[0])
+    start_h = float(frame.to_geodetic(np.asarray(start_enu, dtype=float)[None, :])[0, 2])
+    offset = dtm - start_h
+    if not np.isfinite(dtm) or abs(offset) <= max(DATUM_MIN_M, DATUM_SIGMAS * vertical_sigma_m):
+        return None
+    return (f"{name}: its height under the start is {dtm:,.1f} m, the start's is {start_h:,.1f} m (both above "
+            f"the body's surface): {offset:+,.0f} m apart, against a stated vertical sigma of {vertical_sigma_m:g} m "
+            "(heights in other units, or on another datum?); its registrations will fail")
+
+
 def post_enu(raster: MapRaster, frame: LocalFrame, rows: slice = slice(None), cols: slice = slice(None)) -> np.ndarray:
     """(N, 3) local ENU of the raster's posts in the window rows x cols, row by row (the map
     taken at its word: its georeference as stated). Heights are the raster's values."""

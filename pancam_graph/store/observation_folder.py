@@ -130,7 +130,7 @@ def read_observations(folder: Path) -> ObservationSet:
     notes: tuple[str, ...] = ()
     if manifest.maps:
         measurements["orbital"] = _read_maps(folder, manifest.maps)
-        notes = _map_notes(folder, manifest.maps, measurements["orbital"])
+        notes = _map_notes(folder, manifest.maps, measurements["orbital"], traverse)
     if measurements:
         traverse = dataclasses.replace(traverse, measurements=measurements)
     truth = None
@@ -417,13 +417,17 @@ def _read_maps(folder: Path, sources: list[MapSource]) -> tuple[OrbitalMap, ...]
     return tuple(maps)
 
 
-def _map_notes(folder: Path, sources: list[MapSource], maps: tuple[OrbitalMap, ...]) -> tuple[str, ...]:
-    """A line for each map raster whose posts are not square on the ground."""
-    from ..orbital.maps import ground_spacing_note
+def _map_notes(folder: Path, sources: list[MapSource], maps: tuple[OrbitalMap, ...],
+               traverse: Traverse) -> tuple[str, ...]:
+    """A line for each map raster whose posts are not square on the ground, and for each DTM far
+    from the start's height."""
+    from ..orbital.maps import ground_spacing_note, start_height_note
 
     notes = []
     for source, orbital_map in zip(sources, maps, strict=True):
         notes.append(ground_spacing_note(str(folder / source.dtm), orbital_map.dtm))
+        notes.append(start_height_note(str(folder / source.dtm), orbital_map.dtm, traverse.origin,
+                                       traverse.start_world_T_body[:3, 3], orbital_map.vertical_sigma_m))
         if orbital_map.orthoimage is not None:
             notes.append(ground_spacing_note(str(folder / source.orthoimage), orbital_map.orthoimage))
     return tuple(note for note in notes if note)

@@ -77,3 +77,17 @@ def test_the_untouched_maps_run(mars_folder, tmp_path):
     chosen, _ = select_configurations(data.estimator, data.traverse, ("vo_sites_orbital",))
     assert list(chosen) == ["vo_sites_orbital"]
     assert np.isfinite(data.traverse.measurements["orbital"][0].dtm.values).any()
+
+
+def test_a_dtm_in_kilometres_is_named_with_its_offset_from_the_start(mars_folder, tmp_path):
+    """Heights in km (or on another datum) pass every check a map can fail alone; its
+    registrations then all fail as 'ambiguous'. The run says why first, naming the offset."""
+    from pancam_graph.store.observation_folder import read_observations
+
+    folder = tmp_path / "obs"
+    shutil.copytree(mars_folder, folder)
+    _rewrite(folder / "maps" / "orbital_map_dtm.tif", lambda data, profile: (data / 1000.0, profile))
+    notes = [n for n in read_observations(folder).notes if "orbital_map_dtm.tif" in n]
+    assert len(notes) == 1 and "apart, against a stated vertical sigma of 1 m" in notes[0], notes
+    assert "heights in other units, or on another datum?" in notes[0]
+    assert not [n for n in read_observations(mars_folder).notes if "apart" in n]  # the map as simulated: none
