@@ -14,6 +14,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from ..errors import GeodesyError
 from ..geometry.geodesy import LocalFrame
 from ..records import MapRaster
 
@@ -82,7 +83,10 @@ def start_height_note(name: str, raster: MapRaster, frame: LocalFrame, start_enu
     stated vertical sigma, so registrations then fail as 'ambiguous' with no other hint."""
     from pyproj import CRS
 
-    xy = frame.to_map(np.asarray(start_enu, dtype=float)[None, :], CRS.from_wkt(raster.crs_wkt))
+    try:
+        xy = frame.to_map(np.asarray(start_enu, dtype=float)[None, :], CRS.from_wkt(raster.crs_wkt))
+    except GeodesyError:  # a CRS of another body: the orbital kind's check refuses the map, naming it
+        return None
     dtm = float(raster.at(xy)[0])
     start_h = float(frame.to_geodetic(np.asarray(start_enu, dtype=float)[None, :])[0, 2])
     offset = dtm - start_h
