@@ -16,11 +16,13 @@ import numpy as np
 
 from ..errors import WriteFailed
 from ..geometry.geodesy import LocalFrame
+from .pds import BODY_R_ROVER, ENU_R_SITE
 from .tables import write_csv
 
-# the world's east-north-up and the body's forward-left-up -> north-east-down and forward-right-down
-_NED_R_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
-_FLU_R_FRD = np.diag([1.0, -1.0, -1.0])
+# the world's east-north-up and the body's forward-left-up -> the missions' north-east-down and
+# forward-right-down (both swaps are their own inverses)
+_NED_R_ENU = ENU_R_SITE
+_FLU_R_FRD = BODY_R_ROVER
 COLUMNS = ["stop", "time_s", "site", "drive", "x_east_m", "y_north_m", "z_up_m", "easting", "northing",
            "planetocentric_latitude", "planetodetic_latitude", "longitude", "elevation", "roll", "pitch", "yaw",
            "sigma_major_m", "sigma_minor_m", "sigma_major_azimuth", "sigma_up_m"]
