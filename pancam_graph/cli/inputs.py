@@ -49,6 +49,9 @@ def render_command(
     control_field: bool = typer.Option(False, "--control-field", help="render the calibration control field "
                                        "instead, for `pancam-graph calibrate`"),
     views: int = typer.Option(8, "--views", min=3, max=100, help="with --control-field: stereo pairs to take"),
+    pds4: Path | None = typer.Option(None, "--pds4", help="also write the navigation pairs into this folder as "
+                                     "PDS4 rover products (CAHVOR cameras, onboard poses in site frames), which "
+                                     "`run` reads as a rover's"),
     quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
 ) -> None:
     """Render a scenario's navigation stereo pairs and site panoramas (terrain with relief, rocks,
@@ -60,9 +63,14 @@ def render_command(
     from several views (views/NN_left.png, NN_right.png, control_field.csv, and the pair's true
     calibration in truth_calibration.yaml)."""
     from ..api import check_out
+    from ..errors import ConfigError
 
     with user_input():
         check_out(out)
+        if pds4 is not None:
+            if control_field:
+                raise ConfigError("--pds4 writes a traverse's navigation pairs: not with --control-field")
+            check_out(pds4, "--pds4")
         sc = load_named_scenario(scenario)
         start = time.perf_counter()
         if control_field:
@@ -73,7 +81,14 @@ def render_command(
             from ..render.scenario_images import render_scenario
 
             n = with_progress(sc.name, quiet, lambda report: render_scenario(sc, out, seed, report))
+            if pds4 is not None:
+                from ..render.pds_products import scenario_start_utc_s, write_pds4_products
+
+                products = with_progress(sc.name, quiet, lambda report: write_pds4_products(
+                    out, pds4, scenario_start_utc_s(sc), report))
     console.print(f"{n} images rendered into {out} in {time.perf_counter() - start:.0f} s")
+    if pds4 is not None:
+        console.print(f"{products} PDS4 products of its navigation pairs in {pds4}")
 
 
 @app.command("calibrate")

@@ -65,3 +65,18 @@ def find_mslice_file(folder: Path) -> Path | None:
     if len(found) > 1:
         raise InputError(f"{folder}: {len(found)} MSLICE files ({', '.join(p.name for p in found)}): keep one")
     return found[0] if found else None
+
+
+def write_mslice_locations(path: Path, locations: list[MsliceLocation]) -> None:
+    """An MSLICE-style locations file (the fields this module reads, zero-padded as MSLICE has them)."""
+    root = ElementTree.Element("msl")
+    for location in locations:
+        element = ElementTree.SubElement(root, "location")
+        for tag, text in (("site", f"{location.site:05d}"), ("drive", f"{location.drive:05d}"),
+                          ("lat", repr(float(location.lat_deg))), ("lon", repr(float(location.lon_deg)))):
+            ElementTree.SubElement(element, tag).text = text
+        if location.arrival_utc_s is not None:
+            arrival = dt.datetime.fromtimestamp(location.arrival_utc_s, dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+            ElementTree.SubElement(element, "arrivalTime").text = arrival
+    ElementTree.indent(root)
+    ElementTree.ElementTree(root).write(path, encoding="UTF-8", xml_declaration=True)

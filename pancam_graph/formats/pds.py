@@ -16,46 +16,20 @@ from __future__ import annotations
 
 import datetime as dt
 import warnings
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
 from ..geometry.cahvor import CameraModel
+from . import pds4
+from .rover_image import RoverImage, frame_pose
 
 # a site frame (north, east, down) -> east, north, up; the rover frame (forward, right, down)
 # -> the body frame (forward, left, up)
 ENU_R_SITE = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 BODY_R_ROVER = np.diag([1.0, -1.0, -1.0])
 LABEL_SUFFIXES = (".LBL", ".lbl")
-
-
-@dataclass(frozen=True)
-class RoverImage:
-    """One image product as its label describes it."""
-
-    label: Path
-    utc_s: float
-    instrument: str  # INSTRUMENT_ID, e.g. NAV_LEFT_A
-    eye: str  # FRAME_ID: LEFT or RIGHT (MONO for a single camera)
-    site: int
-    drive: int
-    pose: int
-    site_T_rover: np.ndarray  # 4x4: the rover frame in its site frame (onboard, telemetry)
-    site_index: int  # the site frame the pose is in
-    site_origin: tuple[int, np.ndarray] | None  # (reference site, this site's origin in that site's frame)
-    camera: CameraModel  # in the rover navigation frame
-    width: int
-    height: int
-    sun_site_azimuth_deg: float | None  # clockwise from north, in the site frame (the mission's)
-    sun_site_elevation_deg: float | None
-    mission: str = ""  # INSTRUMENT_HOST_ID, e.g. MSL
-    image: Path | None = None  # the product's image beside its label, when there is one
-
-    @property
-    def motion_counter(self) -> tuple[int, int, int]:
-        return self.site, self.drive, self.pose
 
 
 def _group(label, name: str, path: Path):
@@ -103,18 +77,9 @@ def _integer(group, name: str, path: Path, where: str, default=None) -> int:
 def _pose(group, path: Path, where: str) -> np.ndarray:
     """A frame's pose in its reference frame from ORIGIN_OFFSET_VECTOR and
     ORIGIN_ROTATION_QUATERNION (s, x, y, z)."""
-    from scipy.spatial.transform import Rotation
-
-    offset = _vector(group, "ORIGIN_OFFSET_VECTOR", 3, path, where)
-    s, x, y, z = _vector(group, "ORIGIN_ROTATION_QUATERNION", 4, path, where)
-    norm = float(np.sqrt(s * s + x * x + y * y + z * z))
-    if abs(norm - 1.0) > 1e-3:
-        raise InputError(f"{path}: {where} ORIGIN_ROTATION_QUATERNION has length {norm:.4f}, expected a unit "
-                         "quaternion")
-    out = np.eye(4)
-    out[:3, :3] = Rotation.from_quat([x, y, z, s]).as_matrix()
-    out[:3, 3] = offset
-    return out
+    return frame_pose(_vector(group, "ORIGIN_OFFSET_VECTOR", 3, path, where),
+                      _vector(group, "ORIGIN_ROTATION_QUATERNION", 4, path, where),
+                      f"{path}: {where} ORIGIN_ROTATION_QUATERNION")
 
 
 def _quantity(value) -> float | None:
@@ -219,24 +184,29 @@ def image_size(path: Path) -> tuple[int, int] | None:
 
 
 def read_rover_images(folder: Path) -> list[RoverImage]:
-    """Every PDS3 label under `folder`, in time order: one mission's, each image (where there is
-    one beside its label) of the size its label gives."""
+    """Every rover image product under `folder` (PDS3 labels, *.LBL, and PDS4 ones, *.xml whose
+    root is a Product_Observational: other XML, such as an MSLICE file, is not a product), in
+    time order: one mission's, each image (where there is one beside its label) of the size its
+    label gives."""
     folder = Path(folder)
-    labels = sorted(p for p in folder.rglob("*") if p.suffix in LABEL_SUFFIXES)
-    if not labels:
-        raise InputError(f"{folder}: no PDS3 labels (*.LBL)")
-    images = sorted((read_pds3_label(p) for p in labels), key=lambda image: image.utc_s)
+    found = sorted(p for p in folder.rglob("*") if p.suffix in LABEL_SUFFIXES or pds4.is_label(p))
+    if not found:
+        raise InputError(f"{folder}: no rover image products (PDS3 *.LBL or PDS4 *.xml labels)")
+    images = sorted((read_pds3_label(p) if p.suffix in LABEL_SUFFIXES else pds4.read_pds4_label(p) for p in found),
+                    key=lambda image: image.utc_s)
     missions: dict[str, Path] = {}
     for image in images:
         missions.setdefault(image.mission, image.label)
-        if image.image is not None:
+        if image.image is not None and image.label.suffix not in LABEL_SUFFIXES:
+            pds4.check_image_size(image)
+        elif image.image is not None:
             size = image_size(image.image)
             if size is not None and size != (image.width, image.height):
                 raise InputError(f"{image.image}: {size[0]} x {size[1]} px, but its label {image.label.name} says "
                                  f"{image.width} x {image.height}")
     if len(missions) > 1:
         raise InputError(f"{folder}: products of more than one mission ("
-                         + ", ".join(f"{m or 'no INSTRUMENT_HOST_ID'}: {p.name}" for m, p in missions.items())
+                         + ", ".join(f"{m or 'no mission named'}: {p.name}" for m, p in missions.items())
                          + "): give one mission's products")
     return images
 

@@ -280,3 +280,23 @@ def to_photogrammetric(model: CameraModel, width: int, height: int, grid: int = 
     rotation = start_R @ Rotation.from_rotvec(fit.x[:3]).as_matrix()
     camera = Camera(*fit.x[3:7], width, height, *fit.x[7:])
     return Photogrammetric(rotation, model.c, camera, float(error.max()), float(np.sqrt(np.mean(error**2))))
+
+
+def from_photogrammetric(camera: Camera, model_R_camera: np.ndarray, centre: np.ndarray,
+                         name: str = "") -> CameraModel:
+    """The CAHVOR (CAHV without distortion) model of an OpenCV pinhole at `centre` with its axes
+    `model_R_camera` in the model's frame. Exact for radial distortion k1, k2: CAHVOR's
+    mu = R0 + R1 tau + R2 tau^2 with tau the squared tangent off O scales a ray's offset from O
+    as OpenCV's 1 + k1 r^2 + k2 r^4 scales a normalised point's, when O is the optical axis. The
+    other terms (k3, tangential, thin prism) have no CAHVOR counterpart and are refused."""
+    if any((camera.k3, camera.p1, camera.p2, camera.s1, camera.s2, camera.s3, camera.s4)):
+        raise InputError(f"{name or 'camera'}: only radial k1, k2 distortion has a CAHVOR form; k3, p1, p2 and "
+                         "s1..s4 must be 0")
+    rotation = np.asarray(model_R_camera, dtype=float)
+    a = rotation[:, 2]
+    h = camera.fx * rotation[:, 0] + camera.cx * a
+    v = camera.fy * rotation[:, 1] + camera.cy * a
+    if camera.k1 == 0.0 and camera.k2 == 0.0:
+        return CameraModel(np.asarray(centre, dtype=float), a, h, v, name=name)
+    return CameraModel(np.asarray(centre, dtype=float), a, h, v, a.copy(), np.array([0.0, camera.k1, camera.k2]),
+                       name=name)

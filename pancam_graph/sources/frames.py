@@ -11,7 +11,7 @@ import numpy as np
 
 from ..errors import FrameError, InputError
 from ..frontend.tracker import CameraMotion, StereoTracker
-from ..records import Stop
+from ..records import Stop, Traverse
 from .registry import SourceData
 
 # Reads stop k's (left, right) grayscale pair, rectified; raises InputError naming the file.
@@ -62,3 +62,13 @@ def frame_ms(tracker: StereoTracker) -> np.ndarray:
 
 def median_frame_ms(tracker: StereoTracker) -> float:
     return float(np.median(frame_ms(tracker)))
+
+
+def odometry_camera_motion(traverse: Traverse) -> Callable[[np.ndarray], CameraMotion]:
+    """The navigation camera's motion from the body's (dead reckoning), for the tracker."""
+    rig, body_T_camera = traverse.rig, traverse.body_T_nav().matrix()
+
+    def camera_motion(previous_T_current: np.ndarray) -> CameraMotion:
+        return CameraMotion.from_body_motion(previous_T_current, body_T_camera, rig.wac, rig.baseline_m)
+
+    return camera_motion

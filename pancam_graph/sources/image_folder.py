@@ -17,10 +17,10 @@ from ..config import FrontendConfig, SourceOptions
 from ..errors import FrameError, InputError
 from ..formats.images import read_gray
 from ..frontend.motion import VoMotions
-from ..frontend.tracker import CameraMotion, StageTimes, StereoTracker
-from ..records import Stop, Traverse
+from ..frontend.tracker import StageTimes, StereoTracker
+from ..records import Stop
 from ..solve.results import SourceInfo
-from .frames import median_frame_ms, track_frames
+from .frames import median_frame_ms, odometry_camera_motion, track_frames
 from .registry import Source, SourceData, StereoFrames, frontend_for
 from .site_images import with_site_panoramas
 
@@ -140,16 +140,6 @@ def with_sites(data: SourceData, obs: ObservationSet, pairs: FramePairs, fronten
     info = replace(data.info, notes=(*data.info.notes, report.summary(), *notes, *report.skipped))
     return replace(data, traverse=replace(data.traverse, stops=tuple(stops)), estimator=estimator, info=info,
                    vo_motions=vo)
-
-
-def odometry_camera_motion(traverse: Traverse) -> Callable[[np.ndarray], CameraMotion]:
-    """The navigation camera's motion from the body's (dead reckoning), for the tracker."""
-    rig, body_T_camera = traverse.rig, traverse.body_T_nav().matrix()
-
-    def camera_motion(previous_T_current: np.ndarray) -> CameraMotion:
-        return CameraMotion.from_body_motion(previous_T_current, body_T_camera, rig.wac, rig.baseline_m)
-
-    return camera_motion
 
 
 def _load(text: str, options: SourceOptions, progress) -> SourceData:

@@ -1,33 +1,46 @@
-"""A folder of Mars rover image products (PDS3 labels: formats/pds.py) as a traverse: one stop per
-(site, drive) of the rover motion counter, in time order; the rover's onboard poses chained
-through the site frames into one east-north-up frame at the first site; their increments and
-tilts the onboard kind's measurements (kinds/onboard.py). An MSLICE locations file in the folder
-(formats/mslice.py) places the first site on Mars and scores the estimate at every drive it
-has: held-out positions, never in a graph.
+"""A folder of Mars rover image products (PDS3 labels: formats/pds.py; PDS4: formats/pds4.py) as a
+traverse: one stop per (site, drive) of the rover motion counter, in time order; the rover's
+onboard poses chained through the site frames into one east-north-up frame at the first site;
+their increments and tilts the onboard kind's measurements (kinds/onboard.py). An MSLICE
+locations file in the folder (formats/mslice.py) places the first site on Mars and scores the
+estimate at every drive it has: held-out positions, never in a graph.
 
-Left-only products (no stereo partner for any image) run without VO and say so once; stereo
-from rover products (CAHVOR pairs resampled to linear ones) is not built yet."""
+Where every stop has a stereo pair (a left and a right image of one camera pair, within
+PAIR_TOLERANCE_S), the pair's CAHVOR models become the photogrammetric pair they are within
+their conversion's residual (geometry/cahvor.py), OpenCV rectifies it to a linear epipolar
+pair, and the image front-end tracks it as it does an image folder's: the `vo` configuration
+runs beside `onboard`. Left-only products run without VO and say so once."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from ..config import EstimatorConfig, SourceOptions
+from ..config import EstimatorConfig, FrontendConfig, SourceOptions
 from ..errors import InputError
+from ..formats import pds4
+from ..formats.images import read_gray
 from ..formats.mslice import find_mslice_file, read_mslice_locations
 from ..formats.pds import BODY_R_ROVER, LABEL_SUFFIXES, RoverImage, enu_T_body, read_rover_images, site_origins
+from ..frontend.tracker import StereoTracker
 from ..geometry.cahvor import to_photogrammetric
 from ..geometry.geodesy import LocalFrame
 from ..geometry.rig import Rig
+from ..geometry.stereo_pair import StereoCalibration
 from ..kinds.onboard import OnboardSettings, OnboardTilt, step_covariance
 from ..records import DeadReckoning, GpsFix, SlipPrior, StereoObservations, Stop, Traverse
 from ..solve.results import SourceInfo
-from .registry import Source, SourceData
+from .frames import median_frame_ms, odometry_camera_motion, track_frames
+from .registry import Source, SourceData, frontend_for
 
-NAVCAM_BASELINE_M = 0.424  # MSL Navcam stereo baseline (Maki et al. 2012); the products here give no partner
+NAVCAM_BASELINE_M = 0.424  # MSL Navcam stereo baseline (Maki et al. 2012), for products that give no partner
+# Matching and localisation error (1 sigma) of features tracked on rectified images: what the
+# front-end measured on KITTI's real frames (formats/kitti.py); a label states none
+FEATURE_SIGMA_PX = 0.5
 PAIR_TOLERANCE_S = 1.0  # a left and a right image of one instrument this close in time are a stereo pair
 # MSLICE states no accuracy for its positions: what the held-out score's "stated" figure assumes
 MSLICE_SIGMA_M = 1.0
@@ -35,10 +48,11 @@ CONFIGURATIONS = {"onboard": ["onboard"]}
 
 
 def matches(path: Path) -> bool:
-    """A folder with PDS3 labels in it or one level down (one folder a sol, as archives have them)."""
+    """A folder with PDS3 or PDS4 labels in it or one level down (one folder a sol, as archives
+    have them)."""
     if not path.is_dir():
         return False
-    return any(p.suffix in LABEL_SUFFIXES for pattern in ("*", "*/*") for p in path.glob(pattern))
+    return any(p.suffix in LABEL_SUFFIXES or pds4.is_label(p) for pattern in ("*", "*/*") for p in path.glob(pattern))
 
 
 def stops_of(images: list[RoverImage]) -> list[list[RoverImage]]:
@@ -52,18 +66,62 @@ def stops_of(images: list[RoverImage]) -> list[list[RoverImage]]:
     return groups
 
 
-def stereo_pairs(images: list[RoverImage]) -> int:
-    """How many left images have a right partner (same instrument pair, within PAIR_TOLERANCE_S)."""
-    rights = sorted(i.utc_s for i in images if i.eye == "RIGHT")
-    lefts = [i.utc_s for i in images if i.eye == "LEFT"]
-    if not rights:
-        return 0
-    at = np.searchsorted(rights, lefts)
-    near = [min(abs(t - rights[j]) for j in (k - 1, k) if 0 <= j < len(rights)) for t, k in zip(lefts, at, strict=True)]
-    return int(np.sum(np.array(near) <= PAIR_TOLERANCE_S))
+def stereo_pairs(images: list[RoverImage]) -> list[tuple[RoverImage, RoverImage]]:
+    """Each left image with its right partner: the image of the same camera pair (the instrument
+    with RIGHT for LEFT in its name) nearest in time, within PAIR_TOLERANCE_S."""
+    rights: dict[str, list[RoverImage]] = {}
+    for image in images:
+        if image.eye == "RIGHT":
+            rights.setdefault(image.instrument.replace("RIGHT", "LEFT"), []).append(image)
+    pairs = []
+    for left in (i for i in images if i.eye == "LEFT"):
+        partner = min(rights.get(left.instrument, []), key=lambda r: abs(r.utc_s - left.utc_s), default=None)
+        if partner is not None and abs(partner.utc_s - left.utc_s) <= PAIR_TOLERANCE_S:
+            pairs.append((left, partner))
+    return pairs
 
 
-def load(folder: Path, progress: Callable[[str, int, int], None] | None = None) -> SourceData:
+def read_product_image(image: RoverImage) -> np.ndarray:
+    """A product's 8-bit grey image: a PDS4 product's raw array, or a PDS3 label's browse image."""
+    if image.image is None:
+        raise InputError(f"{image.label}: no image beside the label")
+    if image.label.suffix == pds4.LABEL_SUFFIX:
+        return pds4.read_image(image)
+    if image.image.suffix.lower() == ".img":
+        raise InputError(f"{image.image}: PDS3 .IMG pixels are not read yet; give the browse images (.jpg, .png)")
+    return read_gray(image.image, (image.height, image.width), f"its label {image.label.name}")
+
+
+@dataclass(frozen=True)
+class ProductStereo:
+    """A CAHVOR pair as the front-end takes it: the photogrammetric pair it converts to (OpenCV's
+    calibration and rectification), and the raw left camera in the rover body frame."""
+
+    calibration: StereoCalibration
+    body_T_raw_left: np.ndarray
+    residual_px: float  # the largest of the two conversions' residuals over the image
+
+
+def product_stereo(left: RoverImage, right: RoverImage) -> ProductStereo:
+    converted = [to_photogrammetric(image.camera, image.width, image.height) for image in (left, right)]
+    rover_T = []
+    for photo in converted:
+        pose = np.eye(4)
+        pose[:3, :3], pose[:3, 3] = photo.model_R_camera, photo.centre
+        rover_T.append(pose)
+    right_T_left = np.linalg.inv(rover_T[1]) @ rover_T[0]
+    (a, b) = (photo.camera for photo in converted)
+    calibration = StereoCalibration(f"{left.label.name} + {right.label.name}", a.matrix(), a.distortion(),
+                                    b.matrix(), b.distortion(), (left.width, left.height), right_T_left[:3, :3],
+                                    right_T_left[:3, 3])
+    body_T_raw_left = np.eye(4)
+    body_T_raw_left[:3, :3] = BODY_R_ROVER @ rover_T[0][:3, :3]
+    body_T_raw_left[:3, 3] = BODY_R_ROVER @ rover_T[0][:3, 3]
+    return ProductStereo(calibration, body_T_raw_left, max(photo.residual_px for photo in converted))
+
+
+def load(folder: Path, progress: Callable[[str, int, int], None] | None = None,
+         frontend: FrontendConfig | None = None, skip_bad_frames: bool = False) -> SourceData:
     folder = Path(folder)
     images = read_rover_images(folder)
     groups = stops_of(images)
@@ -85,12 +143,16 @@ def load(folder: Path, progress: Callable[[str, int, int], None] | None = None) 
 
     notes = []
     pairs = stereo_pairs(images)
-    if pairs == 0:
+    paired = {(left.site, left.drive): (left, right) for left, right in reversed(pairs)}  # a stop's first pair
+    stop_pairs = [paired.get((group[0].site, group[0].drive)) for group in groups]
+    if not pairs:
         notes.append(f"left images only ({len(images)} products, no stereo partner): the stereo VO cannot run; the "
                      "onboard estimate carries the motion")
-    else:
-        notes.append(f"{pairs} stereo pairs: VO from rover products (CAHVOR pairs resampled to linear) is not built "
-                     "yet; the onboard estimate carries the motion")
+    elif None in stop_pairs:
+        missing = stop_pairs.index(None)
+        notes.append(f"{len(pairs)} stereo pairs, but stop {missing} (site {groups[missing][0].site}, drive "
+                     f"{groups[missing][0].drive}) has none: the stereo VO needs a pair at every stop; the onboard "
+                     "estimate carries the motion")
     first_site = groups[0][0].site_index
     origin, held_out, georeferenced = LocalFrame(0.0, 0.0, 0.0, body="mars"), (), False
     mslice_file = find_mslice_file(folder)
@@ -115,15 +177,26 @@ def load(folder: Path, progress: Callable[[str, int, int], None] | None = None) 
                          f"{MSLICE_SIGMA_M:g} m assumed)")
 
     first = groups[0][0]
-    camera = to_photogrammetric(first.camera, first.width, first.height)
-    body_T_nav_left = np.eye(4)
-    body_T_nav_left[:3, :3] = BODY_R_ROVER @ camera.model_R_camera
-    body_T_nav_left[:3, 3] = BODY_R_ROVER @ camera.centre
+    stereo = product_stereo(*stop_pairs[0]) if pairs and None not in stop_pairs else None
+    if stereo is None:
+        camera = to_photogrammetric(first.camera, first.width, first.height)
+        body_T_nav_left = np.eye(4)
+        body_T_nav_left[:3, :3] = BODY_R_ROVER @ camera.model_R_camera
+        body_T_nav_left[:3, 3] = BODY_R_ROVER @ camera.centre
+        rig = Rig(f"{first.instrument} (CAHVOR of {first.label.name})", camera.camera, NAVCAM_BASELINE_M,
+                  mast_height_m=float(-camera.centre[2]))
+    else:
+        rectified = stereo.calibration.rectified()
+        body_T_nav_left = stereo.body_T_raw_left.copy()
+        body_T_nav_left[:3, :3] = body_T_nav_left[:3, :3] @ rectified.raw_R_rectified
+        rig = Rig(f"{first.instrument} pair (CAHVOR of {stereo.calibration.source}, rectified)", rectified.camera,
+                  rectified.baseline_m, mast_height_m=float(body_T_nav_left[2, 3]),
+                  raw_R_rectified=tuple(rectified.raw_R_rectified.ravel().tolist()))
+        notes.append(f"{len(pairs)} stereo pairs: CAHVOR to photogrammetric within {stereo.residual_px:.2g} px, "
+                     f"rectified by OpenCV to a linear pair (baseline {rectified.baseline_m:.3f} m)")
     traverse = Traverse(
-        name=folder.name, rig=Rig(f"{first.instrument} (CAHVOR of {first.label.name})", camera.camera,
-                                  NAVCAM_BASELINE_M, mast_height_m=float(-camera.centre[2])),
-        origin=origin, stops=tuple(stops), traverse_tilt_rad=0.0, image_noise_px=0.5,
-        gps_lever_arm_m=np.zeros(3), start_world_T_body=poses[0],
+        name=folder.name, rig=rig, origin=origin, stops=tuple(stops), traverse_tilt_rad=0.0,
+        image_noise_px=FEATURE_SIGMA_PX, gps_lever_arm_m=np.zeros(3), start_world_T_body=poses[0],
         start_sigmas=np.array([1e-4] * 3 + [1e-3] * 3),
         # the increments' error is their covariance (kinds/onboard.py), not a slip of the wheels'
         wheel_slip=SlipPrior(0.0, 1e-6), body_T_nav_left=body_T_nav_left,
@@ -131,12 +204,42 @@ def load(folder: Path, progress: Callable[[str, int, int], None] | None = None) 
     info = SourceInfo("pds", str(folder), "MSLICE ground-updated positions (held out)" if held_out else "none",
                       notes=tuple(notes), georeferenced=georeferenced,
                       stop_counters=tuple((group[0].site, group[0].drive) for group in groups))
-    return SourceData(traverse, None, EstimatorConfig(configurations=CONFIGURATIONS), 0, info, held_out=held_out)
+    configurations = dict(CONFIGURATIONS, **({"vo": ["vo"]} if stereo is not None else {}))
+    data = SourceData(traverse, None, EstimatorConfig(configurations=configurations), 0, info, held_out=held_out)
+    if stereo is None:
+        return data
+    return tracked(data, stop_pairs, stereo, frontend or FrontendConfig(), skip_bad_frames, progress)
+
+
+def tracked(data: SourceData, stop_pairs: list[tuple[RoverImage, RoverImage]], stereo: ProductStereo,
+            frontend: FrontendConfig, skip_bad_frames: bool,
+            progress: Callable[[str, int, int], None] | None) -> SourceData:
+    """The traverse's stops with the image front-end's tracks of their stereo pairs (rectified)."""
+    tracker = StereoTracker(frontend)
+    rectify = stereo.calibration.rectification_maps()
+
+    def read_pair(k: int) -> tuple[np.ndarray, np.ndarray]:
+        pair = tuple(read_product_image(image) for image in stop_pairs[k])
+        start = time.perf_counter()
+        rectified = rectify(*pair)
+        tracker.times.add("rectify", start)
+        return rectified
+
+    def finish(stops: list[Stop], notes: list[str]) -> SourceData:
+        n = len(stops)
+        info = replace(data.info, notes=(*data.info.notes, f"front-end {frontend.detector}: median "
+                                         f"{median_frame_ms(tracker):.1f} ms per frame", *notes),
+                       options={"detector": frontend.detector, "skip_bad_frames": skip_bad_frames})
+        return replace(data, traverse=replace(data.traverse, stops=tuple(stops)), info=info,
+                       held_out=tuple(f for f in data.held_out if f.time_s <= stops[-1].time_s) if n else ())
+
+    camera_motion = odometry_camera_motion(data.traverse) if frontend.odometry_aided else None
+    return track_frames(data.traverse.stops, read_pair, tracker, finish, skip_bad_frames, progress, camera_motion)
 
 
 def _load(text: str, options: SourceOptions, progress) -> SourceData:
-    return load(Path(text), progress)
+    return load(Path(text), progress, frontend_for(options), bool(options.skip_bad_frames))
 
 
-SOURCES = (Source("pds", 45, frozenset(), matches, _load,
-                  "a folder of rover image products with PDS3 labels (*.LBL)"),)
+SOURCES = (Source("pds", 45, frozenset({"detector", "skip_bad_frames"}), matches, _load,
+                  "a folder of rover image products (PDS3 *.LBL or PDS4 *.xml labels)"),)

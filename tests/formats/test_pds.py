@@ -113,7 +113,7 @@ def test_a_bad_label_is_refused_naming_it(tmp_path, change, words):
 
 
 def test_a_folder_without_labels_is_named(tmp_path):
-    with pytest.raises(InputError, match=r"no PDS3 labels"):
+    with pytest.raises(InputError, match=r"no rover image products"):
         read_rover_images(tmp_path)
 
 

@@ -144,3 +144,30 @@ def test_the_camera_s_distortion_is_opencv_s():
     theirs, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), camera.matrix(), camera.distortion())
     np.testing.assert_allclose(camera.project(points), theirs.reshape(-1, 2), atol=1e-9)
     assert len(camera.distortion()) == 12 and len(Camera(1, 1, 0, 0, 2, 2, k3=0.1).distortion()) == 5
+
+
+def test_an_opencv_camera_with_radial_distortion_is_exactly_a_cahvor():
+    """from_photogrammetric: the CAHVOR projects as cv2.projectPoints does the pinhole with k1, k2
+    (a tilted, shifted camera, points up to 40 deg off its axis), and converts back to it."""
+    import cv2
+    from scipy.spatial.transform import Rotation
+
+    from pancam_graph.geometry.cahvor import from_photogrammetric
+    from pancam_graph.geometry.rig import Camera
+
+    camera = Camera(1724.1, 1726.0, 515.3, 509.8, 1024, 1024, k1=-0.2645, k2=0.2626)
+    model_R_camera = Rotation.from_rotvec([0.3, -1.2, 0.4]).as_matrix()
+    centre = np.array([0.5, -0.2, -1.9])
+    model = from_photogrammetric(camera, model_R_camera, centre)
+    assert model.kind == "CAHVOR"
+    rng = np.random.default_rng(0)
+    p_camera = np.column_stack([rng.uniform(-0.8, 0.8, (500, 2)), np.ones(500)]) * rng.uniform(2, 30, 500)[:, None]
+    theirs, _ = cv2.projectPoints(p_camera, np.zeros(3), np.zeros(3), camera.matrix(), camera.distortion())
+    np.testing.assert_allclose(model.project(p_camera @ model_R_camera.T + centre), theirs.reshape(-1, 2), atol=1e-9)
+    back = to_photogrammetric(model, 1024, 1024)
+    assert back.residual_px < 1e-6
+    np.testing.assert_allclose([back.camera.fx, back.camera.fy, back.camera.cx, back.camera.cy, back.camera.k1,
+                                back.camera.k2], [1724.1, 1726.0, 515.3, 509.8, -0.2645, 0.2626], atol=1e-8)
+    np.testing.assert_allclose(back.model_R_camera, model_R_camera, atol=1e-10)
+    with pytest.raises(InputError, match=r"only radial k1, k2 distortion has a CAHVOR form"):
+        from_photogrammetric(Camera(1724.1, 1726.0, 515.3, 509.8, 1024, 1024, p1=1e-4), model_R_camera, centre)
