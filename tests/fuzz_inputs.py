@@ -20,6 +20,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from pancam_graph.errors import PancamGraphError
 
 HERE = Path(__file__).parent
@@ -217,6 +219,12 @@ def targets(work: Path) -> list[Target]:
         site_origins(images)
         return images, read_mslice_locations(d / "mslice_locations.xml")
 
+    from pancam_graph.sources import pds as pds_source
+
+    pds4_products = work / "pds4"  # two stops' stereo pairs as PDS4 products (tests/formats/test_pds4.py's)
+    pds4_products.mkdir()
+    _write_pds4_products(pds4_products)
+
     return [
         Target("scenario", scenario_dir, ["s.toml"], lambda d: load_scenario(d / "s.toml")),
         Target("mars scenario", scenario_dir, ["mars.toml"], lambda d: load_scenario(d / "mars.toml")),
@@ -225,6 +233,7 @@ def targets(work: Path) -> list[Target]:
         Target("geotiff maps", mars_obs, maps, read_observations),
         *([Target("pds labels", products, sorted(p.name for p in products.iterdir()), read_products)]
           if curiosity.is_dir() else []),
+        Target("pds4 labels", pds4_products, sorted(p.name for p in pds4_products.iterdir()), pds_source.load),
         Target("observations", obs, sorted(p.name for p in obs.iterdir()), read_observations),
         Target("image folder", images, sorted(p.name for p in images.iterdir()), read_observations),
         Target("transforms", images, ["traverse.toml"], read_observations, ("transform",)),
@@ -301,3 +310,22 @@ if __name__ == "__main__":
     print(f"{len(result.escaped)} escaped")
     for line in Counter(e.split(": ", 1)[1] for e in result.escaped).most_common(40):
         print(" ", line)
+
+
+def _write_pds4_products(folder: Path) -> None:
+    """Two stops' stereo pairs of small textured images, as PDS4 products."""
+    from pancam_graph.formats.pds4 import ProductDescription, write_product
+    from pancam_graph.geometry.cahvor import from_photogrammetric
+    from pancam_graph.geometry.rig import Camera
+
+    camera = Camera(60.0, 60.0, 31.5, 23.5, 64, 48, k1=-0.2, k2=0.1)
+    rover_R_camera = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    rng = np.random.default_rng(0)
+    for k in range(2):
+        site_T_rover = np.eye(4)
+        site_T_rover[0, 3] = 1.5 * k
+        for eye, y in (("LEFT", -0.2), ("RIGHT", 0.2)):
+            model = from_photogrammetric(camera, rover_R_camera, np.array([0.1, y, -1.5]), eye)
+            product = ProductDescription(f"NAV_{eye}_{k:04d}", 1.7e9 + 60.0 * k, "TEST ROVER", f"NAV_{eye}", 1, k,
+                                         0, site_T_rover, None, model)
+            write_product(folder, product, rng.integers(0, 255, (48, 64), dtype=np.uint8))

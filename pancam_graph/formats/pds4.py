@@ -17,6 +17,7 @@ The labels are written well-formed with these names but not validated against th
 from __future__ import annotations
 
 import datetime as dt
+import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
@@ -188,7 +189,7 @@ class _Label:
         self.path = path
         try:
             self.root = ET.parse(path).getroot()
-        except (ET.ParseError, OSError, ValueError) as exc:
+        except (ET.ParseError, OSError, ValueError, LookupError) as exc:  # LookupError: an unknown encoding
             raise InputError(f"{path}: not a readable PDS4 label ({exc})") from None
         if self.root.tag != _q("pds", "Product_Observational"):
             raise InputError(f"{path}: a {self.root.tag.rpartition('}')[2]}, expected a Product_Observational")
@@ -283,8 +284,9 @@ def read_pds4_label(path: Path) -> RoverImage:
                          "frame)")
     reference = label.text(rover, "./geom:Coordinate_Space_Reference/pds:Local_Internal_Reference/"
                                   "pds:local_identifier_reference")
-    if not reference.startswith("SITE_FRAME_"):
-        raise InputError(f"{path}: the rover's pose is in {reference!r}, expected a SITE_FRAME")
+    site_frame = re.fullmatch(r"SITE_FRAME_(\d+)", reference, re.ASCII)
+    if site_frame is None:
+        raise InputError(f"{path}: the rover's pose is in {reference!r}, expected a SITE_FRAME_<site>")
     site_origin = None
     site_definition = label.definition(geometry, f"SITE_FRAME_{site}")
     if site_definition is not None:
@@ -307,7 +309,7 @@ def read_pds4_label(path: Path) -> RoverImage:
     eye = instrument.rpartition("_")[2] if instrument.rpartition("_")[2] in EYES else "MONO"
     return RoverImage(
         label=path, utc_s=utc.timestamp(), instrument=instrument, eye=eye, site=site, drive=drive, pose=pose,
-        site_T_rover=label.pose(rover, rover_id), site_index=int(reference.removeprefix("SITE_FRAME_") or site),
+        site_T_rover=label.pose(rover, rover_id), site_index=int(site_frame.group(1)),
         site_origin=site_origin, camera=_camera(label, geometry), width=sizes["Sample"], height=sizes["Line"],
         sun_site_azimuth_deg=None, sun_site_elevation_deg=None,
         mission=label.text(root, "./pds:Observation_Area/pds:Investigation_Area/pds:name"),
@@ -332,7 +334,7 @@ def is_label(path: Path) -> bool:
     try:
         for _, element in ET.iterparse(path, events=("start",)):
             return element.tag == _q("pds", "Product_Observational")
-    except (ET.ParseError, OSError):
+    except (ET.ParseError, OSError, ValueError, LookupError):
         return False
     return False
 

@@ -269,6 +269,11 @@ def to_photogrammetric(model: CameraModel, width: int, height: int, grid: int = 
     # the pinhole with radial and tangential terms first, then the rest from there: started
     # together, rotation, centre and the decentering terms can settle in another minimum
     start = np.array([0.0, 0.0, 0.0, model.hs, model.vs, model.hc, model.vc] + [0.0] * 9)
+    with np.errstate(all="ignore"):  # rays behind the camera, or none (a distortion too wild): refused below
+        usable = np.all(np.isfinite(predicted(start)))
+    if not usable:
+        raise InputError(f"{model.name}: the camera model gives no ray in front of it for every pixel of its "
+                         f"{width} x {height} image: it has no photogrammetric form")
     fit = None
     for free in (11, 16):
         fixed = start[free:]

@@ -95,6 +95,10 @@ def test_pds4_tools_reads_the_products_image_and_fields(tmp_path):
     (("<geom:z_pixel>0.0</geom:z_pixel>", "<geom:z_pixel>20.0</geom:z_pixel>"),  # H leans towards A's normal
      r"camera model H and V are .* deg apart once A is taken out: expected 90 deg within 0.5 deg"),
     (("</Product_Observational>", ""), r"not a readable PDS4 label"),
+    # found by fuzzing (tests/fuzz_inputs.py): an unknown encoding, a site frame that is no number
+    (("encoding='UTF-8'", "encoding='UTFabc'"), r"not a readable PDS4 label \(unknown encoding"),
+    (("<local_identifier_reference>SITE_FRAME_1<", "<local_identifier_reference>SITE_FRAME_nan<"),
+     r"the rover's pose is in 'SITE_FRAME_nan', expected a SITE_FRAME_<site>"),
 ])
 def test_a_bad_pds4_label_is_refused_naming_it(tmp_path, change, words):
     label = write_product(tmp_path, _product(1, "LEFT"), _image(1, "LEFT"))
@@ -113,6 +117,17 @@ def test_an_image_whose_size_disagrees_with_its_label_is_named(tmp_path):
     with pytest.raises(InputError, match=r"NAV_RIGHT_0001.img: 3069 bytes, but its label NAV_RIGHT_0001.xml says "
                                          r"64 x 48 8-bit pixels"):
         read_rover_images(folder)
+
+
+def test_a_camera_model_with_no_ray_for_some_pixels_is_refused_naming_it(tmp_path):
+    """Found by fuzzing: a radial term so large that the corners have no ray reached
+    least_squares as NaN residuals."""
+    folder = _write(tmp_path / "products", stops=2)
+    label = folder / "NAV_LEFT_0000.xml"
+    label.write_text(label.read_text().replace("<geom:c1>-0.2</geom:c1>", "<geom:c1>-1e30</geom:c1>"))
+    with pytest.raises(InputError, match=r"NAV_LEFT_0000.xml: the camera model gives no ray in front of it for "
+                                         r"every pixel of its 64 x 48 image"):
+        load(folder)
 
 
 def test_other_xml_beside_the_products_is_not_a_product(tmp_path):
