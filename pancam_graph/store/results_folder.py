@@ -204,10 +204,27 @@ def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 # then every kind's per-stop counters (kinds.STEP_COUNTERS); a reader needs only these
 STEP_COLUMNS = ["config", "stop", "update_ms", "relinearized"]
+# Per stop, for plotting error against distance: the estimate (east, north, up in the local
+# frame), the distance driven to it (along the truth, else the estimate), its horizontal error
+# against the truth (none without one) and its horizontal 1-sigma (DRMS) and vertical sigma
+ESTIMATE_COLUMNS = ["distance_m", "east_m", "north_m", "up_m", "error_2d_m", "sigma_2d_m", "sigma_up_m"]
 GPS_COLUMNS = ["time_s", "lat_deg", "lon_deg", "h_m", "sigma_h_m", "sigma_v_m", "used_in_graph"]  # h: ellipsoidal
 RUN_FILE = "run.toml"  # the complete resolved configuration of the run
 COVARIANCE_COLUMNS = ["stop", "cxx", "cxy", "cxz", "cyy", "cyz", "czz"]
 _UPPER = ([0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2])
+
+
+def _estimate_cells(world_T_body: np.ndarray, covariance: np.ndarray, truth: np.ndarray | None) -> list[tuple]:
+    """ESTIMATE_COLUMNS' cells of each stop."""
+    along = world_T_body if truth is None else truth
+    distance = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(along[:, :3, 3], axis=0), axis=1))])
+    position = world_T_body[:, :3, 3]
+    error = (np.full(len(position), np.nan) if truth is None
+             else np.linalg.norm(position[:, :2] - truth[:, :2, 3], axis=1))
+    sigma_2d = np.sqrt(np.maximum(covariance[:, 0, 0] + covariance[:, 1, 1], 0.0))
+    sigma_up = np.sqrt(np.maximum(covariance[:, 2, 2], 0.0))
+    return [(f"{d:.3f}", *(f"{v:.4f}" for v in p), "" if np.isnan(e) else f"{e:.4f}", f"{s2:.4f}", f"{sz:.4f}")
+            for d, p, e, s2, sz in zip(distance, position, error, sigma_2d, sigma_up, strict=True)]
 
 
 def write_evaluation(evaluation, name: str, folder: Path) -> None:
@@ -254,9 +271,11 @@ def write_run(result: RunResult, folder: Path) -> None:
         write_csv(folder / f"landmarks_{name}.csv", ["track", "x_m", "y_m", "z_m", "site_stops"],
                   [(int(t), *(f"{v:.6f}" for v in p), " ".join(map(str, sites_of.get(int(t), []))))
                    for t, p in zip(c.landmark_ids, c.landmark_positions, strict=True)])
-        rows += [(name, s.stop, f"{s.update_ms:.4f}", s.relinearized, *(_cell(s.count(c)) for c in STEP_COUNTERS))
-                 for s in c.steps]
-    write_csv(folder / "steps.csv", STEP_COLUMNS + list(STEP_COUNTERS), rows)
+        estimates = _estimate_cells(c.world_T_body, c.position_covariance,
+                                    None if result.truth is None else result.truth.world_T_body)
+        rows += [(name, s.stop, f"{s.update_ms:.4f}", s.relinearized, *(_cell(s.count(c)) for c in STEP_COUNTERS),
+                  *cells) for s, cells in zip(c.steps, estimates, strict=True)]
+    write_csv(folder / "steps.csv", STEP_COLUMNS + list(STEP_COUNTERS) + ESTIMATE_COLUMNS, rows)
     write_json(folder / LOCAL_FRAME_FILE, local_frame_dict(result.traverse.origin, result.traverse.gps_lever_arm_m))
     (folder / "reproduce.sh").write_text(f"#!/bin/sh\n# reproduces this run\n{reproduce_command(result)}\n",
                                          encoding="utf-8")
@@ -351,7 +370,7 @@ def read_run(folder: Path) -> SavedRun:
     truth_landmarks = np.load(landmarks_path).astype(float) if landmarks_path.exists() else None
 
     steps = _read_csv(folder / "steps.csv", STEP_COLUMNS)
-    steps_counters = [c for c in (steps[0].keys() if steps else ()) if c not in STEP_COLUMNS]
+    steps_counters = [c for c in (steps[0].keys() if steps else ()) if c not in STEP_COLUMNS + ESTIMATE_COLUMNS]
     configurations = {}
     times = None
     for name in names:

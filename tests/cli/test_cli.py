@@ -60,6 +60,29 @@ def results(tmp_path_factory):
 
 
 @pytest.mark.slow
+def test_steps_csv_carries_each_stops_estimate_error_and_sigma(results):
+    """steps.csv's estimate columns against the run's own trajectory, truth and covariance files,
+    read here with the csv module and numpy; the last stop's error is metrics.json's closure."""
+    import csv
+
+    rows = [r for r in csv.DictReader((results / "steps.csv").open()) if r["config"] == "vo_sites"]
+    truth = np.loadtxt(results / "truth.tum")[:, 1:4]
+    estimate = np.loadtxt(results / "trajectory_vo_sites.tum")[:, 1:4]
+    covariance = np.loadtxt(results / "covariance_vo_sites.csv", delimiter=",", skiprows=1)
+    column = {name: np.array([float(r[name]) for r in rows]) for name in
+              ("distance_m", "east_m", "north_m", "up_m", "error_2d_m", "sigma_2d_m", "sigma_up_m")}
+    np.testing.assert_allclose(np.column_stack([column["east_m"], column["north_m"], column["up_m"]]), estimate,
+                               atol=1e-3)
+    np.testing.assert_allclose(column["error_2d_m"], np.hypot(*(estimate - truth)[:, :2].T), atol=1e-3)
+    np.testing.assert_allclose(column["distance_m"][-1], np.sum(np.linalg.norm(np.diff(truth, axis=0), axis=1)),
+                               rtol=1e-4)
+    np.testing.assert_allclose(column["sigma_2d_m"], np.sqrt(covariance[:, 1] + covariance[:, 4]), atol=6e-5)
+    np.testing.assert_allclose(column["sigma_up_m"], np.sqrt(covariance[:, 6]), atol=6e-5)
+    closure = json.loads((results / "metrics.json").read_text())["configs"]["vo_sites"]["closure_error_2d_m"]
+    assert column["error_2d_m"][-1] == pytest.approx(closure, abs=1e-3)
+
+
+@pytest.mark.slow
 def test_run_writes_a_complete_results_folder(results, tmp_path):
     out = results
     names = {p.name for p in out.iterdir()}
