@@ -38,15 +38,16 @@ def _summary_table(outcome: RunOutcome) -> Table:
     result = outcome.result
     held = any(c.holdout is not None for c in result.configurations.values())
     table = Table(title=f"{escape(result.title)} ({len(result.traverse.stops)} stops)",
-                  box=box.SIMPLE_HEAD, padding=(0, 1), caption="m: metres against the reference; GPS m: average "
-                  "error against the fixes in the graph" + ("; held m: RMS 2-D to the held-out fixes" if held else ""))
+                  box=box.SIMPLE_HEAD, padding=(0, 1), caption="m: metres against the reference; ATE: unaligned "
+                  "(the start prior's frame), se3: SE(3)-aligned; GPS m: average error against the fixes in the graph"
+                  + ("; held m: RMS 2-D to the held-out fixes" if held else ""))
     table.add_column("config", justify="left", no_wrap=True)
-    for col in ["avg m", "clos. %", "ATE m", "length", "bridged", "GPS m"] + (["held m"] if held else []):
+    for col in ["clos. %", "ATE m", "se3 m", "length", "bridged", "GPS m"] + (["held m"] if held else []):
         table.add_column(col, justify="right")
     for name, c in result.configurations.items():
         m, vs = c.metrics, c.metrics_vs_gps
-        cells = ["-"] * 4 if m is None else [f"{m.average_error_m:.2f}", f"{m.relative_closure_pct:.3f}",
-                                             f"{m.ate_rmse_m:.2f}", f"{m.length_ratio:.4f}"]
+        cells = ["-"] * 4 if m is None else [f"{m.relative_closure_pct:.3f}", f"{m.ate_unaligned_rmse_m:.2f}",
+                                             f"{m.ate_se3_rmse_m:.2f}", f"{m.length_ratio:.4f}"]
         row = [name, *cells, str(c.bridged_stops), "-" if vs is None else f"{vs.average_error_m:.2f}"]
         if held:
             row.append("-" if c.holdout is None else f"{c.holdout.rms_2d_m:.3f}")

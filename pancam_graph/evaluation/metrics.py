@@ -34,6 +34,10 @@ class TrajectoryMetrics:
     rpe_translation_rmse_m: float | None = None
     rpe_rotation_rmse_deg: float | None = None
     rpe_pairs: int = 0
+    # every configuration's ATE both ways, comparable across configurations: unaligned (in the
+    # frame the start prior fixes) and SE(3)-aligned (the trajectory's shape alone)
+    ate_unaligned_rmse_m: float | None = None
+    ate_se3_rmse_m: float | None = None
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -177,6 +181,8 @@ def compare(
     err3, err2 = np.linalg.norm(err, axis=1), np.linalg.norm(err[:, :2], axis=1)
     aligned, applied = align(est_positions, ref_positions, alignment)
     ate = float(np.sqrt(np.mean(np.sum((aligned - ref_positions) ** 2, axis=1))))
+    se3 = ate if applied == "se3" else float(np.sqrt(np.mean(np.sum(
+        (align(est_positions, ref_positions, "se3")[0] - ref_positions) ** 2, axis=1))))
     ref_len = path_length(ref_positions) if reference_length_m is None else reference_length_m
     est_len = path_length(est_positions)
     drift_t = drift_r = None
@@ -194,6 +200,8 @@ def compare(
         relative_closure_pct=float(100.0 * err3[-1] / ref_len) if ref_len > 0 else float("nan"),
         ate_rmse_m=ate,
         ate_alignment=applied,
+        ate_unaligned_rmse_m=float(np.sqrt(np.mean(err3**2))),
+        ate_se3_rmse_m=se3,
         reference_length_m=float(ref_len),
         estimated_length_m=float(est_len),
         length_ratio=float(est_len / ref_len) if ref_len > 0 else float("nan"),

@@ -64,7 +64,7 @@ def report_markdown(result: RunResult, figures: bool = True) -> str:
         "",
         "## Metrics",
         "",
-        "| config | kinds | avg err m | closure m | rel. closure % | ATE m (alignment) | length ratio "
+        "| config | kinds | avg err m | closure m | rel. closure % | ATE m unaligned / SE(3)-aligned | length ratio "
         "| distance scale | KITTI drift % | bridged | landmarks | GPS used / outliers | avg err vs GPS m "
         "| RMS 2-D vs held-out m |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
@@ -75,7 +75,7 @@ def report_markdown(result: RunResult, figures: bool = True) -> str:
         if m is not None:
             drift = "-" if m.drift_translation_pct is None else f"{m.drift_translation_pct:.3f}"
             cells = [f"{m.average_error_m:.3f}", f"{m.closure_error_m:.3f}", f"{m.relative_closure_pct:.4f}",
-                     f"{m.ate_rmse_m:.3f} ({m.ate_alignment})", f"{m.length_ratio:.5f}",
+                     f"{m.ate_unaligned_rmse_m:.3f} / {m.ate_se3_rmse_m:.3f}", f"{m.length_ratio:.5f}",
                      f"{plots.distance_scale(result, name):.5f}", drift]
         lines.append(
             f"| {name} | {'+'.join(c.kinds)} | {' | '.join(cells)} | {c.bridged_stops} | {c.landmarks} "

@@ -67,3 +67,16 @@ def test_decimated_length_ignores_gps_noise():
     raw = np.sum(np.linalg.norm(np.diff(noisy, axis=0), axis=1))
     assert raw > 2.0 * 500.0  # the noise dominates a naive sum
     assert decimated_length(noisy, 20.0) == pytest.approx(500.0, rel=0.04)
+
+
+def test_every_comparison_carries_the_unaligned_and_the_se3_aligned_ate():
+    """Whatever alignment `ate_rmse_m` used: a rigidly moved copy is off by its offsets' RMS
+    unaligned and by nothing once SE(3)-aligned; a scaled copy keeps an aligned error."""
+    ref = _curve()
+    rot = gtsam.Rot3.Ypr(0.02, 0.0, 0.0).matrix()
+    moved = ref @ rot.T + [3.0, -4.0, 1.0]
+    for alignment in ("none", "se3"):
+        m = compare(moved, ref, alignment)
+        assert m.ate_unaligned_rmse_m == pytest.approx(np.sqrt(np.mean(np.sum((moved - ref) ** 2, axis=1))))
+        assert m.ate_se3_rmse_m == pytest.approx(0.0, abs=1e-8)
+    assert compare(ref * 1.01, ref).ate_se3_rmse_m > 0.3
