@@ -512,6 +512,59 @@ class RenderConfig(_Strict):
     panoramas: bool = Field(True, description="render the site panoramas (WAC pairs and HRC frames)")
 
 
+# The realistic profile's magnitudes (docs/simulation_errors.md): each with the measurement or
+# specification it comes from. Never set to reach a drift figure: the drift is the result.
+REALISTIC_ERRORS: dict[str, tuple[object, str]] = {
+    "focal_scale_sigma": (0.0003, "the project's calibration of the rendered control field (`calibrate`, 4 views): "
+                                  "fx 1 sigma 0.54 px of 1724 px, error +0.022 / +0.024 %"),
+    "focal_difference_sigma": (0.00005, "the same calibration: the two cameras' focal errors differ by 0.002 % "
+                                        "(4 views) and 0.007 % (6 views)"),
+    "baseline_scale_sigma": (0.0001, "the same calibration: baseline +0.000 mm (4 views) and +0.034 mm (6 views) of "
+                                     "500 mm; 0.01 % taken"),
+    "boresight_sigma_deg": (0.01, "the same calibration: the right camera's rotation off by 0.0165 deg (4 views), "
+                                  "about 0.01 deg per axis"),
+    "pan_tilt_resolution_deg": (0.013, "the dissertation's pan/tilt unit resolves 0.013 deg (its stereo matching aided "
+                                       "by the rotary platform's angles): a reading is off by up to half of it"),
+    "tie_matching": ("measured", "the image front-end's tie points against the renderer's truth on denver_trail "
+                                 "seeds 0 and 1 (49 site pairs): 130 ties at 31 m, 33 at 49 m, none from 60 m; "
+                                 "median error 0.37-1.1 px, 3.0 % beyond 3 px (sim/errors.py)"),
+}
+
+
+class SimulationErrors(_Strict):
+    """[errors]: what the simulated rover gets wrong that its estimator does not know. `ideal`
+    (the default) leaves them all out, as the simulator always has; `realistic` takes each
+    magnitude from REALISTIC_ERRORS (a key given in the scenario overrides it)."""
+
+    profile: Literal["ideal", "realistic"] = "ideal"
+    focal_scale_sigma: float = Field(0.0, ge=0.0, le=0.05, description="per run: the true focal lengths / the "
+                                     "calibrated ones - 1, common to both cameras (1 sigma)")
+    focal_difference_sigma: float = Field(0.0, ge=0.0, le=0.05, description="per run: the right camera's focal "
+                                          "error beyond the common one (1 sigma): a disparity error across the image")
+    baseline_scale_sigma: float = Field(0.0, ge=0.0, le=0.05, description="per run: the true stereo baseline / the "
+                                        "calibrated one - 1 (1 sigma)")
+    boresight_sigma_deg: float = Field(0.0, ge=0.0, le=5.0, description="per run: the right camera's rotation after "
+                                       "calibration, per axis (1 sigma): about its vertical it biases every disparity")
+    pan_tilt_resolution_deg: float = Field(0.0, ge=0.0, le=5.0, description="per frame: the mast's pan and tilt "
+                                           "readings are the true angles rounded to this")
+    tie_matching: Literal["identity", "measured"] = Field(
+        "identity", description="identity: every landmark two sites see is a tie at the pixel noise; measured: the "
+        "image matcher's count against distance, accuracy and near-miss mismatches")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _profile(cls, data):
+        if isinstance(data, dict) and data.get("profile") == "realistic":
+            return {**{key: value for key, (value, _) in REALISTIC_ERRORS.items()}, **data}
+        return data
+
+    @property
+    def calibration(self) -> bool:
+        """Whether the stereo pair's calibration is off."""
+        return bool(self.focal_scale_sigma or self.focal_difference_sigma or self.baseline_scale_sigma
+                    or self.boresight_sigma_deg)
+
+
 class _ScenarioCore(_Strict):
     """A simulated traverse: the path, the world, the sensors and the estimator. A measurement
     kind with a simulated sensor (`Kind.Sensor`) adds its section, `[<kind>]` (Scenario below)."""
@@ -530,6 +583,7 @@ class _ScenarioCore(_Strict):
     dead_reckoning: DeadReckoningConfig = DeadReckoningConfig()
     estimator: EstimatorConfig = EstimatorConfig()
     render: RenderConfig = RenderConfig()
+    errors: SimulationErrors = SimulationErrors()
 
     @model_validator(mode="after")
     def _kinds_rules(self) -> _ScenarioCore:
@@ -624,4 +678,15 @@ def resolve_scenario(name_or_path: str) -> Path:
 
 
 def dump_scenario(scenario: Scenario) -> str:
-    return tomli_w.dumps(scenario.model_dump(mode="json", exclude_none=True))
+    """The scenario as TOML; each [errors] magnitude with its realistic value's source as a comment."""
+    text = tomli_w.dumps(scenario.model_dump(mode="json", exclude_none=True))
+    lines, section = [], ""
+    for line in text.splitlines():
+        if line.startswith("["):
+            section = line.strip()
+        key = line.split(" = ")[0]
+        if section == "[errors]" and key in REALISTIC_ERRORS:
+            value, source = REALISTIC_ERRORS[key]
+            line += f"  # realistic: {value!r}, from {source}"
+        lines.append(line)
+    return "\n".join(lines) + "\n"

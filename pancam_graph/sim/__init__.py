@@ -13,6 +13,7 @@ from ..geometry.geodesy import LocalFrame
 from ..geometry.rig import rig_preset
 from ..kinds import KINDS
 from ..records import GroundTruth, PanoramaFrame, SlipPrior, Stop, Traverse
+from .errors import CALIBRATION_STREAM, POINTING_STREAM, TIES_STREAM, TrueRig, match_ties, with_pointing_error
 from .sensors import LandmarkField, dead_reckoning, gps_fix, observe_hrc, observe_stereo
 from .world import dense_path, landmark_field, rover_poses, site_stops, stop_distances
 
@@ -49,6 +50,19 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
     traverse_slip = np.random.default_rng([seed, 1]).normal(dr_cfg.wheel_slip_mean, dr_cfg.wheel_slip_bias_sigma)
     at_stops = scenario.gps.enabled and scenario.gps.rate_hz is None
 
+    errors = scenario.errors
+    true_rig = (TrueRig.draw(rig, errors, np.random.default_rng([seed, CALIBRATION_STREAM]))
+                if errors.calibration else None)
+    pointing_rng = np.random.default_rng([seed, POINTING_STREAM]) if errors.pan_tilt_resolution_deg else None
+
+    def pointed(pan: float, tilt: float) -> tuple[float, float] | None:
+        """The mast's true angles for readings (pan, tilt); None where they are the readings."""
+        return None if pointing_rng is None else with_pointing_error(pan, tilt, errors, pointing_rng)
+
+    def true_left(pan: float, tilt: float) -> gtsam.Pose3 | None:
+        angles = pointed(pan, tilt)
+        return None if angles is None else rig.body_T_left(*angles)
+
     stops, fixes, time_s, site_id = [], [], 0.0, 0
     for k, s in enumerate(stop_s):
         dr = None
@@ -57,7 +71,7 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
             time_s += dt
             if dr_cfg.enabled:
                 dr = dead_reckoning(poses[k - 1], poses[k], dt, dr_cfg, traverse_slip, rng)
-        stereo = observe_stereo(field, poses[k], body_T_nav, rig, cam_cfg.vo_range_m, cam_cfg, rng)
+        stereo = observe_stereo(field, poses[k], body_T_nav, rig, cam_cfg.vo_range_m, cam_cfg, rng, true_rig)
         panorama, hrc, this_site = (), (), None
         if k in sites:
             this_site, site_id = site_id, site_id + 1
@@ -65,7 +79,8 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
                 PanoramaFrame(
                     float(p), float(np.deg2rad(t)),
                     observe_stereo(
-                        field, poses[k], rig.body_T_left(p, np.deg2rad(t)), rig, site_range, cam_cfg, rng
+                        field, poses[k], rig.body_T_left(p, np.deg2rad(t)), rig, site_range, cam_cfg, rng, true_rig,
+                        true_left(p, np.deg2rad(t)),
                     ),
                 )
                 for p in pans
@@ -74,7 +89,8 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
             if scenario.sites.hrc and rig.hrc is not None:
                 hrc_tilt = np.deg2rad(scenario.sites.hrc_tilt_deg)
                 hrc = tuple(
-                    observe_hrc(field, poses[k], float(p), hrc_tilt, rig, site_range, cam_cfg, rng)
+                    observe_hrc(field, poses[k], float(p), hrc_tilt, rig, site_range, cam_cfg, rng,
+                                pointed(float(p), hrc_tilt))
                     for p in hrc_pans
                 )
         if at_stops and k % scenario.gps.every_n_stops == 0 and not _in_ranges(s, scenario.gps.dropouts):
@@ -83,6 +99,12 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
         stops.append(Stop(k, time_s, stereo, this_site, panorama, hrc, dr, dwell_s=dwell))
         if k in sites:
             time_s += scenario.sites.dwell_s
+    landmarks = field.points
+    if errors.tie_matching == "measured":
+        stops, fresh = match_ties(stops, poses[:, :3, 3], len(landmarks), scenario.estimator.sites.memory,
+                                  rig.hrc.fx / rig.wac.fx if rig.hrc is not None else 1.0,
+                                  np.random.default_rng([seed, TIES_STREAM]))
+        landmarks = np.vstack([landmarks, landmarks[fresh]]) if fresh else landmarks
     if scenario.gps.enabled and scenario.gps.rate_hz is not None:
         fixes = _fixes_while_driving(scenario, path, stops, stop_s, frame, np.random.default_rng([seed, 2]))
 
@@ -108,7 +130,7 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
         measurements={"gps": tuple(fixes)},
         wheel_slip=SlipPrior(dr_cfg.wheel_slip_mean, dr_cfg.wheel_slip_bias_sigma),
     )
-    truth = GroundTruth(world_T_body=poses, landmarks=field.points, wheel_slip=float(traverse_slip),
+    truth = GroundTruth(world_T_body=poses, landmarks=landmarks, wheel_slip=float(traverse_slip),
                         terrain=terrain.height)
     return _with_kind_measurements(scenario, traverse, truth, seed)
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import gtsam
 import numpy as np
 from scipy.spatial import cKDTree
@@ -10,6 +12,9 @@ from ..config import CameraConfig, DeadReckoningConfig, GpsConfig
 from ..geometry.geodesy import LocalFrame
 from ..geometry.rig import Camera, Rig
 from ..records import DeadReckoning, GpsFix, HrcFrame, StereoObservations
+
+if TYPE_CHECKING:
+    from .errors import TrueRig
 
 
 class LandmarkField:
@@ -44,8 +49,14 @@ def observe_stereo(
     range_m: tuple[float, float],
     cam_cfg: CameraConfig,
     rng: np.random.Generator,
+    true_rig: TrueRig | None = None,
+    true_body_T_left: gtsam.Pose3 | None = None,
 ) -> StereoObservations:
-    """Rectified stereo measurements (u_left, u_right, v) of landmarks seen by both cameras.
+    """Rectified stereo measurements (u_left, u_right, v) of landmarks seen by both cameras at
+    `body_T_left`. Where the calibration is off (`true_rig`) or the camera really points
+    elsewhere (`true_body_T_left`), the pixels are the true pair's at the true pose, but the
+    landmarks seen are the nominal ones: the noise drawn after them is the ideal simulation's,
+    draw for draw, so an error's effect is not mixed with another noise draw.
 
     Outliers are false matches: the track id is kept, the pixels are random in the image.
     """
@@ -56,6 +67,14 @@ def observe_stereo(
     u_right = uv[:, 0] - cam.fx * rig.baseline_m / p_cam[:, 2]
     inside = cam.in_image(uv) & (u_right >= 0.0)
     ids, uv, u_right = ids[inside], uv[inside], u_right[inside]
+    if true_rig is not None or true_body_T_left is not None:
+        world_T_true = world_T_body @ (true_body_T_left or body_T_left).matrix()
+        p_true = (field.points[ids] - world_T_true[:3, 3]) @ world_T_true[:3, :3]
+        if true_rig is None:
+            uv = cam.project(p_true, distort=False)
+            u_right = uv[:, 0] - cam.fx * rig.baseline_m / p_true[:, 2]
+        else:
+            uv, u_right = true_rig.observe(p_true)
     uvv = np.column_stack([uv[:, 0], u_right, uv[:, 1]])
     uvv += rng.normal(0.0, cam_cfg.image_noise_px, uvv.shape)
     bad = rng.random(len(ids)) < cam_cfg.outlier_fraction
@@ -77,12 +96,19 @@ def observe_hrc(
     range_m: tuple[float, float],
     cam_cfg: CameraConfig,
     rng: np.random.Generator,
+    true_angles: tuple[float, float] | None = None,
 ) -> HrcFrame:
+    """HRC measurements of the frame taken at (pan_rad, tilt_rad); with `true_angles`, the
+    pixels are the true pointing's, of the landmarks the nominal one sees (as observe_stereo)."""
     world_T_hrc = world_T_body @ rig.body_T_hrc(pan_rad, tilt_rad).matrix()
     ids, p_cam = _visible_in_camera(field, world_T_hrc, rig.hrc, range_m)
     uv = rig.hrc.project(p_cam, distort=False)
     inside = rig.hrc.in_image(uv)
-    ids, uv = ids[inside], uv[inside] + rng.normal(0.0, cam_cfg.image_noise_px, (int(inside.sum()), 2))
+    ids, uv = ids[inside], uv[inside]
+    if true_angles is not None:
+        world_T_true = world_T_body @ rig.body_T_hrc(*true_angles).matrix()
+        uv = rig.hrc.project((field.points[ids] - world_T_true[:3, 3]) @ world_T_true[:3, :3], distort=False)
+    uv = uv + rng.normal(0.0, cam_cfg.image_noise_px, (len(ids), 2))
     bad = rng.random(len(ids)) < cam_cfg.outlier_fraction
     uv[bad] = rng.uniform(0, rig.hrc.width - 1, (int(bad.sum()), 2))
     return HrcFrame(pan_rad, tilt_rad, ids, uv)

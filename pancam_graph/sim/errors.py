@@ -1,0 +1,144 @@
+"""What the simulated rover gets wrong and its estimator does not know ([errors], config.py's
+SimulationErrors; magnitudes and sources in docs/simulation_errors.md):
+
+- the stereo pair's calibration, drawn once a run: each camera's focal length and the
+  baseline a little off the calibrated ones, the right camera turned a little;
+- the mast's pan and tilt readings, per frame: the true angles rounded to the encoder's
+  resolution;
+- tie points between sites as the image matcher finds them, not by landmark identity: as
+  many as it finds at that distance, each off by its matching error, a few of them near
+  misses.
+
+Each draws from a random stream of its own, and only when it is switched on: the ideal profile
+simulates what the simulator always has, to the bit."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import gtsam
+import numpy as np
+
+from ..config import SimulationErrors
+from ..geometry.rig import Camera, Rig
+from ..records import HrcFrame, PanoramaFrame, StereoObservations, Stop
+
+CALIBRATION_STREAM, POINTING_STREAM, TIES_STREAM = 31, 32, 33
+
+# The image matcher's tie points, measured against the renderer's truth on denver_trail seeds 0
+# and 1 (`pancam-graph bench sites`, 49 site pairs, 1,913 ties; docs/simulation_errors.md), by
+# the distance between the two sites (m), the medians of the pairs 28-34, 34-42, 42-52 and 52-58 m
+# apart, linear between: the count of a pair (none from 59.9 m on: 10 pairs), the median error
+# of a tie (px) and the share of ties beyond 3 px (near misses).
+TIE_DISTANCE_M = (31.3, 37.8, 48.8, 55.9, 59.9)
+TIE_COUNT = (130.0, 51.0, 33.0, 11.0, 0.0)
+TIE_MEDIAN_ERROR_PX = (0.37, 0.44, 0.69, 1.12, 1.12)
+TIE_NEAR_MISS = (0.034, 0.006, 0.045, 0.102, 0.102)
+NEAR_MISS_PX = (3.0, 10.0)  # how far a near miss is (uniform: the bench does not resolve the tail past 3 px)
+MEDIAN_RADIUS = np.sqrt(2.0 * np.log(2.0))  # a 2-D Gaussian's median radius, in sigmas
+
+
+@dataclass(frozen=True)
+class TrueRig:
+    """The stereo pair as it really is, against the calibrated `rig` the estimator uses."""
+
+    left: Camera
+    right: Camera
+    baseline_m: float
+    left_R_right: np.ndarray  # the right camera's axes in the left camera's frame
+
+    @classmethod
+    def draw(cls, rig: Rig, errors: SimulationErrors, rng: np.random.Generator) -> TrueRig:
+        def focal(camera: Camera, scale: float) -> Camera:
+            return replace(camera, fx=camera.fx * scale, fy=camera.fy * scale)
+
+        common = 1.0 + rng.normal(0.0, errors.focal_scale_sigma)
+        left = focal(rig.wac, common)
+        right = focal(rig.wac, common * (1.0 + rng.normal(0.0, errors.focal_difference_sigma)))
+        baseline = rig.baseline_m * (1.0 + rng.normal(0.0, errors.baseline_scale_sigma))
+        rotation = gtsam.Rot3.Expmap(rng.normal(0.0, np.deg2rad(errors.boresight_sigma_deg), 3)).matrix()
+        return cls(left, right, baseline, rotation)
+
+    def observe(self, p_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(u, v) in the left image and u in the right one of left-camera points, through the
+        true pair; in pixels of the calibrated (rectified) pair the estimator assumes."""
+        uv = self.left.project(p_cam, distort=False)
+        p_right = (p_cam - np.array([self.baseline_m, 0.0, 0.0])) @ self.left_R_right
+        u_right = self.right.fx * p_right[:, 0] / p_right[:, 2] + self.right.cx
+        return uv, u_right
+
+
+def with_pointing_error(pan_rad: float, tilt_rad: float, errors: SimulationErrors,
+                        rng: np.random.Generator) -> tuple[float, float]:
+    """The true mast angles of a frame whose readings are (pan_rad, tilt_rad): anywhere within
+    half the encoder's resolution of them."""
+    half = 0.5 * np.deg2rad(errors.pan_tilt_resolution_deg)
+    return pan_rad + rng.uniform(-half, half), tilt_rad + rng.uniform(-half, half)
+
+
+def tie_count(distance_m: float) -> float:
+    """The matcher's median count of ties between two sites this far apart."""
+    return float(np.interp(distance_m, TIE_DISTANCE_M, TIE_COUNT, right=0.0))
+
+
+def _site_ids(stop: Stop) -> np.ndarray:
+    return np.unique(np.concatenate([f.observations.track_ids for f in stop.panorama]
+                                    + [h.track_ids for h in stop.hrc] + [np.zeros(0, np.int64)]))
+
+
+def match_ties(stops: list[Stop], positions: np.ndarray, n_landmarks: int, memory: int, hrc_scale: float,
+               rng: np.random.Generator) -> tuple[list[Stop], list[int]]:
+    """The stops with their sites' tie points as the image matcher finds them: a later site keeps
+    the landmark ids of at most tie_count(distance) of what it shares with each of the last
+    `memory` sites (nearest first), each of them off by a matching error common to all its
+    views at that site (HRC views `hrc_scale` times as many pixels); every other landmark an
+    earlier site saw becomes a new one (a fresh id). Returns the stops and, per fresh id from
+    n_landmarks on, the landmark it is (the truth's)."""
+    fresh: list[int] = []
+    carried: dict[int, set[int]] = {}  # site stop -> the ids its views carry
+    out = list(stops)
+    for k, stop in enumerate(stops):
+        if stop.site_id is None or not (stop.panorama or stop.hrc):
+            continue
+        ids = _site_ids(stop)
+        seen_before = set().union(*carried.values()) if carried else set()
+        matched: dict[int, np.ndarray] = {}
+        for a in sorted(carried, key=lambda s: -s)[:memory]:
+            shared = sorted(set(ids.tolist()) & carried[a] - matched.keys())
+            distance = float(np.linalg.norm(positions[k] - positions[a]))
+            n = min(len(shared), int(rng.poisson(tie_count(distance))))
+            for landmark in rng.choice(np.array(shared, dtype=np.int64), n, replace=False) if n else ():
+                matched[int(landmark)] = _tie_error(distance, rng)
+        remap = {}
+        for landmark in sorted(set(ids.tolist()) & seen_before - matched.keys()):
+            remap[landmark] = n_landmarks + len(fresh)
+            fresh.append(landmark)
+        out[k] = _with_ties(stop, remap, matched, hrc_scale)
+        carried[k] = {remap.get(int(i), int(i)) for i in ids}
+    return out, fresh
+
+
+def _tie_error(distance_m: float, rng: np.random.Generator) -> np.ndarray:
+    """A tie's matching error (px) between sites this far apart: a near miss, or a 2-D Gaussian
+    of the measured median."""
+    if rng.random() < np.interp(distance_m, TIE_DISTANCE_M, TIE_NEAR_MISS):
+        angle = rng.uniform(0.0, 2.0 * np.pi)
+        return rng.uniform(*NEAR_MISS_PX) * np.array([np.cos(angle), np.sin(angle)])
+    return rng.normal(0.0, np.interp(distance_m, TIE_DISTANCE_M, TIE_MEDIAN_ERROR_PX) / MEDIAN_RADIUS, 2)
+
+
+def _with_ties(stop: Stop, remap: dict[int, int], matched: dict[int, np.ndarray], hrc_scale: float) -> Stop:
+    def ids_and_shift(track_ids: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+        shift = np.array([matched.get(int(i), (0.0, 0.0)) for i in track_ids]).reshape(-1, 2) * scale
+        return np.array([remap.get(int(i), int(i)) for i in track_ids], dtype=np.int64), shift
+
+    panorama = []
+    for frame in stop.panorama:
+        ids, shift = ids_and_shift(frame.observations.track_ids, 1.0)
+        uvv = frame.observations.uvv + np.column_stack([shift[:, 0], shift[:, 0], shift[:, 1]])
+        panorama.append(PanoramaFrame(frame.pan_rad, frame.tilt_rad, StereoObservations(ids, uvv)))
+    hrc = []
+    for frame in stop.hrc:
+        ids, shift = ids_and_shift(frame.track_ids, hrc_scale)
+        hrc.append(HrcFrame(frame.pan_rad, frame.tilt_rad, ids, frame.uv + shift))
+    return replace(stop, panorama=tuple(panorama), hrc=tuple(hrc))

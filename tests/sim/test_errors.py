@@ -1,0 +1,138 @@
+"""The simulator's error profiles ([errors], sim/errors.py): the ideal profile is the simulator
+as it was; a stereo calibration error shows as the disparity error the pair's geometry predicts;
+the mast's readings are the true angles rounded; ties between sites are as many as the image
+matcher finds at that distance, each off by its matching error, and the rest new landmarks."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from pancam_graph.config import Scenario, SimulationErrors, load_scenario, resolve_scenario
+from pancam_graph.geometry.rig import rig_preset
+from pancam_graph.sim import simulate
+from pancam_graph.sim.errors import TrueRig, tie_count, with_pointing_error
+
+
+@pytest.fixture(scope="module")
+def short_trail():
+    return load_scenario(resolve_scenario("short_trail"))
+
+
+def _with_errors(scenario, **errors) -> Scenario:
+    return Scenario.model_validate({**scenario.model_dump(), "errors": errors})
+
+
+def test_the_ideal_profile_is_the_simulator_as_it_was(short_trail):
+    """An explicit ideal profile draws nothing more: the same traverse to the bit."""
+    a, truth_a = simulate(short_trail, 3)
+    b, truth_b = simulate(_with_errors(short_trail, profile="ideal"), 3)
+    for x, y in zip(a.stops, b.stops, strict=True):
+        np.testing.assert_array_equal(x.stereo.uvv, y.stereo.uvv)
+        for fx, fy in zip(x.panorama, y.panorama, strict=True):
+            np.testing.assert_array_equal(fx.observations.uvv, fy.observations.uvv)
+    np.testing.assert_array_equal(truth_a.landmarks, truth_b.landmarks)
+
+
+def test_the_realistic_profile_takes_every_magnitude_from_its_table_unless_given():
+    errors = SimulationErrors.model_validate({"profile": "realistic", "boresight_sigma_deg": 0.05})
+    assert errors.boresight_sigma_deg == 0.05 and errors.focal_scale_sigma == 0.0003
+    assert errors.tie_matching == "measured" and errors.pan_tilt_resolution_deg == 0.013
+
+
+def test_a_right_camera_turned_about_the_vertical_biases_every_disparity_by_f_times_the_angle():
+    """Against the small-angle formula: a yaw delta of the right camera shifts u_right by
+    -f delta (1 + x^2/z^2) nearly (x/z the ray's tangent in the right camera): 0.30 px at
+    any range for 0.01 deg; a baseline error scales the disparity."""
+    rig = rig_preset("exomars")
+    delta = np.deg2rad(0.01)
+    rotation = np.array([[np.cos(delta), 0.0, np.sin(delta)], [0.0, 1.0, 0.0], [-np.sin(delta), 0.0, np.cos(delta)]])
+    exact = TrueRig(rig.wac, rig.wac, rig.baseline_m, np.eye(3))
+    turned = replace(exact, left_R_right=rotation)
+    longer = replace(exact, baseline_m=rig.baseline_m * 1.01)
+    p = np.column_stack([np.zeros(4), np.zeros(4), [3.0, 10.0, 30.0, 100.0]])
+    uv, u_right = exact.observe(p)
+    np.testing.assert_allclose(uv[:, 0] - u_right, rig.wac.fx * rig.baseline_m / p[:, 2], rtol=1e-12)
+    _, u_turned = turned.observe(p)
+    x_right = (p[:, 0] - rig.baseline_m) / p[:, 2]  # the ray's tangent in the right camera
+    np.testing.assert_allclose(u_turned - u_right, -rig.wac.fx * delta * (1 + x_right**2), rtol=1e-3)  # 0.30 px
+    _, u_longer = longer.observe(p)
+    np.testing.assert_allclose((uv[:, 0] - u_longer) / (uv[:, 0] - u_right), 1.01, rtol=1e-12)
+
+
+def test_mast_readings_are_the_true_angles_within_half_the_resolution():
+    errors = SimulationErrors(pan_tilt_resolution_deg=0.5)
+    rng = np.random.default_rng(0)
+    true = np.array([with_pointing_error(0.3, -0.1, errors, rng) for _ in range(4000)])
+    offsets = np.rad2deg(true - [0.3, -0.1])
+    assert np.all(np.abs(offsets) <= 0.25) and np.all(np.abs(offsets).max(axis=0) > 0.24)
+    np.testing.assert_allclose(offsets.std(axis=0), 0.5 / np.sqrt(12), rtol=0.05)  # uniform
+
+
+def test_ties_are_as_many_as_the_matcher_finds_and_the_rest_are_new_landmarks(short_trail):
+    ideal, truth_ideal = simulate(short_trail, 0)
+    measured, truth = simulate(_with_errors(short_trail, tie_matching="measured"), 0)
+    sites = [s.index for s in ideal.stops if s.site_id is not None]
+    assert len(sites) >= 3
+    n = len(truth_ideal.landmarks)
+    fresh = np.arange(n, len(truth.landmarks))
+    assert len(fresh) > 0
+    positions = truth.world_T_body[:, :3, 3]
+
+    def ids(traverse, k):
+        stop = traverse.stops[k]
+        return set(np.concatenate([f.observations.track_ids for f in stop.panorama]).tolist())
+
+    expected, found = [], []
+    for a, b in zip(sites, sites[1:], strict=False):
+        shared_before = ids(ideal, a) & ids(ideal, b)
+        kept = ids(measured, a) & ids(measured, b)
+        assert kept <= shared_before
+        assert len(shared_before) > 5 * len(kept)  # the identity model ties far more
+        expected.append(tie_count(float(np.linalg.norm(positions[b] - positions[a]))))
+        found.append(len(kept))
+    # Poisson draws around the measured count (a kept id may be another pair's tie too)
+    assert abs(np.sum(found) - np.sum(expected)) < 4 * np.sqrt(np.sum(expected)) + 0.1 * np.sum(expected)
+    # every new landmark is where the landmark it replaces is: the truth stays true
+    for stop_ideal, stop in zip(ideal.stops, measured.stops, strict=True):
+        for f_ideal, f in zip(stop_ideal.panorama, stop.panorama, strict=True):
+            renamed = f.observations.track_ids >= n
+            np.testing.assert_array_equal(truth.landmarks[f.observations.track_ids],
+                                          truth_ideal.landmarks[f_ideal.observations.track_ids])
+            np.testing.assert_array_equal(f.observations.uvv[renamed], f_ideal.observations.uvv[renamed])
+    # a kept tie's views at the later site are off by one matching error, the same in each view
+    b = sites[1]
+    kept = sorted(ids(measured, sites[0]) & ids(measured, b))
+    shifts = []
+    for f_ideal, f in zip(ideal.stops[b].panorama, measured.stops[b].panorama, strict=True):
+        at = np.isin(f.observations.track_ids, kept)
+        d = f.observations.uvv[at] - f_ideal.observations.uvv[at]
+        np.testing.assert_allclose(d[:, 0], d[:, 1])  # both eyes: the same ground point's disparity
+        shifts += [(i, *row) for i, row in zip(f.observations.track_ids[at], d[:, [0, 2]], strict=True)]
+    by_tie = {}
+    for i, du, dv in shifts:
+        by_tie.setdefault(i, []).append((du, dv))
+    assert all(np.ptp(np.array(v), axis=0).max() < 1e-9 for v in by_tie.values())
+    median = np.median([np.hypot(*v[0]) for v in by_tie.values()])
+    assert 0.1 < median < 1.5  # the measured matching error: a median of 0.45 px
+
+
+def test_an_error_changes_what_it_should_and_leaves_every_other_draw_in_place(short_trail):
+    """Each error on its own: the same landmarks seen at every stop, the same odometry, and
+    pixels moved only where the error acts (the mast's angles: the panorama frames only)."""
+    ideal, _ = simulate(short_trail, 1)
+    for errors, navigation_moves in (({"pan_tilt_resolution_deg": 0.05}, False),
+                                     ({"boresight_sigma_deg": 0.01}, True)):
+        traverse, _ = simulate(_with_errors(short_trail, **errors), 1)
+        moved = []
+        for a, b in zip(ideal.stops, traverse.stops, strict=True):
+            np.testing.assert_array_equal(a.stereo.track_ids, b.stereo.track_ids)
+            if a.dead_reckoning is not None:
+                np.testing.assert_array_equal(a.dead_reckoning.prev_T_curr, b.dead_reckoning.prev_T_curr)
+            if len(a.stereo.uvv):
+                moved.append(np.abs(a.stereo.uvv - b.stereo.uvv).max())
+            for fa, fb in zip(a.panorama, b.panorama, strict=True):
+                np.testing.assert_array_equal(fa.observations.track_ids, fb.observations.track_ids)
+                if len(fa.observations.uvv):
+                    assert np.abs(fa.observations.uvv - fb.observations.uvv).max() > 0.0
+        assert (max(moved) > 0.01) == navigation_moves, errors
