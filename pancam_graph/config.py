@@ -317,7 +317,7 @@ class DeadReckoningConfig(_Strict):
 DEFAULT_CONFIGURATIONS: dict[str, list[str]] = {
     "dead_reckoning": ["dead_reckoning", "wheel_slip"],  # the baseline VO is meant to beat
     # With wheel_slip: GPS makes the shared slip observable, and without it the run claims a third
-    # of the variance it has at its end (README, "The last stop's NEES over the seeds").
+    # of the variance it has at its end (docs/results.md, "The last stop's NEES over the seeds").
     "dead_reckoning_gps": ["dead_reckoning", "gps", "wheel_slip"],
     "vo": ["vo"],
     "vo_sites": ["vo", "sites"],

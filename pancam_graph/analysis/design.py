@@ -50,19 +50,19 @@ class AnalysisRig:
 class Assumptions:
     """One set of assumptions for every rig; written next to every result."""
 
-    sigma_px: float = 0.5  # matching error of x_l, x_r: "up to half of the pixel size" (seed 3.2.1)
+    sigma_px: float = 0.5  # matching error of x_l, x_r: "up to half of the pixel size" (the dissertation, 3.2.1)
     relative_error_target: float = 0.01  # 1 % of the site spacing
     relative_error: str = "DRMS: sqrt(trace of the 2x2 covariance of site 2's position) / spacing"
-    ba_model: TransformModel = "similarity"  # the seed's 4-parameter (a, b, c, d) transform
+    ba_model: TransformModel = "similarity"  # the dissertation's 4-parameter (a, b, c, d) transform
     ba_rays: int = 3  # tie points: rays evenly spaced across the FOV from site 1, FOV edges included,
     ba_ranges: int = 3  # ... times ranges D j / (ranges + 1), j = 1..ranges, along each ray
-    ba_fov_reference_spacing_m: float = 20.0  # the optimal FOV is found at this site spacing (seed)
+    ba_fov_reference_spacing_m: float = 20.0  # the optimal FOV is found at this site spacing (the dissertation's)
     pointing: str = "each tie point is imaged with the pair's centre line on it (mast pointed); the HRC too"
     vo_step_m: float = 2.0  # two-stop VO: the rover moves this far along the range direction
-    vo_max_range_m: float = 20.0  # features up to this range (seed: error > 0.5 m beyond ~20 m)
+    vo_max_range_m: float = 20.0  # features up to this range (the dissertation: error > 0.5 m beyond ~20 m)
     vo_min_range_m: float = 2.0
     vo_feature_spacing_m: float = 1.0  # features on a square grid with this spacing inside the FOV wedge
-    elevation: str = "Y held constant (the seed's planar model): only (X, Z) errors are propagated"
+    elevation: str = "Y held constant (the dissertation's planar model): only (X, Z) errors are propagated"
 
     @property
     def tie_points(self) -> int:

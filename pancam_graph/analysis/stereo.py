@@ -1,8 +1,8 @@
-"""Stereo triangulation covariance, seed eqs. (3.1)-(3.3) and (3.11), and error ellipses.
+"""Stereo triangulation covariance, the dissertation's eqs. (3.1)-(3.3) and (3.11), and error ellipses.
 
-Coordinates are the seed's: in the plane of the left camera, X across (right) and Z along the
+Coordinates are the dissertation's: in the plane of the left camera, X across (right) and Z along the
 optical axis (range), both from the left camera's centre; Y (elevation) is held constant, as
-in the seed. A rectified pair with baseline B and focal length f (pixels) measures x_l and x_r.
+in the dissertation. A rectified pair with baseline B and focal length f (pixels) measures x_l and x_r.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ def hrc_point_covariance(x_m: float, z_m: float, hrc_baseline_m: float, hrc_foca
 
     The left WAC image is interpolated to the HRC's scale, so the pair is a rectified stereo pair
     with the HRC's focal length and baseline B_h; the interpolated WAC keeps its own angular
-    accuracy, so its matching sigma in HRC pixels is sigma * f_hrc / f_wac (the seed's "about 9
+    accuracy, so its matching sigma in HRC pixels is sigma * f_hrc / f_wac (the dissertation's "about 9
     times"; 7.1 for ExoMars' 580 and 82 urad/px)."""
     return point_covariance(x_m, z_m, hrc_baseline_m, hrc_focal_px, sigma_px * hrc_focal_px / wac_focal_px, sigma_px)
 

@@ -21,7 +21,7 @@ from .design import (
 )
 from .stereo import error_ellipse
 
-# The seed's Table 3.2 (9 tie points): longest site spacing for 1 % and the optimal FOV.
+# The dissertation's Table 3.2 (9 tie points): longest site spacing for 1 % and the optimal FOV.
 SEED_TABLE_3_2 = {
     "exomars": {"max_site_spacing_m": 57.9, "optimal_fov_deg": 105.0},
     "exomars+hrc": {"max_site_spacing_m": 65.2, "optimal_fov_deg": 105.0},
@@ -47,7 +47,7 @@ class Curve:
 class RigAnalysis:
     rig: AnalysisRig
     hrc: bool  # the row with the HRC + left-WAC pair for every tie point
-    optimal_fov_deg: float  # used for the spacing (for the HRC row: the WAC's, as the seed does)
+    optimal_fov_deg: float  # used for the spacing (for the HRC row: the WAC's, as the dissertation does)
     own_optimal_fov_deg: float  # the minimum of this row's own FOV curve
     optimal_fov_16_deg: float
     max_site_spacing_m: float
@@ -81,8 +81,8 @@ class RigAnalysis:
             entry["vo_drms_by_stop_m"] = {f"{x:g}": float(y) for x, y in zip(self.vo_growth_curve.x,
                                                                              self.vo_growth_curve.y, strict=True)}
         if seed is not None:
-            entry["seed"] = seed
-            entry["spacing_vs_seed"] = self.max_site_spacing_m / seed["max_site_spacing_m"] - 1.0
+            entry["dissertation"] = seed
+            entry["spacing_vs_dissertation"] = self.max_site_spacing_m / seed["max_site_spacing_m"] - 1.0
         return entry
 
 
@@ -147,15 +147,15 @@ NOTES = [
     "Relative error = sqrt(trace of site 2's 2x2 position covariance) / site spacing (1 sigma, DRMS).",
     "The longest spacing scales with B f / sigma for any layout, because the range error is "
     "Z^2 sigma / (B f): B f is 862 (ExoMars WAC), 244 (MER Navcam) and 1071 px m (MER Pancam). "
-    "The seed's WAC / Navcam ratio of spacings (57.9 / 22.2 = 2.61) is not that ratio (3.53), so no "
+    "The dissertation's WAC / Navcam ratio of spacings (57.9 / 22.2 = 2.61) is not that ratio (3.53), so no "
     "shared set of assumptions matches all its rows within 15 %: this model matches Navcam and Pancam "
-    "and gives 44 % more than the seed for the ExoMars WAC. With the WAC at 820 urad/px (Navcam's "
-    "angular resolution, f = 1220 px) it gives the seed's ExoMars figures (58.8 m and 67.8 m): likely "
-    "the focal length the seed used.",
-    "The seed's 4-parameter transform (a, b, c, d) has a free scale, which is what makes a wide FOV "
+    "and gives 44 % more than the dissertation for the ExoMars WAC. With the WAC at 820 urad/px (Navcam's "
+    "angular resolution, f = 1220 px) it gives the dissertation's ExoMars figures (58.8 m and 67.8 m): likely "
+    "the focal length the dissertation used.",
+    "The dissertation's 4-parameter transform (a, b, c, d) has a free scale, which is what makes a wide FOV "
     "(about 105 deg) optimal; with a rigid 3-parameter transform the optimum is about 20 deg. "
-    "Table 3.2 uses the seed's model; GTSAM cross-checks use the rigid one (poses have no scale).",
+    "Table 3.2 uses the dissertation's model; GTSAM cross-checks use the rigid one (poses have no scale).",
     "With 9 tie points the relative error is flat within about 1 % from 80 deg up: the optimum is shallow.",
-    "WAC+HRC: the mast points the HRC at every tie point; its spacing is at the WAC's optimal FOV (the seed's "
+    "WAC+HRC: the mast points the HRC at every tie point; its spacing is at the WAC's optimal FOV (the dissertation's "
     "Fig. 3.14), and own_optimal_fov_deg is where its own FOV curve has its minimum.",
 ]

@@ -1,7 +1,7 @@
-"""Covariance of a planar transform estimated from corresponding noisy points, seed eqs.
+"""Covariance of a planar transform estimated from corresponding noisy points, the dissertation's eqs.
 (3.4)-(3.10), and its propagation over a chain of stops, (3.12)-(3.13).
 
-`target = R source + t`. The seed's model (3.5) is the 4-parameter one, R = [[a, b], [-b, a]]
+`target = R source + t`. The dissertation's model (3.5) is the 4-parameter one, R = [[a, b], [-b, a]]
 with a and b free (a rotation and a scale); `rigid` keeps a^2 + b^2 = 1 (a heading psi with
 a = cos psi, b = sin psi), which is what a rover's pose, and our estimator, has. Both point
 sets are noisy: the Gauss-Helmert adjustment A V + B Delta = L of (3.6) with
@@ -65,7 +65,7 @@ def propagate(steps: list[tuple[np.ndarray, np.ndarray, np.ndarray]], model: Tra
 
     Each step k is (Sigma_DeltaDelta, R, t) of the transform taking stop-k coordinates to stop
     k-1's. The position of stop n is T_1 T_2 ... T_n applied to the origin, (3.13); this is its
-    first-order covariance with independent steps (the seed writes the result as (3.14),
+    first-order covariance with independent steps (the dissertation writes the result as (3.14),
     Sigma_n = Sigma_DeltaDelta^(n-1), which as printed is a matrix power, not a propagation)."""
     out = []
     for n in range(1, len(steps) + 1):

@@ -22,7 +22,7 @@ from ..errors import ConfigError, FrameError, GeodesyError, RunInterrupted, View
 from ..evaluation.evaluate import Evaluation
 from ..records import Traverse
 from ..runtime.atomic import writing
-from ..runtime.processes import cores, hold_malloc_thresholds, start_process_server
+from ..runtime.processes import cores, hold_malloc_thresholds, start_process_server, unguarded_script_call
 from ..solve.group import ProgressCallback
 from ..solve.results import RunOptions, RunResult
 from ..solve.state import RunState
@@ -157,6 +157,7 @@ def run(source: str | Path = "denver_trail", *, out: Path | str | None = None, s
     options = RunOptions(seed=seed, configs=configs, batch=batch, processes=processes or cores(),
                          vo_error_model=vo_error_model)
     if options.processes > 1:
+        check_script_guard()
         start_process_server()  # it imports while the source loads
     check_out(out)
     source_options = source_options or SourceOptions(seed=seed)
@@ -165,6 +166,16 @@ def run(source: str | Path = "denver_trail", *, out: Path | str | None = None, s
                                                                                    options.processes)
     select_configurations(data.estimator, data.traverse, options.configs)  # before anything is written
     return _into_folder(data, options, out, rerun, checkpoint_every_s, figures, progress, on_viewer=on_viewer)
+
+
+def check_script_guard() -> None:
+    """Refuse, before anything is written, a run on several cores called from a script's top
+    level outside `if __name__ == "__main__":`: its worker processes import the script again."""
+    where = unguarded_script_call()
+    if where is not None:
+        raise ConfigError(f"{where}: pancam_graph is called at the script's top level; a run on several cores "
+                          "starts worker processes that import the script again: put the call under "
+                          "`if __name__ == \"__main__\":` (or pass processes=1)")
 
 
 def resume_point(resume: Path | str) -> ResumePoint:
@@ -407,7 +418,7 @@ def view(results: Path | str, target: RerunTarget, saved: SavedRun | None = None
 
 @dataclass(frozen=True)
 class AnalysisOutcome:
-    """The seed's Chapter 3 analysis of some rigs: one row per rig and the files written."""
+    """The dissertation's Chapter 3 analysis of some rigs: one row per rig and the files written."""
 
     rows: list  # analysis.trades rows (optimal FOV, longest site spacing for 1 %, the curves)
     assumptions: object  # analysis.design.Assumptions

@@ -186,3 +186,7 @@ def _text_type(name: str) -> type:
     kept = [t for t in typing.get_args(value) if t is not type(None)]
     return kept[0] if kept and kept[0] in (int, float, bool) else str
 
+
+def examples(*commands: str) -> str:
+    """A command's --help epilog: its examples, one a line, kept as written (click's \\b)."""
+    return "\b\nExamples:\n" + "\n".join(f"  {command}" for command in commands)

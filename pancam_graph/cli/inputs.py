@@ -13,14 +13,17 @@ from rich.table import Table
 
 from ..config import SourceOptions
 from .app import app, console, user_input
-from .common import load_named_scenario, with_progress, with_source_options
+from .common import examples, load_named_scenario, with_progress, with_source_options
 
 if TYPE_CHECKING:  # the heavy imports wait until a command needs them: --help stays fast
     from ..frontend.calibrate import StereoFit
     from ..geometry.stereo_pair import StereoCalibration
 
 
-@app.command("track")
+@app.command("track", epilog=examples(
+    "pancam-graph track ../shared/data/real/kitti_odometry_51 --out obs/",
+    "pancam-graph run obs/",
+))
 @with_source_options("detector", "skip_bad_frames")
 def track_command(
     source: str = typer.Argument(..., help="stereo images: a KITTI odometry sequence folder"),
@@ -41,7 +44,10 @@ def track_command(
                   f"observations in {out}")
 
 
-@app.command("render")
+@app.command("render", epilog=examples(
+    "pancam-graph render short_trail --out images/",
+    "pancam-graph render mars_excerpt --out images/ --pds4 products/",
+))
 def render_command(
     scenario: str = typer.Argument("denver_trail", help="bundled scenario name or a scenario TOML file"),
     out: Path = typer.Option(..., "--out", help="image folder to write (keep it out of git)"),
@@ -91,7 +97,10 @@ def render_command(
         console.print(f"{products} PDS4 products of its navigation pairs in {pds4}")
 
 
-@app.command("calibrate")
+@app.command("calibrate", epilog=examples(
+    "pancam-graph render denver_trail --control-field --out field/",
+    "pancam-graph calibrate field/ --out calib.yaml",
+))
 def calibrate_command(
     folder: Path = typer.Argument(..., help="control-field stereo pairs NAME_left.png / NAME_right.png (any depth)"),
     out: Path = typer.Option(..., "--out", help="OpenCV YAML to write: K1 D1 K2 D2 R T and the rectification "
@@ -102,7 +111,7 @@ def calibrate_command(
                                       "FOLDER/truth_calibration.yaml when there is one)"),
     quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
 ) -> None:
-    """Calibrate a stereo pair from images of a 3-D control field (the seed's section 4.2): each
+    """Calibrate a stereo pair from images of a 3-D control field (the dissertation's section 4.2): each
     camera's focal lengths, principal point and k1, k2, p1, p2, then the pair's boresight, and
     the rectification; prints the fit, its uncertainty and, given a truth, the errors."""
     from .. import api
@@ -154,7 +163,9 @@ def _print_calibration(fit: StereoFit, reference: StereoCalibration | None, trut
     console.print(line)
 
 
-@app.command("show-config")
+@app.command("show-config", epilog=examples(
+    "pancam-graph show-config mars_traverse > my_traverse.toml",
+))
 def show_config_command(
     scenario: str = typer.Argument("denver_trail", help="bundled scenario name or a scenario TOML file"),
 ) -> None:
@@ -165,7 +176,10 @@ def show_config_command(
         print(dump_scenario(load_named_scenario(scenario)), end="")
 
 
-@app.command("simulate")
+@app.command("simulate", epilog=examples(
+    "pancam-graph simulate denver_trail --out obs/ --seed 3",
+    "pancam-graph run obs/",
+))
 def simulate_command(
     scenario: str = typer.Argument("denver_trail", help="bundled scenario name or path to a TOML file"),
     out: Path = typer.Option(..., "--out", help="observation folder to write"),
@@ -181,7 +195,9 @@ def simulate_command(
     console.print(f"{len(traverse.stops)} stops written to {out}")
 
 
-@app.command("scenarios")
+@app.command("scenarios", epilog=examples(
+    "pancam-graph scenarios",
+))
 def scenarios_command() -> None:
     """List the bundled scenarios."""
     import tomllib

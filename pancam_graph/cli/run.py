@@ -19,6 +19,7 @@ from .app import app, console, leave_without_rerun, user_input
 from .common import (
     SERVE_FOR_HELP,
     announce_viewer,
+    examples,
     parse_configs,
     rerun_help,
     rerun_target,
@@ -77,7 +78,11 @@ def _print_outcome(outcome: RunOutcome, serve_for_s: float | None) -> None:
         serve_until_interrupted(recording, serve_for_s)
 
 
-@app.command("run")
+@app.command("run", epilog=examples(
+    "pancam-graph run denver_trail --seed 1 --configs vo,vo_sites --rerun spawn",
+    "pancam-graph run tests/data/real/robot_localization/test1.bag --odom-topic /husky_velocity_controller/odom",
+    "pancam-graph run ../shared/data/real/curiosity_navcam_sol26_57",
+))
 @with_source_options(*SourceOptions.flags())
 def run_command(
     source: str | None = typer.Argument(None, help="bundled scenario name, a scenario TOML file, an "

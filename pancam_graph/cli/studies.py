@@ -18,6 +18,7 @@ from .app import EXIT_FAILURE, app, console, leave_without_rerun, user_input
 from .common import (
     SERVE_FOR_HELP,
     announce_viewer,
+    examples,
     has_display,
     progress_bar,
     rerun_help,
@@ -27,7 +28,9 @@ from .common import (
 )
 
 
-@app.command("view")
+@app.command("view", epilog=examples(
+    "pancam-graph view results/denver_trail-seed0-20261127-120000 --rerun serve",
+))
 def view_command(
     results: Path = typer.Argument(..., help="a results folder written by `pancam-graph run`"),
     rerun: str | None = typer.Option(None, "--rerun", help=rerun_help("replay.rrd") + " [default: spawn where "
@@ -57,7 +60,10 @@ def view_command(
         serve_until_interrupted(recording, serve_for)
 
 
-@app.command("eval")
+@app.command("eval", epilog=examples(
+    "pancam-graph eval results/run/trajectory_vo.tum results/run/truth.tum --align se3",
+    "pancam-graph eval results/run/trajectory_full.tum results/run/gps_fixes.csv",
+))
 def eval_command(
     estimate: Path = typer.Argument(..., help="estimated trajectory: TUM, KITTI poses or a GPS log"),
     reference: Path = typer.Argument(..., help="reference: TUM, KITTI poses or a GPS log (NMEA, GPX, CSV, KF-GINS)"),
@@ -114,7 +120,9 @@ def _three_numbers(flag: str, text: str | None, expected: str) -> tuple[float, f
     return values
 
 
-@app.command("sweep")
+@app.command("sweep", epilog=examples(
+    "pancam-graph sweep spec.toml --out sweeps/relin --workers 2",
+))
 def sweep_command(
     spec: Path = typer.Argument(..., help="sweep specification (TOML): scenarios, seeds, rigs, estimator variants"),
     out: Path = typer.Option(..., "--out", help="sweep folder: a results folder per run under runs/, and the tables; "
@@ -164,7 +172,10 @@ def sweep_command(
         raise typer.Exit(EXIT_FAILURE)
 
 
-@app.command("bench")
+@app.command("bench", epilog=examples(
+    "pancam-graph bench denver_trail --monte-carlo 30 --workers 2",
+    "pancam-graph bench sites images/",
+))
 def bench_command(
     scenario: str = typer.Argument("denver_trail", help="bundled scenario name or path to a TOML file, or "
                                    "'frontend' to time the image front-end on SOURCE, or 'sites' to measure the "
@@ -208,7 +219,9 @@ def bench_command(
     print(json.dumps(document, indent=2))
 
 
-@app.command("analyze")
+@app.command("analyze", epilog=examples(
+    "pancam-graph analyze --rig exomars --rig mer_navcam --out analysis/",
+))
 def analyze_command(
     rig: list[str] = typer.Option(None, "--rig", help="rig preset (repeatable; default: every preset)"),
     out: Path = typer.Option(Path("results/analysis"), "--out", help="folder for analysis.json, "
@@ -218,7 +231,7 @@ def analyze_command(
     focal_px: float | None = typer.Option(None, "--focal-px", min=1.0, help="custom rig: focal length (px)"),
     fov_deg: float | None = typer.Option(None, "--fov", min=1.0, max=179.0, help="custom rig: horizontal FOV (deg)"),
 ) -> None:
-    """The seed's Chapter 3 error analysis for each rig: mapping ellipses, two-stop VO, the HRC's
+    """The dissertation's Chapter 3 error analysis for each rig: mapping ellipses, two-stop VO, the HRC's
     gain and the two-site BA (optimal FOV, longest site spacing for 1 %), as figures, a Table 3.2
     and analysis.json; every assumption is written with them."""
     from ..analysis.trades import SEED_TABLE_3_2
@@ -233,7 +246,7 @@ def analyze_command(
         progress=lambda done, total: report("rigs", done, total)))
     rows, assumptions, written = outcome.rows, outcome.assumptions, outcome.files
     table = Table(title=f"two-site BA, {assumptions.tie_points} tie points, sigma {sigma_px} px")
-    for column in ("rig", "optimal FOV deg", "FOV, 16 tie points", "max spacing for 1 % (m)", "seed (m)"):
+    for column in ("rig", "optimal FOV deg", "FOV, 16 tie points", "max spacing for 1 % (m)", "dissertation (m)"):
         table.add_column(column, justify="right")
     for row in rows:
         seed = SEED_TABLE_3_2.get(row.name, {}).get("max_site_spacing_m", "-")

@@ -26,7 +26,7 @@ class TrajectoryMetrics:
     ate_alignment: str  # the alignment actually applied
     reference_length_m: float
     estimated_length_m: float
-    length_ratio: float  # estimated / reference length (the seed's VO came out short)
+    length_ratio: float  # estimated / reference length (the dissertation's VO came out short)
     drift_translation_pct: float | None = None  # KITTI-style, mean over segments
     drift_rotation_deg_per_m: float | None = None
     drift_segments_m: list[float] = field(default_factory=list)

@@ -1,4 +1,4 @@
-"""Stereo calibration from images of a 3-D control field (the seed's section 4.2): coded square
+"""Stereo calibration from images of a 3-D control field (the dissertation's section 4.2): coded square
 targets at surveyed positions on surfaces at several depths, seen by both cameras from several
 views. Each camera is calibrated on its own (focal lengths, principal point, k1, k2, p1, p2),
 then the pair's boresight (R, T) with the intrinsics held, as OpenCV's stereoCalibrate does.

@@ -1,4 +1,4 @@
-"""A site's WAC features found in its HRC frames, across the ~7x scale difference (seed section
+"""A site's WAC features found in its HRC frames, across the ~7x scale difference (the dissertation's section
 4.3.2), giving HRC projection measurements of the WAC tracks.
 
 Each WAC feature with a stereo triangulation is predicted into the HRC frame through the mast

@@ -1,6 +1,6 @@
 """The motion between consecutive stops: stereo VO, or a bridge when VO fails.
 
-Never zero motion (what broke the seed's field result): dead reckoning with its own
+Never zero motion (what broke the dissertation's field result): dead reckoning with its own
 covariance when the rover has it, otherwise the previous motion with a wide covariance.
 """
 

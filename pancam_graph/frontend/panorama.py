@@ -2,7 +2,7 @@
 
 Every WAC pair of the panorama is matched left to right as the navigation pairs are
 (frontend/tracker.py). Neighbouring frames overlap by a few degrees of pan or tilt; a feature
-seen in two of them is one track. Pan/tilt-aided matching (seed eq. 4.3): the mast angles give
+seen in two of them is one track. Pan/tilt-aided matching (the dissertation's eq. 4.3): the mast angles give
 the relative orientation of the two frames, so each triangulated feature of one frame is
 back-projected into the other, the image is warped by the rotation's homography, and the
 feature is searched for by optical flow only near its prediction; it joins the other frame's

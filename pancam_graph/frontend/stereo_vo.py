@@ -1,6 +1,6 @@
 """Stereo visual odometry from matched stereo observations of two consecutive stops.
 
-Method: triangulate the previous stop's matches (seed eq. 2.28), estimate the motion by
+Method: triangulate the previous stop's matches (the dissertation's eq. 2.28), estimate the motion by
 3-D to 2-D PnP with RANSAC (OpenCV), then refine it by a bundle adjustment over the two
 stops (two_stop_adjustment.py: the system of GTSAM's stereo factors, previous pose held
 fixed) whose marginal gives the 6x6 covariance of the relative pose. Outliers left after
@@ -115,7 +115,7 @@ class StereoVO:
         # RANSAC judged the matches by reprojecting the previous triangulation, whose range error
         # grows with range squared: it rejects most distant features however good they are. Judge
         # every match again at the refined pose, by how well its two triangulations agree given
-        # their covariances, and re-solve with all that pass (the seed's error model, eq. 3.3).
+        # their covariances, and re-solve with all that pass (the dissertation's error model, eq. 3.3).
         # A re-admitted mismatch can still wreck the re-solve (one with a fraction of a pixel of
         # disparity now, whose range error hides it): then the matches the first solve kept.
         agree = self._consistent(a, b, p_prev, pose)

@@ -1,7 +1,7 @@
 """Images in, stereo observations out: features on the left image, matched into the right image
 along the same row (rectified pair), tracked from frame to frame with persistent track ids.
 
-The seed's constraints on stereo matches (Chapter 4.2): the same row after rectification,
+The dissertation's constraints on stereo matches (Chapter 4.2): the same row after rectification,
 mutual consistency (left -> right -> left lands where it started), positive disparity within
 range, and disparity smoothness over the Delaunay triangulation of the left points (a match
 whose disparity disagrees with all its neighbours' is a mismatch, not a depth edge, when it

@@ -238,7 +238,7 @@ def triangulate_rectified(u_left, u_right, v, camera: Camera, baseline_m: float)
 
 
 def triangulation_jacobian(points: np.ndarray, baseline_m: float, fx: float, fy: float | None = None) -> np.ndarray:
-    """d(X, Y, Z) / d(u_left, u_right, v) of eq. (2.28) at left-camera points (N, 3): the seed's
+    """d(X, Y, Z) / d(u_left, u_right, v) of eq. (2.28) at left-camera points (N, 3): the dissertation's
     (3.2) with the elevation row kept. With disparity d = B fx / Z:
     [[(B - X) / d, X / d, 0], [-Y / d, Y / d, B fx / (d fy)], [-Z / d, Z / d, 0]]."""
     x, y, z = np.atleast_2d(np.asarray(points, dtype=float)).T

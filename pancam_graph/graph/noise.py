@@ -69,7 +69,7 @@ def landmark_anchor(range_m: float, sigma_m: float = 3.0) -> gtsam.noiseModel.Ba
     It must be relative to the observing site: a world-frame prior at the first triangulation
     feeds the site's drifted position back in as if it were news. About 150 new landmarks per
     site, each with a 3 m world prior, carry the information of a 0.24 m prior on where VO had
-    put the site, and the configuration becomes over-confident (README.md, "What made `vo_sites`
+    put the site, and the configuration becomes over-confident (docs/results.md, "What made `vo_sites`
     over-confident")."""
     bearing_rad = sigma_m / max(range_m, sigma_m)
     return gtsam.noiseModel.Diagonal.Sigmas(np.array([bearing_rad, bearing_rad, sigma_m]))

@@ -5,7 +5,7 @@ A false match in a panorama triangulates to a random point. A fixed distance gat
 growing with range) lets the ones that land near the true point through, and a single such tie
 across a weakly tied gap pulls the relative heading by several sigma (denver_trail seed 10: one
 false tie among 27 bent 340 -> 376 by 0.6 deg). Stereo bearings are known to ~0.3 mrad; only the
-range is loose. A Mahalanobis test with both triangulation covariances (seed eq. 3.3) and the
+range is loose. A Mahalanobis test with both triangulation covariances (the dissertation's eq. 3.3) and the
 relative-pose covariance from iSAM2 is tight across the line of sight and loose along it, as
 the measurements are.
 """

@@ -1,7 +1,7 @@
 """One scale error shared by every stereo VO step of the traverse.
 
 A stereo baseline known to 0.5 % makes every VO step 0.5 % too long or too short, the same
-way at every step (the seed's field VO "came out shorter than GPS"); treated as independent per
+way at every step (the dissertation's field VO "came out shorter than GPS"); treated as independent per
 step, that error grows with N while the covariance grows with sqrt(N). Here S(1) is a variable
 with prior N(0, [estimator.vo_scale] sigma), and every VO between factor becomes a factor on its two poses
 and S(1) (the wheel-slip kind's factor: measured translation = (1 + scale) x true); GPS or

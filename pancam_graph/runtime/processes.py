@@ -93,6 +93,43 @@ def start_worker(run_pid: int) -> None:
     watch_the_run(run_pid)
 
 
+def unguarded_script_call() -> str | None:
+    """`file:line` where the script run as the main module calls into this package at its top
+    level outside `if __name__ == "__main__":`, or None. Worker processes import the main module
+    again (the fork server, or spawn, does, to find what they run): such a call would run again
+    in them and break the pool with a traceback from deep inside multiprocessing."""
+    import ast
+    import sys
+
+    main = sys.modules.get("__main__")
+    path = getattr(main, "__file__", None)
+    frame = sys._getframe(1)
+    while frame is not None and not (frame.f_code.co_name == "<module>"
+                                     and frame.f_globals.get("__name__") == "__main__"):
+        frame = frame.f_back
+    if frame is None or path is None or frame.f_code.co_filename != path:
+        return None
+    try:
+        tree = ast.parse(Path(path).read_text(encoding="utf-8"))
+    except (OSError, SyntaxError, UnicodeDecodeError):
+        return None
+    for node in tree.body:
+        if isinstance(node, ast.If) and _tests_main(node.test) and node.lineno <= frame.f_lineno <= node.end_lineno:
+            return None
+    return f"{path}:{frame.f_lineno}"
+
+
+def _tests_main(test) -> bool:
+    """`__name__ == "__main__"`, either way round."""
+    import ast
+
+    if not (isinstance(test, ast.Compare) and len(test.ops) == 1 and isinstance(test.ops[0], ast.Eq)):
+        return False
+    sides = [test.left, *test.comparators]
+    return (any(isinstance(s, ast.Name) and s.id == "__name__" for s in sides)
+            and any(isinstance(s, ast.Constant) and s.value == "__main__" for s in sides))
+
+
 def start_process_server() -> None:
     """Start the fork server now: it imports while the run loads its source."""
     if "forkserver" in multiprocessing.get_all_start_methods():

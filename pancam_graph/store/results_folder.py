@@ -233,7 +233,7 @@ def write_evaluation(evaluation, name: str, folder: Path) -> None:
 
 
 def write_run(result: RunResult, folder: Path) -> None:
-    """Everything a run computed, as plain files (see the README's "Outputs")."""
+    """Everything a run computed, as plain files (docs/outputs.md)."""
     import tomli_w
 
     from ..config import dump_scenario

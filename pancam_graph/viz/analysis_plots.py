@@ -1,4 +1,4 @@
-"""Figures of the error analysis, after the seed's Figs. 3.5-3.14."""
+"""Figures of the error analysis, after the dissertation's Figs. 3.5-3.14."""
 
 from __future__ import annotations
 
@@ -85,10 +85,10 @@ def plot_error_vs_spacing(rows: list[RigAnalysis], target: float, path: Path) ->
 
 
 def table_markdown(rows: list[RigAnalysis], a: Assumptions) -> str:
-    """Table 3.2 with the seed's figures beside ours, and the assumptions."""
-    lines = ["# Two-site BA: longest site spacing for 1 % relative error (cf. the seed's Table 3.2)", "",
-             "| rig | B (m) | f (px) | optimal FOV (deg) | seed | FOV, 16 tie points | max spacing (m) | seed "
-             "| ours / seed |",
+    """Table 3.2 with the dissertation's figures beside ours, and the assumptions."""
+    lines = ["# Two-site BA: longest site spacing for 1 % relative error (cf. the dissertation's Table 3.2)", "",
+             "| rig | B (m) | f (px) | optimal FOV (deg) | dissertation | FOV, 16 tie points | max spacing (m) "
+             "| dissertation | ours / dissertation |",
              "|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
         seed = SEED_TABLE_3_2.get(row.name, {})

@@ -1,4 +1,4 @@
-"""Static PNG plots of a run, after the seed's Chapter 4 figures: trajectories (Fig. 4.10),
+"""Static PNG plots of a run, after the dissertation's Chapter 4 figures: trajectories (Fig. 4.10),
 error and travelled distance against the reference distance (Figs. 4.12-4.13) and the
 elevation profile (Fig. 4.14)."""
 
@@ -49,7 +49,7 @@ def plot_trajectories(result: RunResult, path: Path) -> None:
 
 def distance_scale(result: RunResult, name: str) -> float:
     """Least-squares slope (through the origin) of estimated against reference travelled distance:
-    below 1, the estimate comes out short (the seed's Fig. 4.12 found 0.93 for its VO)."""
+    below 1, the estimate comes out short (the dissertation's Fig. 4.12 found 0.93 for its VO)."""
     ref = result.reference_distance()
     est = travelled(result.configurations[name].world_T_body[:, :3, 3])
     return float(ref @ est / (ref @ ref))
@@ -121,7 +121,7 @@ def _plot_gps_error(result: RunResult, path: Path) -> None:
 
 
 def plot_distance_relation(result: RunResult, path: Path) -> None:
-    """Estimated against reference travelled distance (seed Fig. 4.12) and their difference."""
+    """Estimated against reference travelled distance (the dissertation's Fig. 4.12) and their difference."""
     ref = result.reference_distance()
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.5), dpi=110)
     left.plot(ref, ref, "k-", lw=2.0, label=f"reference ({result.reference_positions()[1]})")
@@ -139,7 +139,7 @@ def plot_distance_relation(result: RunResult, path: Path) -> None:
 
 
 def plot_elevation_profile(result: RunResult, path: Path) -> None:
-    """Height against reference travelled distance (seed Fig. 4.14)."""
+    """Height against reference travelled distance (the dissertation's Fig. 4.14)."""
     ref = result.reference_distance()
     fig, ax = plt.subplots(figsize=(9, 4.5), dpi=110)
     times, gps = gps_enu(result.traverse)

@@ -1,4 +1,4 @@
-"""The run report: a Markdown page with the seed's Chapter 4 figures and the metric table."""
+"""The run report: a Markdown page with the dissertation's Chapter 4 figures and the metric table."""
 
 from __future__ import annotations
 
@@ -11,15 +11,15 @@ from . import plots
 
 FIGURES = (
     ("trajectories.png", plots.plot_trajectories,
-     "Estimated and true trajectories with GPS fixes and sites (cf. seed Fig. 4.10)."),
+     "Estimated and true trajectories with GPS fixes and sites (cf. the dissertation's Fig. 4.10)."),
     ("error_vs_distance.png", plots.plot_error_vs_distance,
      "3-D position error against distance travelled; dotted: the RMS error each configuration expects "
      "of itself (square root of the trace of its iSAM2 marginal)."),
     ("distance_relation.png", plots.plot_distance_relation,
-     "Estimated against reference distance travelled and their difference (cf. seed Figs. 4.12-4.13: "
-     "the seed's VO came out short)."),
+     "Estimated against reference distance travelled and their difference (cf. the dissertation's Figs. 4.12-4.13: "
+     "the dissertation's VO came out short)."),
     ("elevation_profile.png", plots.plot_elevation_profile,
-     "Height against distance travelled (cf. seed Fig. 4.14)."),
+     "Height against distance travelled (cf. the dissertation's Fig. 4.14)."),
 )
 NEES_FIGURE = ("nees_along_run.png", plots.plot_nees_along_run,
                "Each stop's position NEES against the reference (without truth: each GPS fix's, with the fix's "

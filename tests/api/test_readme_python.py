@@ -15,7 +15,7 @@ README = Path(__file__).parents[2] / "README.md"
 
 def _example() -> str:
     text = README.read_text(encoding="utf-8")
-    section = text[text.index("### Use from Python"):]
+    section = text[text.index("**Use it from Python.**"):]
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 

@@ -276,3 +276,18 @@ def test_view_serves_a_saved_run_on_localhost_until_serve_for_ends(results):
     finally:
         view.kill()
         view.wait()
+
+
+def test_every_commands_help_ends_with_examples():
+    """`--help` of every command ends with one to three examples, each a pancam-graph command line
+    naming that command (kiss-icp's shows one per data type)."""
+    names = [c.name for c in app.registered_commands]
+    assert len(names) >= 12
+    for name in names:
+        result = runner.invoke(app, [name, "--help"])
+        assert result.exit_code == 0, name
+        tail = result.output.rstrip().split("Examples:")
+        assert len(tail) == 2, f"{name}: no examples"
+        lines = [line.strip() for line in tail[1].strip().splitlines()]
+        assert 1 <= len(lines) <= 3 and all(line.startswith("pancam-graph ") for line in lines), (name, lines)
+        assert any(line.split()[1] == name for line in lines), (name, lines)
