@@ -299,19 +299,6 @@ def fuzz(trials: int, seed: int = 0, keep: Path | None = None) -> Findings:
     return findings
 
 
-if __name__ == "__main__":
-    n = int(sys.argv[1]) if len(sys.argv) > 1 else 2000
-    keep = Path(sys.argv[3]) if len(sys.argv) > 3 else None
-    result = fuzz(n, seed=int(sys.argv[2]) if len(sys.argv) > 2 else 0, keep=keep)
-    for name in sorted(result.trials):
-        print(f"{name:14s} {result.trials[name]:6d} files, {result.refused[name]:6d} refused with a message")
-    for what in NAMED_REFUSALS:
-        print(f"refused naming a {what}: {result.named[what]}")
-    print(f"{len(result.escaped)} escaped")
-    for line in Counter(e.split(": ", 1)[1] for e in result.escaped).most_common(40):
-        print(" ", line)
-
-
 def _write_pds4_products(folder: Path) -> None:
     """Two stops' stereo pairs of small textured images, as PDS4 products."""
     from pancam_graph.formats.pds4 import ProductDescription, write_product
@@ -329,3 +316,17 @@ def _write_pds4_products(folder: Path) -> None:
             product = ProductDescription(f"NAV_{eye}_{k:04d}", 1.7e9 + 60.0 * k, "TEST ROVER", f"NAV_{eye}", 1, k,
                                          0, site_T_rover, None, model)
             write_product(folder, product, rng.integers(0, 255, (48, 64), dtype=np.uint8))
+
+
+if __name__ == "__main__":
+    n = int(sys.argv[1]) if len(sys.argv) > 1 else 2000
+    keep = Path(sys.argv[3]) if len(sys.argv) > 3 else None
+    result = fuzz(n, seed=int(sys.argv[2]) if len(sys.argv) > 2 else 0, keep=keep)
+    for name in sorted(result.trials):
+        print(f"{name:14s} {result.trials[name]:6d} files, {result.refused[name]:6d} refused with a message")
+    for what in NAMED_REFUSALS:
+        print(f"refused naming a {what}: {result.named[what]}")
+    print(f"{len(result.escaped)} escaped")
+    for line in Counter(e.split(": ", 1)[1] for e in result.escaped).most_common(40):
+        print(" ", line)
+
