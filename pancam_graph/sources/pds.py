@@ -102,6 +102,21 @@ class ProductStereo:
     residual_px: float  # the largest of the two conversions' residuals over the image
 
 
+SAME_POINTING_M, SAME_POINTING_DEG = 1e-3, 0.01  # camera models this close are one mounting
+
+
+def pointing_change(stop_pairs: list[tuple[RoverImage, RoverImage]]) -> int | None:
+    """The first stop whose pair's camera models (centre and axis, either eye) differ from the
+    first stop's by more than SAME_POINTING_M or SAME_POINTING_DEG, or None."""
+    reference = stop_pairs[0]
+    for k, pair in enumerate(stop_pairs):
+        for a, b in zip(reference, pair, strict=True):
+            angle = np.rad2deg(np.arccos(np.clip(a.camera.a @ b.camera.a, -1.0, 1.0)))
+            if np.linalg.norm(a.camera.c - b.camera.c) > SAME_POINTING_M or angle > SAME_POINTING_DEG:
+                return k
+    return None
+
+
 def product_stereo(left: RoverImage, right: RoverImage) -> ProductStereo:
     converted = [to_photogrammetric(image.camera, image.width, image.height) for image in (left, right)]
     rover_T = []
@@ -177,7 +192,11 @@ def load(folder: Path, progress: Callable[[str, int, int], None] | None = None,
                          f"{MSLICE_SIGMA_M:g} m assumed)")
 
     first = groups[0][0]
-    stereo = product_stereo(*stop_pairs[0]) if pairs and None not in stop_pairs else None
+    moved = None if not pairs or None in stop_pairs else pointing_change(stop_pairs)
+    if moved is not None:
+        notes.append(f"{len(pairs)} stereo pairs, but the pair's camera models move at stop {moved} (the mast "
+                     "pointed elsewhere): the stereo VO needs one pointing; the onboard estimate carries the motion")
+    stereo = product_stereo(*stop_pairs[0]) if pairs and None not in stop_pairs and moved is None else None
     if stereo is None:
         camera = to_photogrammetric(first.camera, first.width, first.height)
         body_T_nav_left = np.eye(4)

@@ -152,6 +152,26 @@ def test_a_stop_without_its_stereo_partner_leaves_the_motion_to_the_onboard_esti
         "the motion"]
 
 
+def test_a_pair_whose_pointing_moves_leaves_the_motion_to_the_onboard_estimate_and_says_so(tmp_path):
+    folder = _write(tmp_path / "products", stops=3)
+    moved = _product(2, "LEFT")
+    turned = replace_camera(moved, np.deg2rad(0.5))
+    write_product(folder, turned, _image(2, "LEFT"))
+    data = load(folder)
+    assert set(data.estimator.configurations) == {"onboard"}
+    assert any("the pair's camera models move at stop 2" in note for note in data.info.notes)
+
+
+def replace_camera(product: ProductDescription, yaw_rad: float) -> ProductDescription:
+    """The product with its camera turned about the rover's down axis."""
+    from dataclasses import replace
+
+    turn = Rotation.from_rotvec([0.0, 0.0, yaw_rad]).as_matrix()
+    c = product.camera
+    camera = type(c)(c.c, turn @ c.a, turn @ c.h, turn @ c.v, turn @ c.o, c.r, name=c.name)
+    return replace(product, camera=camera)
+
+
 def test_the_onboard_poses_of_the_labels_are_the_stops_dead_reckoning(tmp_path):
     data = load(_write(tmp_path / "products", stops=3, rights=False))
     step = data.traverse.stops[2].dead_reckoning.prev_T_curr
