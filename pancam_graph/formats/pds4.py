@@ -305,7 +305,13 @@ def read_pds4_label(path: Path) -> RoverImage:
              for a in array.findall("pds:Axis_Array", NAMESPACES)}
     if set(sizes) != {"Line", "Sample"}:
         raise InputError(f"{path}: the image's axes are {sorted(sizes)}, expected Line and Sample")
-    image = path.parent / label.text(root, "./pds:File_Area_Observational/pds:File/pds:file_name")
+    file_name = label.text(root, "./pds:File_Area_Observational/pds:File/pds:file_name")
+    image = path.parent / file_name
+    try:
+        found = image.is_file()
+    except (OSError, ValueError):  # a name too long for the file system, or with a NUL
+        raise InputError(f"{path}: file_name {file_name[:60]!r}{'...' if len(file_name) > 60 else ''} is not a "
+                         "file name this system can open") from None
     eye = instrument.rpartition("_")[2] if instrument.rpartition("_")[2] in EYES else "MONO"
     return RoverImage(
         label=path, utc_s=utc.timestamp(), instrument=instrument, eye=eye, site=site, drive=drive, pose=pose,
@@ -313,7 +319,7 @@ def read_pds4_label(path: Path) -> RoverImage:
         site_origin=site_origin, camera=_camera(label, geometry), width=sizes["Sample"], height=sizes["Line"],
         sun_site_azimuth_deg=None, sun_site_elevation_deg=None,
         mission=label.text(root, "./pds:Observation_Area/pds:Investigation_Area/pds:name"),
-        image=image if image.is_file() else None)
+        image=image if found else None)
 
 
 def read_image(image: RoverImage) -> np.ndarray:

@@ -106,13 +106,15 @@ SAME_POINTING_M, SAME_POINTING_DEG = 1e-3, 0.01  # camera models this close are 
 
 
 def pointing_change(stop_pairs: list[tuple[RoverImage, RoverImage]]) -> int | None:
-    """The first stop whose pair's camera models (centre and axis, either eye) differ from the
-    first stop's by more than SAME_POINTING_M or SAME_POINTING_DEG, or None."""
+    """The first stop whose pair differs from the first stop's: camera models (centre and axis,
+    either eye) by more than SAME_POINTING_M or SAME_POINTING_DEG, or images of another size
+    (a downsampled frame); None when every pair is the first's."""
     reference = stop_pairs[0]
     for k, pair in enumerate(stop_pairs):
         for a, b in zip(reference, pair, strict=True):
             angle = np.rad2deg(np.arccos(np.clip(a.camera.a @ b.camera.a, -1.0, 1.0)))
-            if np.linalg.norm(a.camera.c - b.camera.c) > SAME_POINTING_M or angle > SAME_POINTING_DEG:
+            if (np.linalg.norm(a.camera.c - b.camera.c) > SAME_POINTING_M or angle > SAME_POINTING_DEG
+                    or (a.width, a.height) != (b.width, b.height)):
                 return k
     return None
 
@@ -194,8 +196,9 @@ def load(folder: Path, progress: Callable[[str, int, int], None] | None = None,
     first = groups[0][0]
     moved = None if not pairs or None in stop_pairs else pointing_change(stop_pairs)
     if moved is not None:
-        notes.append(f"{len(pairs)} stereo pairs, but the pair's camera models move at stop {moved} (the mast "
-                     "pointed elsewhere): the stereo VO needs one pointing; the onboard estimate carries the motion")
+        notes.append(f"{len(pairs)} stereo pairs, but the pair's camera models or image sizes change at stop "
+                     f"{moved} (the mast pointed elsewhere, or another frame size): the stereo VO needs one camera "
+                     "pair as mounted; the onboard estimate carries the motion")
     stereo = product_stereo(*stop_pairs[0]) if pairs and None not in stop_pairs and moved is None else None
     if stereo is None:
         camera = to_photogrammetric(first.camera, first.width, first.height)

@@ -99,6 +99,7 @@ def test_pds4_tools_reads_the_products_image_and_fields(tmp_path):
     (("encoding='UTF-8'", "encoding='UTFabc'"), r"not a readable PDS4 label \(unknown encoding"),
     (("<local_identifier_reference>SITE_FRAME_1<", "<local_identifier_reference>SITE_FRAME_nan<"),
      r"the rover's pose is in 'SITE_FRAME_nan', expected a SITE_FRAME_<site>"),
+    (("<file_name>NAV", "<file_name>" + "9" * 300), r"file_name '9{60}'\.\.\. is not a file name this system can open"),
 ])
 def test_a_bad_pds4_label_is_refused_naming_it(tmp_path, change, words):
     label = write_product(tmp_path, _product(1, "LEFT"), _image(1, "LEFT"))
@@ -159,7 +160,19 @@ def test_a_pair_whose_pointing_moves_leaves_the_motion_to_the_onboard_estimate_a
     write_product(folder, turned, _image(2, "LEFT"))
     data = load(folder)
     assert set(data.estimator.configurations) == {"onboard"}
-    assert any("the pair's camera models move at stop 2" in note for note in data.info.notes)
+    assert any("the pair's camera models or image sizes change at stop 2" in note for note in data.info.notes)
+
+
+def test_a_pair_of_another_image_size_is_not_tracked_as_the_same_rig(tmp_path):
+    """Found by fuzzing: a right image relabelled 96 x 32 (the same byte count) reached the
+    tracker, sized for the first pair's 64 x 48, as an OpenCV error."""
+    folder = _write(tmp_path / "products", stops=3)
+    label = folder / "NAV_RIGHT_0001.xml"
+    label.write_text(label.read_text().replace("<elements>48</elements>", "<elements>32</elements>")
+                     .replace("<elements>64</elements>", "<elements>96</elements>"))
+    data = load(folder)
+    assert set(data.estimator.configurations) == {"onboard"}
+    assert any("image sizes change at stop 1" in note for note in data.info.notes)
 
 
 def replace_camera(product: ProductDescription, yaw_rad: float) -> ProductDescription:
