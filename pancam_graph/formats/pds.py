@@ -241,3 +241,12 @@ def enu_T_body(image: RoverImage, origins: dict[int, np.ndarray]) -> np.ndarray:
     out[:3, :3] = ENU_R_SITE @ site_T_rover[:3, :3] @ BODY_R_ROVER
     out[:3, 3] = ENU_R_SITE @ site_T_rover[:3, 3]
     return out
+
+
+def site_T_rover(enu_T_body: np.ndarray, site_origin_ned: np.ndarray) -> np.ndarray:
+    """`enu_T_body`'s inverse: the rover (forward, right, down) in the site frame (north, east,
+    down) whose origin is `site_origin_ned` in the first site's frame."""
+    out = np.eye(4)
+    out[:3, :3] = ENU_R_SITE @ enu_T_body[:3, :3] @ BODY_R_ROVER
+    out[:3, 3] = ENU_R_SITE @ enu_T_body[:3, 3] - site_origin_ned
+    return out

@@ -21,7 +21,7 @@ from ..config import Scenario
 from ..errors import InputError
 from ..formats.images import read_gray
 from ..formats.mslice import MsliceLocation, write_mslice_locations
-from ..formats.pds import BODY_R_ROVER, ENU_R_SITE
+from ..formats.pds import BODY_R_ROVER, ENU_R_SITE, site_T_rover
 from ..formats.pds4 import ProductDescription, write_product
 from ..geometry.cahvor import from_photogrammetric
 from ..geometry.geodesy import LocalFrame
@@ -96,15 +96,12 @@ def write_pds4_products(image_folder: Path, out: Path, start_utc_s: float,
             site_origin = north_east_down
         elif k > 0:
             drive += 1
-        site_T_rover = np.eye(4)
-        site_T_rover[:3, :3] = ENU_R_SITE @ pose[:3, :3] @ BODY_R_ROVER
-        site_T_rover[:3, 3] = north_east_down - site_origin
         if obs.truth is not None and (site, drive) != (1, 0):
             lat, lon, _ = traverse.origin.to_geodetic(obs.truth.world_T_body[k][None, :3, 3])[0]
             locations.append(MsliceLocation(site, drive, float(lat), float(lon), start_utc_s + stop.time_s))
         for eye, path in zip(("LEFT", "RIGHT"), obs.frames[k], strict=True):
             product = ProductDescription(f"WAC_{eye}_{k:06d}", start_utc_s + stop.time_s, MISSION, f"WAC_{eye}",
-                                         site, drive, 0, site_T_rover, new_site, cameras[eye])
+                                         site, drive, 0, site_T_rover(pose, site_origin), new_site, cameras[eye])
             write_product(out, product, read_gray(path, size))
             written += 1
         if progress is not None:

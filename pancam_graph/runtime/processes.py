@@ -5,6 +5,7 @@ where there is no fork server (Windows)."""
 
 from __future__ import annotations
 
+import ast
 import ctypes
 import mmap
 import multiprocessing
@@ -98,7 +99,6 @@ def unguarded_script_call() -> str | None:
     level outside `if __name__ == "__main__":`, or None. Worker processes import the main module
     again (the fork server, or spawn, does, to find what they run): such a call would run again
     in them and break the pool with a traceback from deep inside multiprocessing."""
-    import ast
     import sys
 
     main = sys.modules.get("__main__")
@@ -121,8 +121,6 @@ def unguarded_script_call() -> str | None:
 
 def _tests_main(test) -> bool:
     """`__name__ == "__main__"`, either way round."""
-    import ast
-
     if not (isinstance(test, ast.Compare) and len(test.ops) == 1 and isinstance(test.ops[0], ast.Eq)):
         return False
     sides = [test.left, *test.comparators]

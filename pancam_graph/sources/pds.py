@@ -194,12 +194,13 @@ def load(folder: Path, progress: Callable[[str, int, int], None] | None = None,
                          f"{MSLICE_SIGMA_M:g} m assumed)")
 
     first = groups[0][0]
-    moved = None if not pairs or None in stop_pairs else pointing_change(stop_pairs)
+    paired_everywhere = bool(pairs) and None not in stop_pairs
+    moved = pointing_change(stop_pairs) if paired_everywhere else None
     if moved is not None:
         notes.append(f"{len(pairs)} stereo pairs, but the pair's camera models or image sizes change at stop "
                      f"{moved} (the mast pointed elsewhere, or another frame size): the stereo VO needs one camera "
                      "pair as mounted; the onboard estimate carries the motion")
-    stereo = product_stereo(*stop_pairs[0]) if pairs and None not in stop_pairs and moved is None else None
+    stereo = product_stereo(*stop_pairs[0]) if paired_everywhere and moved is None else None
     if stereo is None:
         camera = to_photogrammetric(first.camera, first.width, first.height)
         body_T_nav_left = np.eye(4)
