@@ -35,6 +35,11 @@ class GeodesyError(PancamGraphError):
     """A coordinate conversion got invalid input (non-finite, out of range)."""
 
 
+class ProcessDied(PancamGraphError):
+    """A process of the run's own (a worker, a call apart) ended without an answer: killed, out of
+    memory, or a crash inside a library."""
+
+
 class FrontendError(PancamGraphError):
     """Observations could not be turned into measurements (e.g. malformed arrays)."""
 

@@ -13,10 +13,11 @@ import cv2
 import numpy as np
 import yaml
 
-from ..errors import InputError
+from ..errors import InputError, ProcessDied
 from ..frontend.calibrate import MIN_TARGETS_PER_VIEW, ControlField
 from ..geometry.rig import Camera
 from ..geometry.stereo_pair import RectifiedStereo, StereoCalibration
+from ..runtime.processes import call_apart
 from ..runtime.text_files import read_text
 from .tables import CsvTable, write_csv
 
@@ -193,9 +194,20 @@ def read_matlab_stereo_parameters(path: Path, image_size: tuple[int, int] | None
     1-based; RotationOfCamera2 multiplies row vectors (OpenCV's R is its transpose);
     TranslationOfCamera2 is in the calibration's WorldUnits. `image_size` (width, height) is
     needed when the file's ImageSize is empty, as older MATLAB releases leave it."""
+    path = Path(path)
+    try:
+        # scipy's reader can die of a segfault on a damaged file (tests/data/fuzz/README.md): read
+        # apart, so that a bad file costs a child process and not the run.
+        return call_apart(_read_matlab_stereo_parameters, path, image_size)
+    except ProcessDied:
+        raise InputError(f"{path}: reading it crashed scipy's MATLAB reader (the file is damaged, or not a "
+                         "MATLAB .mat file); a stereoParameters object must be saved as a struct (v7 or "
+                         "earlier, not v7.3)") from None
+
+
+def _read_matlab_stereo_parameters(path: Path, image_size: tuple[int, int] | None) -> StereoCalibration:
     import scipy.io
 
-    path = Path(path)
     try:
         data = scipy.io.loadmat(str(path), squeeze_me=True, struct_as_record=False)
     except Exception as exc:  # scipy raises assorted errors (IndexError, ValueError, ...) on a malformed file

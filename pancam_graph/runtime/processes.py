@@ -25,7 +25,7 @@ from typing import TypeVar
 
 import numpy as np
 
-from ..errors import PancamGraphError
+from ..errors import ProcessDied
 from .scratch import temporary_folder
 
 T = TypeVar("T")
@@ -152,7 +152,7 @@ def call_apart(function: Callable[..., T], *args) -> T:
             try:
                 pool.submit(_call_into, folder, function, args).result()
             except BrokenProcessPool as exc:
-                raise PancamGraphError(f"the process running {function.__name__} stopped unexpectedly (killed, or "
+                raise ProcessDied(f"the process running {function.__name__} stopped unexpectedly (killed, or "
                                        f"out of memory?): {exc}") from None
         with open(folder / _OBJECTS, "rb") as f:
             spans = pickle.load(f)

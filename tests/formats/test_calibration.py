@@ -283,3 +283,12 @@ def test_a_kalibr_nan_is_named_not_an_opencv_traceback(kitti, tmp_path):
     (tmp_path / "camchain.yaml").write_text(yaml.safe_dump(chain))
     with pytest.raises(InputError, match=r"camchain.yaml: D1 has a value that is not a finite number"):
         read_stereo_calibration(tmp_path / "camchain.yaml")
+
+
+def test_a_matlab_file_that_crashes_scipys_reader_is_refused_naming_it():
+    # found by fuzzing: scipy's loadmat dies of a segfault on this file (tests/data/fuzz/README.md)
+    from pancam_graph.formats.calibration import read_matlab_stereo_parameters
+
+    path = Path(__file__).parents[1] / "data" / "fuzz" / "loadmat_segfault.mat"
+    with pytest.raises(InputError, match=r"loadmat_segfault\.mat: reading it crashed scipy's MATLAB reader"):
+        read_matlab_stereo_parameters(path, image_size=(1280, 960))
