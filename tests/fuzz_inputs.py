@@ -280,7 +280,7 @@ def fuzz(trials: int, seed: int = 0, keep: Path | None = None) -> Findings:
             data, how = mutate((target.seed_folder / name).read_bytes(), rng, target.mutations)
             (folder / name).write_bytes(data)
             if keep is not None:  # a native crash kills the process: the last file tells which
-                shutil.copy(folder / name, keep / f"last_{target.name.replace(' ', '_')}_{name}")
+                shutil.copy(folder / name, keep / f"last_{target.name}_{name}".replace(" ", "_").replace("/", "_"))
                 (keep / "last.txt").write_text(f"{trial} {target.name} {name} {how}\n")
             findings.trials[target.name] += 1
             try:
