@@ -7,6 +7,9 @@ where they enter the code), path distances measured along the path from its star
 from __future__ import annotations
 
 import math
+import re
+import textwrap
+import typing
 import tomllib
 from dataclasses import dataclass, field, fields
 from importlib import resources
@@ -678,15 +681,46 @@ def resolve_scenario(name_or_path: str) -> Path:
 
 
 def dump_scenario(scenario: Scenario) -> str:
-    """The scenario as TOML; each [errors] magnitude with its realistic value's source as a comment."""
-    text = tomli_w.dumps(scenario.model_dump(mode="json", exclude_none=True))
-    lines, section = [], ""
+    """The scenario as TOML a user can read: each field's description as a comment above it, each
+    [errors] magnitude with its realistic value's source, and arrays of numbers on one line (a
+    waypoint a line, not a number a line)."""
+    text = _one_line_arrays(tomli_w.dumps(scenario.model_dump(mode="json", exclude_none=True)))
+    lines, section, model = [], "", Scenario
     for line in text.splitlines():
         if line.startswith("["):
             section = line.strip()
+            model = _section_model(section.strip("[]"))
+            what = (model.__doc__ or "").strip().split(". ")[0].split("\n\n")[0] if model else ""
+            what = re.sub(r"^(A scenario's )?\[[\w.]+\]:?\s*", "", what)  # the table's name is on the next line
+            what = what[:1].upper() + what[1:]
+            lines += [f"# {row}" for row in textwrap.wrap(" ".join(what.split()), 96)]
         key = line.split(" = ")[0]
+        field = model.model_fields.get(key) if model is not None and " = " in line else None
+        if field is not None and field.description:
+            lines += [f"# {row}" for row in textwrap.wrap(field.description, 96)]
         if section == "[errors]" and key in REALISTIC_ERRORS:
             value, source = REALISTIC_ERRORS[key]
             line += f"  # realistic: {value!r}, from {source}"
         lines.append(line)
     return "\n".join(lines) + "\n"
+
+
+_NUMBER_ARRAY = re.compile(r"\[\n((?: +[^\[\]\n]+,\n)+) *\]")
+
+
+def _one_line_arrays(text: str) -> str:
+    """tomli_w's arrays of scalars (one item a line) written on one line each."""
+    return _NUMBER_ARRAY.sub(lambda m: "[" + ", ".join(item.strip().rstrip(",")
+                                                        for item in m.group(1).splitlines()) + "]", text)
+
+
+def _section_model(dotted: str) -> type[BaseModel] | None:
+    """The pydantic model of a TOML table (`path`, `kinds.gps`), None where it is not one."""
+    model: type[BaseModel] | None = Scenario
+    for part in dotted.split("."):
+        field = model.model_fields.get(part) if model is not None else None
+        if field is None:
+            return None
+        candidates = [field.annotation, *typing.get_args(field.annotation)]
+        model = next((c for c in candidates if isinstance(c, type) and issubclass(c, BaseModel)), None)
+    return model

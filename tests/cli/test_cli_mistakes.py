@@ -144,6 +144,23 @@ def test_show_config_prints_the_resolved_scenario(tmp_path):
     assert resolved["estimator"]["sites"]["memory"] == 3  # every constant, defaults included
 
 
+def test_show_config_reads_like_the_readmes_example_a_waypoint_a_line_and_comments_from_the_fields():
+    import tomllib
+
+    from pancam_graph.config import Scenario, dump_scenario, load_scenario, resolve_scenario
+
+    scenario = load_scenario(resolve_scenario("mars_traverse"))
+    text = dump_scenario(scenario)
+    assert Scenario.model_validate(tomllib.loads(text)) == scenario  # the comments change nothing
+    lines = text.splitlines()
+    waypoints = lines.index("waypoints = [")
+    assert lines[waypoints + 1] == "    [0.0, 0.0, 0.0],"  # a waypoint a line, not a number a line
+    assert len(lines) < len(scenario.path.waypoints) + 400, len(lines)  # was 469 with about 230 number lines
+    # each field's description above it, each table's docstring above the table
+    assert lines[lines.index("points_per_site = 150") - 1] == "# tie points kept per site"
+    assert lines[lines.index("[estimator.orbital]") - 1] == "# How sites are registered to the orbital maps."
+
+
 def test_two_runs_on_one_out_exactly_one_wins_and_nothing_is_lost(tmp_path):
     exe = Path(sys.executable).parent / "pancam-graph"
     first = subprocess.Popen([str(exe), "run", "short_trail", "--out", "res", "--quiet"], cwd=tmp_path,
