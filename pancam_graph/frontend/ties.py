@@ -301,7 +301,7 @@ class _Ground:
         near = self.p[self.tree.query_ball_point(at[:2], self.radius_m)]
         if len(near) < 6:
             return up
-        _, _, vt = np.linalg.svd(near - near.mean(axis=0))
+        _, _, vt = np.linalg.svd(near - near.mean(axis=0), full_matrices=False)  # U (n x n) unused
         n = vt[2] * np.sign(vt[2][2])
         return n if n[2] > 0.9 else up  # steeper than 25 deg: a rock, not the ground
 

@@ -131,18 +131,24 @@ class FieldRenderer:
         return cv2.GaussianBlur(image, (0, 0), OPTICS_BLUR_PX)
 
     def _cast(self, field_T_camera: np.ndarray, rays: np.ndarray) -> np.ndarray:
-        """The intensity each ray sees: the nearest panel it hits, or the backdrop."""
+        """The intensity each ray sees: the nearest panel it hits, or the backdrop.
+
+        A ray's direction is d = R (x, y, 1); every product of d the panels need (with each
+        panel's normal and axes) is one product of the rays with a small matrix, so no direction or
+        hit point is formed per ray."""
         rotation, centre = field_T_camera[:3, :3], field_T_camera[:3, 3]
-        d = rays.astype(np.float64) @ rotation[:, :2].T + rotation[:, 2]
-        depth = np.full(len(d), np.inf)
-        value = np.full(len(d), BACKDROP)
+        axes = np.column_stack([v for panel in self.panels for v in (panel.normal, panel.a, panel.b)])
+        # d . v for each panel's vectors, a row each (rows are contiguous: the loop reads them whole)
+        along = (axes.T @ rotation[:, :2]) @ rays.T.astype(np.float64) + (rotation[:, 2] @ axes)[:, None]
+        depth = np.full(len(rays), np.inf)
+        value = np.full(len(rays), BACKDROP)
         first = 0
-        for panel in self.panels:
-            n = panel.normal
+        for k, panel in enumerate(self.panels):
+            dn, da, db = along[3 * k], along[3 * k + 1], along[3 * k + 2]
+            offset = centre - panel.origin
             with np.errstate(divide="ignore", invalid="ignore"):
-                s = ((panel.origin - centre) @ n) / (d @ n)
-            hit = centre + s[:, None] * d - panel.origin
-            a, b = hit @ panel.a, hit @ panel.b
+                s = -(offset @ panel.normal) / dn
+            a, b = offset @ panel.a + s * da, offset @ panel.b + s * db
             w, h = panel.size_m
             on = (s > 0) & (s < depth) & (a >= 0) & (a < w) & (b >= 0) & (b < h)
             depth[on] = s[on]
