@@ -144,6 +144,11 @@ def test_a_bad_panorama_frame_stops_with_its_name_and_keeps_the_tracking_or_is_l
 
     folder = tmp_path / "copy"
     shutil.copytree(sites[0], folder)
+    # the first two sites only (one site pair to tie instead of three: the test's time)
+    frames = (folder / "panorama_frames.csv").read_text().splitlines(keepends=True)
+    two_sites = sorted({int(line.split(",")[0]) for line in frames[1:]})[:2]
+    (folder / "panorama_frames.csv").write_text("".join(frames[:1] + [line for line in frames[1:]
+                                                                       if int(line.split(",")[0]) in two_sites]))
     bad = read_observations(folder).panorama_frames[0].left
     bad.write_bytes(bad.read_bytes()[:3000])
     with pytest.raises(FrameError, match=rf"site panorama: .*{bad.name}: truncated PNG") as stopped:
@@ -151,7 +156,8 @@ def test_a_bad_panorama_frame_stops_with_its_name_and_keeps_the_tracking_or_is_l
     assert len(stopped.value.partial.traverse.stops) == len(sites[1].traverse.stops)  # all tracked, kept
     data = image_folder.load(folder, skip_bad_frames=True)
     assert any(bad.name in note for note in data.info.notes)
-    assert sum(len(s.panorama) for s in data.traverse.stops) == sum(len(s.panorama) for s in sites[3]) - 1
+    expected = sum(len(s.panorama) for k, s in enumerate(sites[3]) if k in two_sites) - 1
+    assert sum(len(s.panorama) for s in data.traverse.stops) == expected > 0
 
 
 def test_a_pair_with_too_few_strong_ties_is_verified_again_with_the_weaker_peaks(sites):
