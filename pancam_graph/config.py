@@ -690,19 +690,27 @@ def dump_scenario(scenario: Scenario) -> str:
         if line.startswith("["):
             section = line.strip()
             model = _section_model(section.strip("[]"))
-            what = (model.__doc__ or "").strip().split(". ")[0].split("\n\n")[0] if model else ""
-            what = re.sub(r"^(A scenario's )?\[[\w.]+\]:?\s*", "", what)  # the table's name is on the next line
-            what = what[:1].upper() + what[1:]
-            lines += [f"# {row}" for row in textwrap.wrap(" ".join(what.split()), 96)]
+            lines += _comment(_purpose(model))
         key = line.split(" = ")[0]
         field = model.model_fields.get(key) if model is not None and " = " in line else None
         if field is not None and field.description:
-            lines += [f"# {row}" for row in textwrap.wrap(field.description, 96)]
+            lines += _comment(field.description)
         if section == "[errors]" and key in REALISTIC_ERRORS:
             value, source = REALISTIC_ERRORS[key]
             line += f"  # realistic: {value!r}, from {source}"
         lines.append(line)
     return "\n".join(lines) + "\n"
+
+
+def _comment(text: str) -> list[str]:
+    return [f"# {row}" for row in textwrap.wrap(" ".join(text.split()), 96)]
+
+
+def _purpose(model: type[BaseModel] | None) -> str:
+    """A table's model's docstring, its first sentence, without the table's name (on the next line)."""
+    first = (model.__doc__ or "").strip().split("\n\n")[0].split(". ")[0] if model is not None else ""
+    first = re.sub(r"^(A scenario's )?\[[\w.]+\]:?\s*", "", first)
+    return first[:1].upper() + first[1:]
 
 
 _NUMBER_ARRAY = re.compile(r"\[\n((?: +[^\[\]\n]+,\n)+) *\]")
