@@ -9,8 +9,8 @@ from __future__ import annotations
 import math
 import re
 import textwrap
-import typing
 import tomllib
+import typing
 from dataclasses import dataclass, field, fields
 from importlib import resources
 from pathlib import Path

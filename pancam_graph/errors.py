@@ -36,8 +36,8 @@ class GeodesyError(PancamGraphError):
 
 
 class ProcessDied(PancamGraphError):
-    """A process of the run's own (a worker, a call apart) ended without an answer: killed, out of
-    memory, or a crash inside a library."""
+    """A call in a process apart (`runtime.processes.call_apart`) ended without an answer: the
+    process was killed, ran out of memory, or crashed inside a library."""
 
 
 class FrontendError(PancamGraphError):

@@ -106,6 +106,8 @@ class FieldRenderer:
         self.panels = panels
         self.camera = camera
         self.bits = _marker_bits(sum(p.cols * p.rows for p in panels))
+        # each panel's normal and axes, three columns a panel: what a ray's direction is multiplied by
+        self.panel_axes = np.column_stack([v for panel in panels for v in (panel.normal, panel.a, panel.b)])
         s = SUPERSAMPLES
         offsets = (np.arange(s) + 0.5) / s - 0.5
         u = (np.arange(camera.width)[:, None] + offsets[None, :]).ravel()
@@ -137,7 +139,7 @@ class FieldRenderer:
         panel's normal and axes) is one product of the rays with a small matrix, so no direction or
         hit point is formed per ray."""
         rotation, centre = field_T_camera[:3, :3], field_T_camera[:3, 3]
-        axes = np.column_stack([v for panel in self.panels for v in (panel.normal, panel.a, panel.b)])
+        axes = self.panel_axes
         # d . v for each panel's vectors, a row each (rows are contiguous: the loop reads them whole)
         along = (axes.T @ rotation[:, :2]) @ rays.T.astype(np.float64) + (rotation[:, 2] @ axes)[:, None]
         depth = np.full(len(rays), np.inf)

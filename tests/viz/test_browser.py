@@ -46,7 +46,7 @@ def test_the_printed_url_shows_the_traverse_live_in_a_headless_browser(tmp_path)
     # 50 km of dead reckoning, the time for the page to load and show it while the run goes on
     # (89 s alone on a quiet machine; the page showed the traverse 45 s after the start; under
     # the suite's load the page was once slower than long_traverse's 15 s run). Without landmarks,
-    # sites or GPS its simulation takes 8 s, mission_traverse's 40 s.
+    # sites or GPS its URL comes 8 s after the start, mission_traverse's 43 s.
     scenario = load_scenario(resolve_scenario("mission_traverse"))
     drive_only = scenario.model_copy(update={
         "name": "drive_only", "sites": scenario.sites.model_copy(update={"enabled": False}),
