@@ -411,6 +411,10 @@ class _EstimatorCore(_Strict):
                             "it entered (bounded cost per stop on long traverses); inf: the whole traverse")
     configurations: dict[str, list[str]] = Field(default_factory=lambda: dict(DEFAULT_CONFIGURATIONS),
                                                  description="name -> measurement kinds (pancam_graph/kinds/)")
+    calibration: Literal["auto", "trusted", "estimated"] = Field(
+        "auto", description="the stereo pair's calibration: trusted as given, or estimated (every configuration "
+        "with sites gets stereo_calibration, with vo vo_scale); auto: estimated where a scenario's [errors] "
+        "profile is realistic, trusted elsewhere")
 
     @model_validator(mode="before")
     @classmethod
@@ -431,6 +435,17 @@ class _EstimatorCore(_Strict):
                 if isinstance(configurations, dict):  # else the field's own check names it
                     data["configurations"] = {name: _with_shared_scale(kinds)
                                               for name, kinds in configurations.items()}
+        return data
+
+    @model_validator(mode="before")
+    @classmethod
+    def _estimated_calibration(cls, data):
+        """An estimated calibration adds its kinds to the configurations that can take them."""
+        if isinstance(data, dict) and data.get("calibration") == "estimated":
+            configurations = data.get("configurations", DEFAULT_CONFIGURATIONS)
+            if isinstance(configurations, dict):  # else the field's own check names it
+                data = {**data, "configurations": {name: _with_calibration(kinds)
+                                                   for name, kinds in configurations.items()}}
         return data
 
     @model_validator(mode="before")
@@ -588,6 +603,17 @@ class _ScenarioCore(_Strict):
     render: RenderConfig = RenderConfig()
     errors: SimulationErrors = SimulationErrors()
 
+    @model_validator(mode="before")
+    @classmethod
+    def _realistic_estimator(cls, data):
+        """A realistic [errors] profile: the estimator estimates the calibration, unless it says."""
+        if isinstance(data, dict) and isinstance(data.get("errors"), dict) and \
+                data["errors"].get("profile") == "realistic":
+            estimator = data.get("estimator", {})
+            if isinstance(estimator, dict) and estimator.get("calibration", "auto") == "auto":
+                data = {**data, "estimator": {**estimator, "calibration": "estimated"}}
+        return data
+
     @model_validator(mode="after")
     def _kinds_rules(self) -> _ScenarioCore:
         """Each kind's own rules for a scenario (Kind.check_scenario: GPS on Mars, the sun's planet)."""
@@ -606,6 +632,15 @@ def _describe(err: dict) -> str:
     got = err.get("input")
     got_text = f" (got {_shortened(repr(got))})" if got is not None and not isinstance(got, dict) else ""
     return f"field '{field}': {err['msg'].removeprefix('Value error, ')}{got_text}"
+
+
+def _with_calibration(kinds):
+    if not isinstance(kinds, list | tuple):
+        return kinds
+    kinds = list(kinds)
+    if "sites" in kinds and "stereo_calibration" not in kinds:
+        kinds.append("stereo_calibration")
+    return _with_shared_scale(kinds)
 
 
 def _with_shared_scale(kinds):

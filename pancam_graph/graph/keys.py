@@ -1,12 +1,13 @@
 """Variable keys: X(i) rover body pose at stop i, L(j) landmark with track id j, T(j) rover body
 pose at the time of a measurement between two stops (j counts them), S(k) a scalar a kind shares
 across the traverse (the wheel slip, the VO scale, a map's bias: handed out by `shared`), E(k) an
-error two neighbouring sites' orbital registrations share (a 4-vector)."""
+error two neighbouring sites' orbital registrations share (a 4-vector), C(k) a vector a kind
+shares across the traverse (the stereo pair's calibration error, C(0))."""
 
 import gtsam
-from gtsam.symbol_shorthand import E, L, S, T, X
+from gtsam.symbol_shorthand import C, E, L, S, T, X
 
-__all__ = ["E", "L", "S", "T", "X", "shared", "shared_blocks", "subset", "value_type"]
+__all__ = ["C", "E", "L", "S", "T", "X", "shared", "shared_blocks", "subset", "value_type"]
 
 _SHARED: dict[str, range] = {}  # owner -> its block of S indices, in the order they were asked for
 
@@ -32,7 +33,7 @@ def shared_blocks() -> dict[str, range]:
 
 _VALUE_TYPE = {gtsam.Symbol(X(0)).chr(): "Pose3", gtsam.Symbol(T(0)).chr(): "Pose3",
                gtsam.Symbol(L(0)).chr(): "Point3", gtsam.Symbol(S(0)).chr(): "Double",
-               gtsam.Symbol(E(0)).chr(): "Vector"}
+               gtsam.Symbol(E(0)).chr(): "Vector", gtsam.Symbol(C(0)).chr(): "Vector"}
 
 
 def value_type(key: int) -> str:

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import GraphError
 from .frozen import FrozenRows, row_of, value_of
-from .keys import E, L, S, T, X
+from .keys import C, E, L, S, T, X
 from .update_log import Rebuild, UpdateLog
 
 # The window moves in steps of half its length: each step's update re-eliminates the window,
@@ -38,7 +38,8 @@ class RelinearizeThresholds:
         thresholds = gtsam.ISAM2ThresholdMap()
         pose = np.r_[np.full(3, self.rotation_rad), np.full(3, self.translation_m)]  # GTSAM: rotation first
         for symbol, vector in ((X, pose), (T, pose), (L, np.full(3, self.translation_m)),
-                               (S, np.full(1, self.scalar)), (E, np.full(4, self.scalar))):
+                               (S, np.full(1, self.scalar)), (E, np.full(4, self.scalar)),
+                               (C, np.full(4, self.scalar))):
             thresholds.insert((chr(gtsam.Symbol(symbol(0)).chr()), vector))
         return thresholds
 

@@ -28,6 +28,8 @@ from ..records import GroundTruth, Stop, Traverse
 NO_TIE_LINKS = np.zeros((0, 2), dtype=np.int64)  # (track, site stop) rows: a kind that ties nothing
 # (key_a, key_b, a_T_b, covariance) -> factor: a motion step's between factor
 MotionFactor = Callable[[int, int, gtsam.Pose3, np.ndarray], gtsam.NonlinearFactor]
+# (stop key, landmark key, uvv, camera, body_T_left, noise) -> factor: a site's stereo view
+SiteStereoFactor = Callable[[int, int, np.ndarray, tuple, np.ndarray, tuple], gtsam.NonlinearFactor]
 
 _REGISTRY: dict[str, type[Kind]] = {}
 
@@ -61,6 +63,7 @@ class Host(Protocol):
     previous_stop: Stop | None
     bridged_stops: int
     rng: np.random.Generator
+    site_stereo_factor: SiteStereoFactor | None  # a kind's (builds_site_stereo), or None: factors.stereo
 
     def kind(self, name: str) -> Kind: ...
 
@@ -92,6 +95,8 @@ class Kind:
     # The motion whose between factors it builds instead of the plain ones (motion_factor):
     # "odometry" (every dead-reckoning step, bridges of VO included) or "vo" (every VO step).
     builds_motion: ClassVar[str | None] = None
+    # Whether it builds the sites' stereo views' factors instead of the plain ones (site_stereo_factor).
+    builds_site_stereo: ClassVar[bool] = False
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)
@@ -176,6 +181,12 @@ class Kind:
     def motion_factor(self) -> MotionFactor | None:
         """The factor builder for `builds_motion`'s steps: (key_a, key_b, a_T_b, covariance) ->
         factor, with this kind's shared variables in it."""
+        return None
+
+    def site_stereo_factor(self) -> SiteStereoFactor | None:
+        """The factor builder of a site's stereo view when `builds_site_stereo`: (stop key,
+        landmark key, (u_left, u_right, v), camera (fx, fy, cx, cy, baseline), body_T_left 4x4,
+        noise (kernel, sigma_px, k)) -> factor, plain arguments a checkpoint can pickle."""
         return None
 
     def update_before(self, stop: Stop) -> str | None:

@@ -138,6 +138,9 @@ class Sites(Kind):
         self.tie_noise = noise.robust(settings.kernel, noise.stereo_pixels(self.sigma_px),
                                       est.kernel_k(settings.kernel))
         self.stereo_calibration = self.rig.stereo_calibration()
+        wac = self.rig.wac
+        self.camera = (wac.fx, wac.fy, wac.cx, wac.cy, self.rig.baseline_m)
+        self.noise_recipe = (settings.kernel, self.sigma_px, est.kernel_k(settings.kernel))
         self.sites: list[SiteObservations] = []
         self.landmark_ids = TrackIds()
         # (track, site stop) of every stereo view of a landmark, as they came: two columns, not a
@@ -264,9 +267,15 @@ class Sites(Kind):
             if seen is None or not self._agrees(self.references[track], site.stop, seen):
                 self.rejected_tie_views += 1
                 stereo = ()
+        build = self.loc.site_stereo_factor
         for mount, uvv in stereo:
-            self.loc.smoother.add(factors.stereo(site.stop, track, uvv, self.stereo_calibration, mount,
-                                                 self.tie_noise))
+            if build is None:
+                self.loc.smoother.add(factors.stereo(site.stop, track, uvv, self.stereo_calibration, mount,
+                                                     self.tie_noise))
+            else:  # a kind's factor with its shared variables (a Python CustomFactor: its recipe too)
+                arguments = (X(site.stop), L(track), np.asarray(uvv, dtype=float), self.camera, mount.matrix(),
+                             self.noise_recipe)
+                self.loc.smoother.add(build(*arguments), rebuild=(build, arguments))
         if stereo:
             self._view_tracks.append(track)
             self._view_stops.append(site.stop)

@@ -131,7 +131,8 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
         wheel_slip=SlipPrior(dr_cfg.wheel_slip_mean, dr_cfg.wheel_slip_bias_sigma),
     )
     truth = GroundTruth(world_T_body=poses, landmarks=landmarks, wheel_slip=float(traverse_slip),
-                        terrain=terrain.height)
+                        terrain=terrain.height,
+                        kinds={} if true_rig is None else {"stereo_calibration": true_rig.state()})
     return _with_kind_measurements(scenario, traverse, truth, seed)
 
 

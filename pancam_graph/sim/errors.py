@@ -21,6 +21,7 @@ import numpy as np
 
 from ..config import SimulationErrors
 from ..geometry.rig import Camera, Rig
+from ..kinds.stereo_calibration import NAMES as CALIBRATION_NAMES
 from ..records import HrcFrame, PanoramaFrame, StereoObservations, Stop
 
 CALIBRATION_STREAM, POINTING_STREAM, TIES_STREAM = 31, 32, 33
@@ -58,6 +59,12 @@ class TrueRig:
         baseline = rig.baseline_m * (1.0 + rng.normal(0.0, errors.baseline_scale_sigma))
         rotation = gtsam.Rot3.Expmap(rng.normal(0.0, np.deg2rad(errors.boresight_sigma_deg), 3)).matrix()
         return cls(left, right, baseline, rotation)
+
+    def state(self) -> dict[str, float]:
+        """The error as the stereo_calibration kind estimates it: the right camera's rotation
+        vector (rad, left camera axes) and its focal ratio to the left one's, less 1."""
+        rotation = gtsam.Rot3.Logmap(gtsam.Rot3(self.left_R_right))
+        return dict(zip(CALIBRATION_NAMES, (*map(float, rotation), self.right.fx / self.left.fx - 1.0), strict=True))
 
     def observe(self, p_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(u, v) in the left image and u in the right one of left-camera points, through the

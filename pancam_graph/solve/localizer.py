@@ -95,6 +95,8 @@ class Localizer:
         # (wheel slip, VO scale: Kind.builds_motion); None: the motion's own between factor.
         self.odometry_factor = self._motion_factor("odometry")
         self.vo_factor = self._motion_factor("vo")
+        builders = [kind for kind in self.kinds.values() if kind.builds_site_stereo]
+        self.site_stereo_factor = builders[0].site_stereo_factor() if builders else None
 
     def _motion_factor(self, motion: str) -> MotionFactor | None:
         builders = [kind for kind in self.kinds.values() if kind.builds_motion == motion]
