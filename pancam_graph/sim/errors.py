@@ -60,11 +60,13 @@ class TrueRig:
         rotation = gtsam.Rot3.Expmap(rng.normal(0.0, np.deg2rad(errors.boresight_sigma_deg), 3)).matrix()
         return cls(left, right, baseline, rotation)
 
-    def state(self) -> dict[str, float]:
+    def state(self, calibrated: Camera) -> dict[str, float]:
         """The error as the stereo_calibration kind estimates it: the right camera's rotation
-        vector (rad, left camera axes) and its focal ratio to the left one's, less 1."""
+        vector (rad, left camera axes), its focal ratio to the left one's less 1, and the left
+        one's to the `calibrated` camera's less 1."""
         rotation = gtsam.Rot3.Logmap(gtsam.Rot3(self.left_R_right))
-        return dict(zip(CALIBRATION_NAMES, (*map(float, rotation), self.right.fx / self.left.fx - 1.0), strict=True))
+        return dict(zip(CALIBRATION_NAMES, (*map(float, rotation), self.right.fx / self.left.fx - 1.0,
+                                            self.left.fx / calibrated.fx - 1.0), strict=True))
 
     def observe(self, p_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(u, v) in the left image and u in the right one of left-camera points, through the
