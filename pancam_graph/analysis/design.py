@@ -205,9 +205,10 @@ def optimal_fov(rig: AnalysisRig, a: Assumptions, hrc: bool = False) -> float:
     return float(refined.x)
 
 
-def max_site_spacing(rig: AnalysisRig, a: Assumptions, fov_deg: float, hrc: bool = False) -> float:
+def max_site_spacing(rig: AnalysisRig, a: Assumptions, fov_deg: float, hrc: bool = False,
+                     model: TransformModel | None = None) -> float:
     """The longest spacing (m) whose relative error stays at the target (1 %)."""
-    excess = lambda d: two_site_ba(rig, a, d, fov_deg, hrc).relative_error - a.relative_error_target  # noqa: E731
+    excess = lambda d: two_site_ba(rig, a, d, fov_deg, hrc, model).relative_error - a.relative_error_target  # noqa: E731
     lo, hi = 0.5, 5000.0
     if excess(lo) > 0:
         return 0.0

@@ -246,12 +246,15 @@ def analyze_command(
         progress=lambda done, total: report("rigs", done, total)))
     rows, assumptions, written = outcome.rows, outcome.assumptions, outcome.files
     table = Table(title=f"two-site BA, {assumptions.tie_points} tie points, sigma {sigma_px} px")
-    for column in ("rig", "optimal FOV deg", "FOV, 16 tie points", "max spacing for 1 % (m)", "dissertation (m)"):
+    for column in ("rig", "optimal FOV deg", "FOV, 16 tie points", "max spacing for 1 % (m)", "dissertation (m)",
+                   "simulated BA there %", "rigid model there %"):
         table.add_column(column, justify="right")
     for row in rows:
         seed = SEED_TABLE_3_2.get(row.name, {}).get("max_site_spacing_m", "-")
+        check = row.two_site_check
+        simulated = ("-", "-") if check is None else (f"{100 * check.simulated:.2f}", f"{100 * check.predicted_rigid:.2f}")
         table.add_row(row.name, f"{row.optimal_fov_deg:.0f}", f"{row.optimal_fov_16_deg:.0f}",
-                      f"{row.max_site_spacing_m:.1f}", str(seed))
+                      f"{row.max_site_spacing_m:.1f}", str(seed), *simulated)
     console.print(table)
     console.print(f"{len(written)} files in {out} ({time.perf_counter() - start:.1f} s); "
                   f"assumptions and notes in {out / 'table_3_2.md'}")

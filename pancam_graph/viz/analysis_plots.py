@@ -88,15 +88,21 @@ def table_markdown(rows: list[RigAnalysis], a: Assumptions) -> str:
     """Table 3.2 with the dissertation's figures beside ours, and the assumptions."""
     lines = ["# Two-site BA: longest site spacing for 1 % relative error (cf. the dissertation's Table 3.2)", "",
              "| rig | B (m) | f (px) | optimal FOV (deg) | dissertation | FOV, 16 tie points | max spacing (m) "
-             "| dissertation | ours / dissertation |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| dissertation | ours / dissertation | simulated BA there (%) | rigid model there (%) "
+             "| rigid: max spacing (m) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
         seed = SEED_TABLE_3_2.get(row.name, {})
         b, f = (row.rig.hrc_baseline_m, row.rig.hrc_focal_px) if row.hrc else (row.rig.baseline_m, row.rig.focal_px)
         ratio = f"{row.max_site_spacing_m / seed['max_site_spacing_m']:.2f}" if seed else "-"
+        check = row.two_site_check
+        simulated = "-" if check is None else "{:.2f} ({:.2f}-{:.2f})".format(
+            100 * check.simulated, *(100 * x for x in check.simulated_interval()))
+        rigid = "-" if check is None else f"{100 * check.predicted_rigid:.2f}"
+        rigid_spacing = "-" if row.rigid_max_site_spacing_m is None else f"{row.rigid_max_site_spacing_m:.1f}"
         lines.append(f"| {row.name} | {b:g} | {f:.0f} | {row.optimal_fov_deg:.0f} | {seed.get('optimal_fov_deg', '-')} "
                      f"| {row.optimal_fov_16_deg:.0f} | {row.max_site_spacing_m:.1f} "
-                     f"| {seed.get('max_site_spacing_m', '-')} | {ratio} |")
+                     f"| {seed.get('max_site_spacing_m', '-')} | {ratio} | {simulated} | {rigid} | {rigid_spacing} |")
     lines += ["", "## Assumptions (the same for every rig)", ""]
     lines += [f"- `{k}`: {v}" for k, v in a.as_dict().items()]
     lines += ["", "## Notes", ""] + [f"- {note}" for note in analysis_document(rows, a)["notes"]]
