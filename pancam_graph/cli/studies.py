@@ -252,7 +252,8 @@ def analyze_command(
     for row in rows:
         seed = SEED_TABLE_3_2.get(row.name, {}).get("max_site_spacing_m", "-")
         check = row.two_site_check
-        simulated = ("-", "-") if check is None else (f"{100 * check.simulated:.2f}", f"{100 * check.predicted_rigid:.2f}")
+        simulated = ("-", "-") if check is None else (f"{100 * check.simulated:.2f}",
+                                                      f"{100 * check.predicted_rigid:.2f}")
         table.add_row(row.name, f"{row.optimal_fov_deg:.0f}", f"{row.optimal_fov_16_deg:.0f}",
                       f"{row.max_site_spacing_m:.1f}", str(seed), *simulated)
     console.print(table)
