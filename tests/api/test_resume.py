@@ -29,9 +29,10 @@ def _run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run([str(EXE), *args], cwd=cwd, capture_output=True, text=True, timeout=300, env=ENV)
 
 
-def _start_until_first_checkpoint(tmp_path: Path, past_stop: int = 0, *options: str) -> subprocess.Popen:
+def _start_until_first_checkpoint(tmp_path: Path, past_stop: int = 0, *options: str,
+                                 source: str = "short_trail") -> subprocess.Popen:
     """A run of short_trail saving at every checkpoint, once it has saved a state past `past_stop`."""
-    run = subprocess.Popen([str(EXE), "run", "short_trail", "--out", "res", "--quiet", "--checkpoint-every", "0",
+    run = subprocess.Popen([str(EXE), "run", source, "--out", "res", "--quiet", "--checkpoint-every", "0",
                             *options],
                            cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=ENV)
     state = tmp_path / "res.partial" / "checkpoint" / "state.pkl"
@@ -63,6 +64,28 @@ def test_a_killed_run_resumes_to_the_same_estimate(tmp_path):
         a, b = (read_tum(tmp_path / folder / f"trajectory_{name}.tum") for folder in ("whole", "res"))
         assert len(b.times_s) == stops
         np.testing.assert_array_equal(a.world_T_body, b.world_T_body)
+
+
+def test_a_killed_run_with_the_estimated_calibration_resumes_to_the_same_estimate(tmp_path):
+    """The stereo_calibration kind's views are Python factors, made again from their recipes."""
+    from pancam_graph.config import resolve_scenario
+
+    scenario = tmp_path / "realistic.toml"
+    scenario.write_text(resolve_scenario("short_trail").read_text() + '\n[errors]\nprofile = "realistic"\n')
+    whole = _run("run", "realistic.toml", "--configs", "vo_sites", "--out", "whole", "--quiet", cwd=tmp_path)
+    assert whole.returncode == 0, whole.stderr
+    killed = _start_until_first_checkpoint(tmp_path, 60, "--configs", "vo_sites", source="realistic.toml")
+    assert killed.poll() is None, "the run ended before it could be killed"
+    os.kill(killed.pid, signal.SIGKILL)
+    killed.wait()
+    _, [saved] = read_checkpoint(tmp_path / "res.partial")
+    assert "stereo_calibration" in saved.localizers["vo_sites"].kinds
+    sites_before = sum(stop.is_site for stop in saved.localizers["vo_sites"].traverse.stops[:saved.next_stop])
+    assert sites_before >= 2  # calibrated views in the checkpoint's log
+    resumed = _run("run", "--resume", "res.partial", "--quiet", cwd=tmp_path)
+    assert resumed.returncode == 0, resumed.stderr
+    a, b = (read_tum(tmp_path / folder / "trajectory_vo_sites.tum") for folder in ("whole", "res"))
+    np.testing.assert_array_equal(a.world_T_body, b.world_T_body)
 
 
 def test_a_live_runs_folder_cannot_be_resumed(tmp_path):
