@@ -17,7 +17,7 @@ from ..graph.frozen import pose_matrices
 from ..graph.keys import L, T, X
 from ..graph.smoother import RelinearizeThresholds, Smoother
 from ..kinds import KINDS, STEP_COUNTERS, Kind, absolute, uses_vo
-from ..kinds.base import NO_TIE_LINKS, MotionFactor, StepCounts
+from ..kinds.base import NO_TIE_LINKS, MotionFactor, SiteStereoFactor, StepCounts
 from ..records import GroundTruth, Stop, Traverse
 from ..runtime.spill import Column
 
@@ -95,8 +95,7 @@ class Localizer:
         # (wheel slip, VO scale: Kind.builds_motion); None: the motion's own between factor.
         self.odometry_factor = self._motion_factor("odometry")
         self.vo_factor = self._motion_factor("vo")
-        builders = [kind for kind in self.kinds.values() if kind.builds_site_stereo]
-        self.site_stereo_factor = builders[0].site_stereo_factor() if builders else None
+        self.site_stereo_factor = self._site_stereo_factor()
 
     def _motion_factor(self, motion: str) -> MotionFactor | None:
         builders = [kind for kind in self.kinds.values() if kind.builds_motion == motion]
@@ -104,6 +103,13 @@ class Localizer:
             raise ConfigError(f"configuration {'+'.join(self.kind_names)}: kinds "
                               f"{' and '.join(k.name for k in builders)} both build the {motion} steps' factors")
         return builders[0].motion_factor() if builders else None
+
+    def _site_stereo_factor(self) -> SiteStereoFactor | None:
+        builders = [kind for kind in self.kinds.values() if kind.builds_site_stereo]
+        if len(builders) > 1:
+            raise ConfigError(f"configuration {'+'.join(self.kind_names)}: kinds "
+                              f"{' and '.join(k.name for k in builders)} both build the sites' stereo factors")
+        return builders[0].site_stereo_factor() if builders else None
 
     def kind(self, name: str) -> Kind:
         if name not in self.kinds:
