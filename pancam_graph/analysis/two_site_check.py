@@ -13,6 +13,7 @@ spacing, differ (docs/error_analysis.md)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import gtsam
 import numpy as np
@@ -37,6 +38,7 @@ class TwoSiteCheck:
         """The trials' relative error: DRMS of site 2's error over the spacing."""
         return float(np.sqrt(np.mean(np.sum(self.errors_m**2, axis=1))) / self.spacing_m)
 
+    @cached_property
     def simulated_interval(self) -> tuple[float, float]:
         """A 95 % interval of `simulated` (bootstrap over the trials, fixed seed)."""
         rng = np.random.default_rng(0)
@@ -46,7 +48,7 @@ class TwoSiteCheck:
         return float(np.quantile(rms, 0.025)), float(np.quantile(rms, 0.975))
 
     def as_dict(self) -> dict:
-        low, high = self.simulated_interval()
+        low, high = self.simulated_interval
         return {"spacing_m": self.spacing_m, "fov_deg": self.fov_deg, "trials": self.trials,
                 "simulated_relative_error": self.simulated, "simulated_95_interval": [low, high],
                 "predicted_rigid": self.predicted_rigid, "predicted_dissertation": self.predicted_dissertation}

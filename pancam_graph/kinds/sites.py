@@ -135,12 +135,14 @@ class Sites(Kind):
         self.memory = settings.memory
         self.anchor_sigma_m = settings.anchor_sigma_m
         self.tie_points_per_site = settings.points_per_site
-        self.tie_noise = noise.robust(settings.kernel, noise.stereo_pixels(self.sigma_px),
-                                      est.kernel_k(settings.kernel))
+        # the tie noise as plain values too: a kind's Python factor (site_stereo_factor) is made
+        # again from them at a checkpoint, and from the camera's numbers
+        kernel_k = est.kernel_k(settings.kernel)
+        self.noise_recipe = (settings.kernel, self.sigma_px, kernel_k)
+        self.tie_noise = noise.robust(settings.kernel, noise.stereo_pixels(self.sigma_px), kernel_k)
         self.stereo_calibration = self.rig.stereo_calibration()
         wac = self.rig.wac
         self.camera = (wac.fx, wac.fy, wac.cx, wac.cy, self.rig.baseline_m)
-        self.noise_recipe = (settings.kernel, self.sigma_px, est.kernel_k(settings.kernel))
         self.sites: list[SiteObservations] = []
         self.landmark_ids = TrackIds()
         # (track, site stop) of every stereo view of a landmark, as they came: two columns, not a

@@ -17,7 +17,7 @@ from ..graph.frozen import pose_matrices
 from ..graph.keys import L, T, X
 from ..graph.smoother import RelinearizeThresholds, Smoother
 from ..kinds import KINDS, STEP_COUNTERS, Kind, absolute, uses_vo
-from ..kinds.base import NO_TIE_LINKS, MotionFactor, SiteStereoFactor, StepCounts
+from ..kinds.base import NO_TIE_LINKS, MotionFactor, StepCounts
 from ..records import GroundTruth, Stop, Traverse
 from ..runtime.spill import Column
 
@@ -95,21 +95,22 @@ class Localizer:
         # (wheel slip, VO scale: Kind.builds_motion); None: the motion's own between factor.
         self.odometry_factor = self._motion_factor("odometry")
         self.vo_factor = self._motion_factor("vo")
-        self.site_stereo_factor = self._site_stereo_factor()
+        # How a site's stereo view becomes a factor when a kind models the pair's calibration
+        # (Kind.builds_site_stereo); None: factors.stereo.
+        stereo = self._only_builder([k for k in self.kinds.values() if k.builds_site_stereo], "the sites' stereo")
+        self.site_stereo_factor = stereo.site_stereo_factor() if stereo else None
 
     def _motion_factor(self, motion: str) -> MotionFactor | None:
-        builders = [kind for kind in self.kinds.values() if kind.builds_motion == motion]
-        if len(builders) > 1:
-            raise ConfigError(f"configuration {'+'.join(self.kind_names)}: kinds "
-                              f"{' and '.join(k.name for k in builders)} both build the {motion} steps' factors")
-        return builders[0].motion_factor() if builders else None
+        builder = self._only_builder([k for k in self.kinds.values() if k.builds_motion == motion],
+                                     f"the {motion} steps'")
+        return builder.motion_factor() if builder else None
 
-    def _site_stereo_factor(self) -> SiteStereoFactor | None:
-        builders = [kind for kind in self.kinds.values() if kind.builds_site_stereo]
+    def _only_builder(self, builders: list[Kind], what: str) -> Kind | None:
+        """The one kind that builds `what` factors in place of the plain ones, or None."""
         if len(builders) > 1:
             raise ConfigError(f"configuration {'+'.join(self.kind_names)}: kinds "
-                              f"{' and '.join(k.name for k in builders)} both build the sites' stereo factors")
-        return builders[0].site_stereo_factor() if builders else None
+                              f"{' and '.join(k.name for k in builders)} both build {what} factors")
+        return builders[0] if builders else None
 
     def kind(self, name: str) -> Kind:
         if name not in self.kinds:

@@ -97,7 +97,7 @@ def table_markdown(rows: list[RigAnalysis], a: Assumptions) -> str:
         ratio = f"{row.max_site_spacing_m / seed['max_site_spacing_m']:.2f}" if seed else "-"
         check = row.two_site_check
         simulated = "-" if check is None else "{:.2f} ({:.2f}-{:.2f})".format(
-            100 * check.simulated, *(100 * x for x in check.simulated_interval()))
+            100 * check.simulated, *(100 * x for x in check.simulated_interval))
         rigid = "-" if check is None else f"{100 * check.predicted_rigid:.2f}"
         rigid_spacing = "-" if row.rigid_max_site_spacing_m is None else f"{row.rigid_max_site_spacing_m:.1f}"
         lines.append(f"| {row.name} | {b:g} | {f:.0f} | {row.optimal_fov_deg:.0f} | {seed.get('optimal_fov_deg', '-')} "

@@ -17,7 +17,7 @@ def test_the_simulated_adjustment_gives_the_rigid_closed_forms_error_at_table_3_
     rig, a = AnalysisRig.preset(name), Assumptions()
     fov = optimal_fov(rig, a)
     check = two_site_monte_carlo(rig, a, max_site_spacing(rig, a, fov), fov, trials=300, seed=1)
-    low, high = check.simulated_interval()
+    low, high = check.simulated_interval
     assert low <= check.predicted_rigid <= high
     assert check.predicted_dissertation == pytest.approx(a.relative_error_target, rel=1e-3)
     assert check.predicted_dissertation > high

@@ -31,7 +31,8 @@ def _run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 
 def _start_until_first_checkpoint(tmp_path: Path, past_stop: int = 0, *options: str,
                                  source: str = "short_trail") -> subprocess.Popen:
-    """A run of short_trail saving at every checkpoint, once it has saved a state past `past_stop`."""
+    """A run of `source` (short_trail) saving at every checkpoint, once it has saved a state past
+    `past_stop`."""
     run = subprocess.Popen([str(EXE), "run", source, "--out", "res", "--quiet", "--checkpoint-every", "0",
                             *options],
                            cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=ENV)
