@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import csv
 import io
 import json
@@ -44,6 +45,71 @@ class CsvTable:
             self.rows = [(line, row) for line, row in enumerate(reader, start=2) if row]
         except csv.Error as exc:  # e.g. a field over the csv module's 131,072 characters
             raise InputError(f"{path}: line {reader.line_num}: not a CSV row this reader takes ({exc})") from None
+
+    def where(self, keep: np.ndarray) -> CsvTable:
+        """The same table with only the rows where `keep` (a boolean per row) is true."""
+        subset = copy.copy(self)
+        subset.rows = [r for r, k in zip(self.rows, keep.tolist(), strict=True) if k]
+        return subset
+
+    def lines(self) -> np.ndarray:
+        """Each row's line in the file."""
+        return np.array([line for line, _ in self.rows], dtype=np.int64)
+
+    def check_widths(self) -> None:
+        """Every row has the required columns; the first short one is named as values() names it."""
+        need = max(self.index) + 1
+        short = next(((line, row) for line, row in self.rows if len(row) < need), None)
+        if short is not None:
+            self.values(*short)
+
+    def texts(self, column: str) -> list[str]:
+        """Every row's field of `column`: a required one (after check_widths), or an optional
+        one every row has."""
+        i = self.index[self.columns.index(column)] if column in self.columns else self.optional_index[column]
+        return [row[i] for _, row in self.rows]
+
+    def numbers(self, column: str) -> np.ndarray:
+        """Every row's `column` as a finite float, in file order (the rows' own check, number(),
+        names the first bad one)."""
+        return self._parsed(column, np.float64, np.isfinite, lambda line, text: self.number(line, column, text))
+
+    def pixels(self, column: str, extent: int) -> np.ndarray:
+        """Every row's `column` as a pixel coordinate along a side of `extent` px (see pixel())."""
+        return self._parsed(column, np.float64, lambda v: np.isfinite(v) & (v >= -extent) & (v <= 2 * extent),
+                            lambda line, text: self.pixel(line, column, text, extent))
+
+    def stops(self, n: int) -> np.ndarray:
+        """Every row's stop, each one of 0..n-1 (see stop())."""
+        return self._parsed("stop", np.int64, lambda k: (k >= 0) & (k < n), lambda line, text: self.stop(line, text, n))
+
+    def tracks(self) -> np.ndarray:
+        """Every row's track (see track())."""
+        return self._parsed("track", np.int64, lambda t: t >= 0, self.track)
+
+    def integers(self, column: str, low: int, high: int, outside: str) -> np.ndarray:
+        """Every row's `column` as an integer in low..high-1; one outside is refused with the
+        message `outside` ({value} in it is the row's value)."""
+        def one(line: int, text: str) -> int:
+            value = int(self.number(line, column, text, integer=True))
+            if not low <= value < high:
+                raise InputError(f"{self.path}: line {line}: " + outside.format(value=value))
+            return value
+
+        return self._parsed(column, np.int64, lambda v: (v >= low) & (v < high), one)
+
+    def _parsed(self, column: str, dtype, valid, one) -> np.ndarray:
+        """The column parsed by numpy at once; where numpy refuses a text or `valid` flags a
+        value, row by row with `one(line, text)`, which raises naming the first bad row (numpy
+        accepts no text Python's int() and float() refuse)."""
+        texts = self.texts(column)
+        try:
+            values = np.array(texts, dtype=dtype)
+            if np.all(valid(values)):
+                return values
+        except (ValueError, OverflowError):
+            pass
+        return np.array([one(line, text) for (line, _), text in zip(self.rows, texts, strict=True)], dtype=dtype)
 
     def values(self, line: int, row: list[str]) -> list[str]:
         if len(row) < max(self.index) + 1:

@@ -199,41 +199,73 @@ def _rig(folder: Path, source: RigSource) -> tuple[Rig, StereoCalibration | None
 
 def _read_stereo(path: Path, camera: Camera) -> tuple[list[float], list[float], list[StereoObservations]]:
     table = CsvTable(path, STEREO_COLUMNS, optional=["dwell_s"])
-    times: dict[int, float] = {}
-    dwells: dict[int, float] = {}
-    rows: dict[int, dict[int, list[float]]] = defaultdict(dict)  # stop: track: (u_left, u_right, v)
-    lines: dict[tuple[int, int], int] = {}  # (stop, track): its line
-    for line, row in table.rows:
-        stop, time_s, track, ul, ur, v = table.values(line, row)
-        k = int(table.number(line, "stop", stop, integer=True))
-        if not 0 <= k < _MAX_STOPS:
-            raise InputError(f"{path}: line {line}: stop {k} outside 0..{_MAX_STOPS - 1}")
-        t = table.number(line, "time_s", time_s)
-        if times.setdefault(k, t) != t:
-            raise InputError(f"{path}: line {line}: stop {k} has time {t}, earlier rows say {times[k]}")
-        dwell = table.optional_number(line, row, "dwell_s", 0.0)
-        if dwell < 0 or dwells.setdefault(k, dwell) != dwell:
-            raise InputError(f"{path}: line {line}: stop {k}: dwell_s must be >= 0 and the same on every row")
-        if track == "" and ul == "" and ur == "" and v == "":
-            continue
-        track = table.track(line, track)
-        if lines.setdefault((k, track), line) != line:
-            raise InputError(f"{path}: line {line}: stop {k} lists track {track} a second time")
-        rows[k][track] = [table.pixel(line, "u_left", ul, camera.width), table.pixel(line, "u_right", ur, camera.width),
-                          table.pixel(line, "v", v, camera.height)]
-    n = len(times)
-    missing = next((k for k in range(max(n, 1)) if k not in times), None)
-    if missing is not None:
+    table.check_widths()
+    lines = table.lines()
+    stop = table.integers("stop", 0, _MAX_STOPS, f"stop {{value}} outside 0..{_MAX_STOPS - 1}")
+    time_s = table.numbers("time_s")
+    first = _first_rows(stop)  # per row, the first row of its stop
+    if (bad := _first_true(time_s != time_s[first])) is not None:
+        raise InputError(f"{path}: line {lines[bad]}: stop {stop[bad]} has time {float(time_s[bad])}, earlier rows "
+                         f"say {float(time_s[first[bad]])}")
+    dwell = _optional_numbers(table, "dwell_s", 0.0)
+    if (bad := _first_true((dwell < 0) | (dwell != dwell[first]))) is not None:
+        raise InputError(f"{path}: line {lines[bad]}: stop {stop[bad]}: dwell_s must be >= 0 and the same on every "
+                         "row")
+    # a stop that saw nothing has one row with empty track and pixel fields
+    seen = np.array([any(t) for t in zip(*(table.texts(c) for c in ("track", "u_left", "u_right", "v")),
+                                         strict=True)], dtype=bool).reshape(-1)
+    observed = table.where(seen)
+    track = observed.tracks()
+    if (bad := _first_true(_first_rows(stop[seen], track) != np.arange(len(track)))) is not None:
+        raise InputError(f"{path}: line {lines[seen][bad]}: stop {stop[seen][bad]} lists track {track[bad]} a second "
+                         "time")
+    uvv = np.column_stack([observed.pixels("u_left", camera.width), observed.pixels("u_right", camera.width),
+                           observed.pixels("v", camera.height)]).reshape(-1, 3)
+    stops, at = np.unique(stop, return_index=True)
+    n = len(stops)
+    if n == 0 or stops[-1] != n - 1:
+        missing = next(k for k in range(max(n, 1)) if k >= n or stops[k] != k)
         raise InputError(f"{path}: stops must be numbered 0..N-1 with a row each; no row for stop {missing}")
-    observations = [StereoObservations(np.array(list(rows[k]), dtype=np.int64),
-                                       np.array(list(rows[k].values()), dtype=float).reshape(-1, 3))
-                    for k in range(n)]
-    ordered = [times[k] for k in range(n)]
+    by_stop = _rows_by_key(stop[seen], n)
+    observations = [StereoObservations(track[rows], uvv[rows]) for rows in by_stop]
+    ordered, dwells = time_s[at].tolist(), dwell[at].tolist()
     if any(b < a + dwells[k] for k, (a, b) in enumerate(zip(ordered[:-1], ordered[1:], strict=True))):
         k = next(k for k in range(n - 1) if ordered[k + 1] < ordered[k] + dwells[k])
         raise InputError(f"{path}: stop {k + 1} (t = {ordered[k + 1]} s) comes before stop {k} ends "
                          f"(t = {ordered[k]} s + dwell {dwells[k]} s): stop times must increase")
-    return ordered, [dwells[k] for k in range(n)], observations
+    return ordered, dwells, observations
+
+
+def _first_rows(*columns: np.ndarray) -> np.ndarray:
+    """Per row, the index of the first row with the same value in every one of `columns`."""
+    if len(columns[0]) == 0:
+        return np.zeros(0, dtype=np.int64)
+    keys = np.rec.fromarrays(columns)
+    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)  # stable: first occurrences
+    return first[inverse.reshape(-1)]
+
+
+def _first_true(flags: np.ndarray) -> int | None:
+    """The index of the first true flag, None when there is none."""
+    return int(np.argmax(flags)) if np.any(flags) else None
+
+
+def _rows_by_key(key: np.ndarray, n: int) -> list[np.ndarray]:
+    """For each key 0..n-1, the rows that have it, in file order."""
+    order = np.argsort(key, kind="stable")
+    return np.split(order, np.searchsorted(key[order], np.arange(1, n)))
+
+
+def _optional_numbers(table: CsvTable, column: str, default: float) -> np.ndarray:
+    """An optional column: `default` where the table has no such column or a row leaves it empty."""
+    i = table.optional_index.get(column)
+    if i is None:
+        return np.full(len(table.rows), default)
+    texts = [row[i] if i < len(row) else "" for _, row in table.rows]
+    filled = np.array([t != "" for t in texts], dtype=bool).reshape(-1)
+    values = np.full(len(texts), default)
+    values[filled] = table.where(filled).numbers(column)
+    return values
 
 
 def _read_frames_csv(path: Path) -> tuple[list[float], list[float], list[tuple[Path, Path]]]:
@@ -279,23 +311,22 @@ def _read_frames(table: CsvTable, n: int, measured: list[str], camera: Camera
                  ) -> dict[int, dict[tuple[float, float], tuple]]:
     """Rows grouped by stop and frame (pan_rad, tilt_rad), in file order: per frame the track ids
     and the `measured` pixel columns (u..., v) as an (N, len(measured)) array."""
-    grouped: dict[int, dict[tuple[float, float], dict[int, list]]] = defaultdict(dict)  # stop: frame: track: uv
-    lines: dict[tuple[int, float, float, int], int] = {}  # (stop, pan, tilt, track): its line (as _read_stereo)
-    for line, row in table.rows:
-        values = dict(zip(table.columns, table.values(line, row), strict=True))
-        k = table.stop(line, values["stop"], n)
-        key = (table.number(line, "pan_rad", values["pan_rad"]), table.number(line, "tilt_rad", values["tilt_rad"]))
-        track = table.track(line, values["track"])
-        first = lines.setdefault((k, *key, track), line)
-        if first != line:
-            raise InputError(f"{table.path}: line {line}: track {track} a second time in the frame at stop {k}, "
-                             f"pan {key[0]:g} rad, tilt {key[1]:g} rad (line {first}): one row per track and frame")
-        grouped[k].setdefault(key, {})[track] = [
-            table.pixel(line, c, values[c], camera.height if c == "v" else camera.width) for c in measured]
-    return {k: {key: (np.array(list(rows), dtype=np.int64),
-                      np.array(list(rows.values()), dtype=float).reshape(-1, len(measured)))
-                for key, rows in frames.items()}
-            for k, frames in grouped.items()}
+    table.check_widths()
+    stop, pan, tilt, track = table.stops(n), table.numbers("pan_rad"), table.numbers("tilt_rad"), table.tracks()
+    repeated = _first_rows(stop, pan, tilt, track)
+    if (bad := _first_true(repeated != np.arange(len(stop)))) is not None:
+        lines = table.lines()
+        raise InputError(f"{table.path}: line {lines[bad]}: track {track[bad]} a second time in the frame at stop "
+                         f"{stop[bad]}, pan {pan[bad]:g} rad, tilt {tilt[bad]:g} rad (line {lines[repeated[bad]]}): "
+                         "one row per track and frame")
+    uv = np.column_stack([table.pixels(c, camera.height if c == "v" else camera.width)
+                          for c in measured]).reshape(-1, len(measured))
+    frame = _first_rows(stop, pan, tilt)  # per row, the first row of its frame
+    frames: dict[int, dict[tuple[float, float], tuple]] = defaultdict(dict)
+    for rows in _rows_by_key(np.unique(frame, return_inverse=True)[1].reshape(-1), len(np.unique(frame))):
+        first = rows[0]  # frames in the order they first appear, each one's rows in file order
+        frames[int(stop[first])][(float(pan[first]), float(tilt[first]))] = (track[rows], uv[rows])
+    return frames
 
 
 def _read_panorama(path: Path, n: int, camera: Camera
@@ -304,16 +335,16 @@ def _read_panorama(path: Path, n: int, camera: Camera
         return {}, {}
     table = CsvTable(path, PANORAMA_COLUMNS)
     frames = _read_frames(table, n, ["u_left", "u_right", "v"], camera)  # validates every row first
-    sites: dict[int, tuple[int, int]] = {}  # stop: (site, first line)
-    for line, row in table.rows:
-        k, site = int(row[table.index[0]]), int(table.number(line, "site", row[table.index[1]], integer=True))
-        first_site, first_line = sites.setdefault(k, (site, line))
-        if site != first_site:
-            raise InputError(f"{path}: line {line}: site {site}, but line {first_line} puts stop {k} at site "
-                             f"{first_site}: a stop's panorama is of one site")
+    stop = table.stops(n)
+    site = table.integers("site", -2**63, 2**63, "site {value} outside the 64-bit integers")
+    first = _first_rows(stop)
+    if (bad := _first_true(site != site[first])) is not None:
+        lines = table.lines()
+        raise InputError(f"{path}: line {lines[bad]}: site {site[bad]}, but line {lines[first[bad]]} puts stop "
+                         f"{stop[bad]} at site {site[first[bad]]}: a stop's panorama is of one site")
     return {k: tuple(PanoramaFrame(pan, tilt, StereoObservations(tracks, uvv))
                      for (pan, tilt), (tracks, uvv) in by_frame.items())
-            for k, by_frame in frames.items()}, {k: site for k, (site, _) in sites.items()}
+            for k, by_frame in frames.items()}, {int(stop[r]): int(site[r]) for r in np.unique(first)}
 
 
 def _read_hrc(path: Path, n: int, camera: Camera) -> dict[int, tuple[HrcFrame, ...]]:
@@ -355,16 +386,11 @@ def _read_truth_landmarks(path: Path) -> np.ndarray:
     if not path.is_file():
         return np.zeros((0, 3))
     table = CsvTable(path, ["track", "x_m", "y_m", "z_m"])
-    rows = []
-    for line, row in table.rows:
-        track, x, y, z = table.values(line, row)
-        t = int(table.number(line, "track", track, integer=True))
-        if not 0 <= t < _MAX_TRACK:
-            raise InputError(f"{path}: line {line}: track {t} outside 0..{_MAX_TRACK - 1}")
-        rows.append((t, table.number(line, "x_m", x), table.number(line, "y_m", y), table.number(line, "z_m", z)))
-    points = np.full((max((r[0] for r in rows), default=-1) + 1, 3), np.nan)
-    for t, *p in rows:
-        points[t] = p
+    table.check_widths()
+    track = table.integers("track", 0, _MAX_TRACK, f"track {{value}} outside 0..{_MAX_TRACK - 1}")
+    xyz = np.column_stack([table.numbers(c) for c in ("x_m", "y_m", "z_m")]).reshape(-1, 3)
+    points = np.full((int(track.max(initial=-1)) + 1, 3), np.nan)
+    points[track] = xyz  # a track listed twice: its last row
     return points
 
 
