@@ -14,6 +14,7 @@ from pancam_graph.frontend.panorama import PanoramaMatcher, PanoramaView
 from pancam_graph.frontend.ties import TieMatcher, TieSettings
 from pancam_graph.render.scenario_images import render_scenario
 from pancam_graph.render.truth import RenderedTruth
+from pancam_graph.sim import simulate
 from pancam_graph.solve.pipeline import run
 from pancam_graph.solve.results import RunOptions
 from pancam_graph.sources import image_folder
@@ -43,6 +44,25 @@ def sites(tmp_path_factory):
                                         read_hrc=pairs.read_hrc)
     truth = RenderedTruth(SCENARIO, obs.seed, obs.truth.world_T_body, obs.traverse.rig.wac)
     return folder, obs, tracked, stops, report, truth
+
+
+def test_site_panoramas_and_hrc_frames_are_in_the_image_folder(sites):
+    import cv2
+
+    _, obs, _, _, _, _ = sites
+    traverse, _ = simulate(SCENARIO, obs.seed)
+    frames = obs.panorama_frames
+    assert sum(f.camera == "wac" for f in frames) == sum(len(s.panorama) for s in traverse.stops) == 3 * 24
+    assert sum(f.camera == "hrc" for f in frames) == sum(len(s.hrc) for s in traverse.stops) == 3 * 12
+    rig = obs.traverse.rig
+    assert rig.hrc is not None  # the preset's mast and HRC, with the calibrated pair
+    for f in frames:
+        assert traverse.stops[f.stop].site_id == f.site
+        image = cv2.imread(str(f.left), cv2.IMREAD_GRAYSCALE)
+        camera = rig.hrc if f.camera == "hrc" else rig.wac
+        assert image.shape == (camera.height, camera.width)
+        assert image[image.shape[0] // 2:].std() > 10  # textured ground, not a blank frame
+        assert (f.right is not None) == (f.camera == "wac")
 
 
 def test_tie_points_between_sites_are_the_same_ground(sites):

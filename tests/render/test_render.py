@@ -1,6 +1,7 @@
 """The renderer (the [render] extra): exact intrinsics, a lens and a misaligned pair that
-rectification undoes, site panoramas in the image folder, an image folder that the image
-front-end and the back-end run on, and bad frames named with nothing tracked lost."""
+rectification undoes, an image folder that the image front-end and the back-end run on, and
+bad frames named with nothing tracked lost. Site panoramas in the image folder:
+tests/frontend/test_site_ties.py, on its rendered strip."""
 
 
 import numpy as np
@@ -187,35 +188,6 @@ def test_the_run_keeps_the_front_ends_work_when_a_frame_stops_it(rendered, tmp_p
     assert len(read_observations(kept).traverse.stops) == 7
     again = CliRunner().invoke(app, ["run", str(kept), "--out", str(tmp_path / "kept"), "--quiet", "--configs", "vo"])
     assert again.exit_code == 0, again.output
-
-
-SITE_SCENARIO = SCENARIO.model_copy(update={
-    "name": "render_site",
-    "sites": SCENARIO.sites.model_copy(update={"enabled": True, "spacing_m": (20.0, 20.0),
-                                               "pan_range_deg": (-30.0, 30.0), "pan_step_deg": 30.0}),
-})
-
-
-def test_site_panoramas_and_hrc_frames_are_in_the_image_folder(tmp_path):
-    traverse, _ = simulate(SITE_SCENARIO, 0)
-    wac = sum(len(s.panorama) for s in traverse.stops)
-    hrc = sum(len(s.hrc) for s in traverse.stops)
-    assert wac >= 6 and hrc >= 1
-    render_scenario(SITE_SCENARIO, tmp_path / "site")
-    obs = read_observations(tmp_path / "site")
-    frames = obs.panorama_frames
-    assert sum(f.camera == "wac" for f in frames) == wac and sum(f.camera == "hrc" for f in frames) == hrc
-    import cv2
-
-    rig = obs.traverse.rig
-    assert rig.hrc is not None  # the preset's mast and HRC, with the calibrated pair
-    for f in frames:
-        assert traverse.stops[f.stop].site_id == f.site
-        image = cv2.imread(str(f.left), cv2.IMREAD_GRAYSCALE)
-        camera = rig.hrc if f.camera == "hrc" else rig.wac
-        assert image.shape == (camera.height, camera.width)
-        assert image[image.shape[0] // 2:].std() > 10  # textured ground, not a blank frame
-        assert (f.right is not None) == (f.camera == "wac")
 
 
 def test_bench_frontend_times_the_runs_own_loop_on_rendered_images(rendered):
