@@ -12,6 +12,7 @@ registration study (scripts/orbital_registration_study.py --images) compares the
 from __future__ import annotations
 
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import numpy as np
@@ -104,6 +105,17 @@ def elevation_map(points: np.ndarray, covariances: np.ndarray, cell_m: float = C
     return points[median], covariances[median]
 
 
+def _on_the_ground(view, disparity: np.ndarray, least: int, small_left: np.ndarray, camera: Camera,
+                   baseline_m: float, max_range_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """One pair's matched pixels in the body frame (N, 3), and their grey levels, out to
+    `max_range_m`."""
+    rows, cols = np.nonzero(disparity > least)  # the matched pixels only: the others have no point
+    p_cam = _triangulated(disparity, rows, cols, least, camera, baseline_m)
+    keep = (p_cam[:, 2] > MIN_RANGE_M) & (p_cam[:, 2] <= max_range_m)
+    rotation, shift = view.body_T_camera[:3, :3], view.body_T_camera[:3, 3]
+    return p_cam[keep] @ rotation.T + shift, small_left[rows[keep], cols[keep]].astype(np.float64)
+
+
 def ground_patch(views: Sequence, camera: Camera, baseline_m: float, max_range_m: float = 40.0,
                  cell_m: float = PATCH_CELL_M) -> GroundPatch | None:
     """A site's ground from above: every matched pixel of every rectified pair (a quarter of the
@@ -111,22 +123,24 @@ def ground_patch(views: Sequence, camera: Camera, baseline_m: float, max_range_m
     of the body frame's horizontal grid, as an orbiter's pixel averages the ground under it.
     None when no pair gives any."""
     positions, greys = [], []
-    for view in views:
-        disparity, least, small_left = _disparity(view.left, view.right, camera, baseline_m, max_range_m)
-        rows, cols = np.mgrid[:disparity.shape[0], :disparity.shape[1]]
-        p_cam = _triangulated(disparity, rows, cols, least, camera, baseline_m)
-        keep = (p_cam[:, 2] > MIN_RANGE_M) & (p_cam[:, 2] <= max_range_m)
-        rotation, shift = view.body_T_camera[:3, :3], view.body_T_camera[:3, 3]
-        positions.append(p_cam[keep] @ rotation.T + shift)
-        greys.append(small_left.ravel()[keep].astype(np.float64))
+    # the next pair matched (OpenCV, without the GIL) while this one is put on the ground (numpy)
+    with ThreadPoolExecutor(max_workers=1) as matcher:
+        matched = matcher.map(lambda v: _disparity(v.left, v.right, camera, baseline_m, max_range_m), views)
+        for view, (disparity, least, small_left) in zip(views, matched, strict=True):
+            positions_and_greys = _on_the_ground(view, disparity, least, small_left, camera, baseline_m, max_range_m)
+            positions.append(positions_and_greys[0])
+            greys.append(positions_and_greys[1])
     if not positions or not sum(len(p) for p in positions):
         return None
     points, grey = np.vstack(positions), np.concatenate(greys)
     ij = np.floor(points[:, :2] / cell_m).astype(np.int64)
     ij -= ij.min(axis=0)
-    # one integer per cell: np.unique on rows sorts them as structured records, ten times slower
-    cells, index = np.unique(ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1], return_inverse=True)
-    count = np.bincount(index, minlength=len(cells))
-    mean = np.column_stack([np.bincount(index, points[:, k], len(cells)) for k in range(3)]) / count[:, None]
-    return GroundPatch(mean.astype(np.float32), (np.bincount(index, grey, len(cells)) / count).astype(np.float32),
+    # one integer per cell of the patch's bounding grid (a few hundred thousand): counted by
+    # bincount, not sorted by np.unique (a fifth of the patch's time)
+    key = ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1]
+    count = np.bincount(key)
+    cells = np.flatnonzero(count)
+    count = count[cells]
+    mean = np.column_stack([np.bincount(key, points[:, k])[cells] for k in range(3)]) / count[:, None]
+    return GroundPatch(mean.astype(np.float32), (np.bincount(key, grey)[cells] / count).astype(np.float32),
                        count.astype(np.int32), cell_m)
