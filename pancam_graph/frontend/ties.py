@@ -214,14 +214,16 @@ class TieMatcher:
         samples^2 pixels; None when it leaves the image."""
         s, cam = self.s, self.camera
         g = ((np.arange(-half * s.samples, (half + 1) * s.samples) + 0.5) / s.samples - 0.5) * s.cell_m
-        gx, gy = np.meshgrid(g, g)
-        X = centre + gx[..., None] * e1 + gy[..., None] * e2
         camera_T = np.linalg.inv(frame_T_camera)
-        q = X.reshape(-1, 3) @ camera_T[:3, :3].T + camera_T[:3, 3]
-        if q[:, 2].min() <= 0.5:
+        rotation, shift = camera_T[:3, :3], camera_T[:3, 3]
+        # the grid point (x along e1, y along e2) in the camera, R (centre + x e1 + y e2) + t, one
+        # axis at a time: no (n, n, 3) arrays (the window's are 400 x 400 samples)
+        c, a1, a2 = rotation @ centre + shift, rotation @ e1, rotation @ e2
+        qx, qy, qz = (c[k] + g[None, :] * a1[k] + g[:, None] * a2[k] for k in range(3))
+        if qz.min() <= 0.5:
             return None
-        u = (cam.fx * q[:, 0] / q[:, 2] + cam.cx).reshape(gx.shape).astype(np.float32)
-        v = (cam.fy * q[:, 1] / q[:, 2] + cam.cy).reshape(gx.shape).astype(np.float32)
+        u = (cam.fx * qx / qz + cam.cx).astype(np.float32)
+        v = (cam.fy * qy / qz + cam.cy).astype(np.float32)
         if u.min() < 0 or v.min() < 0 or u.max() > cam.width - 1 or v.max() > cam.height - 1:
             return None
         fine = cv2.remap(image, u, v, cv2.INTER_LINEAR).astype(np.float32)

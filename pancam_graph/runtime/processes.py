@@ -16,9 +16,10 @@ import platform
 import threading
 import time
 import weakref
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
 from multiprocessing import forkserver
 from pathlib import Path
 from typing import TypeVar
@@ -65,6 +66,30 @@ def hold_malloc_thresholds() -> None:
     libc = ctypes.CDLL("libc.so.6")
     libc.mallopt(M_TRIM_THRESHOLD, MALLOC_THRESHOLD_BYTES)
     libc.mallopt(M_MMAP_THRESHOLD, MALLOC_THRESHOLD_BYTES)
+
+
+IMAGE_WORK_THRESHOLD_BYTES = 32 * 1024 * 1024  # glibc's own ceiling for its adaptive mmap threshold
+
+
+@contextmanager
+def heap_for_image_work() -> Iterator[None]:
+    """Blocks up to 32 MB from the heap while images are worked on (the image front-end), then
+    the held thresholds again and the heap's free memory handed back (malloc_trim). Images,
+    and OpenCV's and numpy's buffers around them, come and go thousands of times; at the held
+    128 kB threshold each is mapped afresh and every page of it faulted in and zeroed by the
+    kernel (docs/performance.md: a run from rendered short_trail images spent 28 of its 45 s in
+    the kernel). Elsewhere than glibc, nothing."""
+    if not _glibc():
+        yield
+        return
+    libc = ctypes.CDLL("libc.so.6")
+    libc.mallopt(M_MMAP_THRESHOLD, IMAGE_WORK_THRESHOLD_BYTES)
+    libc.mallopt(M_TRIM_THRESHOLD, 2 * IMAGE_WORK_THRESHOLD_BYTES)
+    try:
+        yield
+    finally:
+        hold_malloc_thresholds()
+        libc.malloc_trim(0)
 
 
 WATCH_EVERY_S = 0.2  # how often a worker looks for the run's process
