@@ -24,7 +24,6 @@ from ..records import Traverse
 from ..runtime.atomic import writing
 from ..runtime.processes import (
     cores,
-    heap_for_image_work,
     hold_malloc_thresholds,
     start_process_server,
     unguarded_script_call,
@@ -104,8 +103,7 @@ def open_data(source: str | Path, options: SourceOptions = SourceOptions(), out:
     (processes.call_apart)."""
     hold_malloc_thresholds()  # before the source's allocations
     try:
-        with heap_for_image_work():  # a source of images works on them here
-            data = open_source(str(source), options, progress, apart=(processes or cores()) > 1)
+        data = open_source(str(source), options, progress, apart=(processes or cores()) > 1)
     except FrameError as exc:
         raise _kept_frontend_work(exc, out) from None
     return _with_vo_error_model(data, vo_error_model)

@@ -79,17 +79,25 @@ def heap_for_image_work() -> Iterator[None]:
     128 kB threshold each is mapped afresh and every page of it faulted in and zeroed by the
     kernel (docs/performance.md: a run from rendered short_trail images spent 28 of its 45 s in
     the kernel). Elsewhere than glibc, nothing."""
+    global _image_work_depth
     if not _glibc():
         yield
         return
     libc = ctypes.CDLL("libc.so.6")
-    libc.mallopt(M_MMAP_THRESHOLD, IMAGE_WORK_THRESHOLD_BYTES)
-    libc.mallopt(M_TRIM_THRESHOLD, 2 * IMAGE_WORK_THRESHOLD_BYTES)
+    if _image_work_depth == 0:
+        libc.mallopt(M_MMAP_THRESHOLD, IMAGE_WORK_THRESHOLD_BYTES)
+        libc.mallopt(M_TRIM_THRESHOLD, 2 * IMAGE_WORK_THRESHOLD_BYTES)
+    _image_work_depth += 1
     try:
         yield
     finally:
-        hold_malloc_thresholds()
-        libc.malloc_trim(0)
+        _image_work_depth -= 1
+        if _image_work_depth == 0:  # the outermost image work is done (the front-end nests them)
+            hold_malloc_thresholds()
+            libc.malloc_trim(0)
+
+
+_image_work_depth = 0
 
 
 WATCH_EVERY_S = 0.2  # how often a worker looks for the run's process

@@ -12,6 +12,7 @@ import numpy as np
 from ..errors import FrameError, InputError
 from ..frontend.tracker import CameraMotion, StereoTracker
 from ..records import Stop, Traverse
+from ..runtime.processes import heap_for_image_work
 from .registry import SourceData
 
 # Reads stop k's (left, right) grayscale pair, rectified; raises InputError naming the file.
@@ -28,6 +29,11 @@ def track_frames(stops: Sequence[Stop], read_pair: ReadPair, tracker: StereoTrac
 
     A frame that cannot be read: with `skip_bad_frames` its stop gets no observations (the VO
     bridges it) and a note; otherwise FrameError, whose `partial` is `finish` of the stops before."""
+    with heap_for_image_work():
+        return _track(stops, read_pair, tracker, finish, skip_bad_frames, progress, camera_motion)
+
+
+def _track(stops, read_pair, tracker, finish, skip_bad_frames, progress, camera_motion) -> SourceData:
     tracked: list[Stop] = []
     notes: list[str] = []
     moved: np.ndarray | None = None  # the body's dead-reckoned motion since the last tracked frame

@@ -21,6 +21,7 @@ from ..frontend.panorama import PanoramaMatcher, PanoramaView, SitePanorama
 from ..frontend.ties import TieMatcher, TieResult
 from ..graph.tie_gate import RelativePose
 from ..records import HrcFrame, PanoramaFrame, StereoObservations, Stop
+from ..runtime.processes import heap_for_image_work
 
 if TYPE_CHECKING:
     from ..store.observation_folder import ObservationSet
@@ -95,6 +96,12 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
     with `read_hrc`, also the HRC frames' views of the site's features (its tie points
     included). A panorama frame that cannot be read stops with the message naming it, or with
     `skip_bad_frames` is left out of its panorama."""
+    with heap_for_image_work():
+        return _with_site_panoramas(obs, stops, read_pair, vo, frontend, skip_bad_frames, progress, read_hrc)
+
+
+def _with_site_panoramas(obs, stops, read_pair, vo, frontend, skip_bad_frames, progress, read_hrc
+                         ) -> tuple[list[Stop], SiteReport]:
     report = SiteReport()
     by_stop = {stop: images for stop, images in images_by_stop(obs).items() if stop < len(stops)}
     if not by_stop:
