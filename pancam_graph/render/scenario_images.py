@@ -21,6 +21,7 @@ from ..geometry.stereo_pair import StereoCalibration
 from ..kinds.orbital import Orbital, OrbitalSensor
 from ..orbital.maps import MapBias
 from ..records import GroundTruth, MapRaster, Traverse
+from ..runtime.processes import heap_for_image_work
 from ..sim import kind_rng, simulate
 from ..sim.world import dense_path
 from ..store.observation_manifest import PanoramaImage
@@ -46,6 +47,12 @@ def raw_stereo_pair(camera: Camera, baseline_m: float, config: RenderConfig) -> 
 def render_scenario(scenario: Scenario, folder: Path, seed: int | None = None,
                     progress: Callable[[str, int, int], None] | None = None) -> int:
     """Write the image folder; returns the number of images."""
+    with heap_for_image_work():
+        return _render_scenario(scenario, folder, seed, progress)
+
+
+def _render_scenario(scenario: Scenario, folder: Path, seed: int | None,
+                     progress: Callable[[str, int, int], None] | None) -> int:
     seed = scenario.seed if seed is None else seed
     config = scenario.render
     if progress is not None:
