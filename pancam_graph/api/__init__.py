@@ -22,12 +22,7 @@ from ..errors import ConfigError, FrameError, GeodesyError, RunInterrupted, View
 from ..evaluation.evaluate import Evaluation
 from ..records import Traverse
 from ..runtime.atomic import writing
-from ..runtime.processes import (
-    cores,
-    hold_malloc_thresholds,
-    start_process_server,
-    unguarded_script_call,
-)
+from ..runtime.processes import cores, hold_malloc_thresholds, start_process_server, unguarded_script_call
 from ..solve.group import ProgressCallback
 from ..solve.results import RunOptions, RunResult
 from ..solve.state import RunState

@@ -137,11 +137,16 @@ class CsvTable:
                              f"size ({extent} px) outside the image")
         return value
 
-    def optional_number(self, line: int, row: list[str], column: str, default: float) -> float:
+    def optional_numbers(self, column: str, default: float) -> np.ndarray:
+        """An optional column: `default` where the table has no such column or a row leaves it
+        empty, else as numbers() reads it."""
         i = self.optional_index.get(column)
-        if i is None or i >= len(row) or row[i] == "":
-            return default
-        return self.number(line, column, row[i])
+        if i is None:
+            return np.full(len(self.rows), default)
+        filled = np.array([i < len(row) and row[i] != "" for _, row in self.rows], dtype=bool).reshape(-1)
+        values = np.full(len(self.rows), default)
+        values[filled] = self.where(filled).numbers(column)
+        return values
 
     def stops_and_numbers(self, n: int) -> Iterator[tuple[int, int, list[float]]]:
         """(line, stop, numbers) of a table whose first column is a stop and the rest are numbers."""

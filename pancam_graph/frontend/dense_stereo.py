@@ -127,9 +127,9 @@ def ground_patch(views: Sequence, camera: Camera, baseline_m: float, max_range_m
     with ThreadPoolExecutor(max_workers=1) as matcher:
         matched = matcher.map(lambda v: _disparity(v.left, v.right, camera, baseline_m, max_range_m), views)
         for view, (disparity, least, small_left) in zip(views, matched, strict=True):
-            positions_and_greys = _on_the_ground(view, disparity, least, small_left, camera, baseline_m, max_range_m)
-            positions.append(positions_and_greys[0])
-            greys.append(positions_and_greys[1])
+            placed, grey = _on_the_ground(view, disparity, least, small_left, camera, baseline_m, max_range_m)
+            positions.append(placed)
+            greys.append(grey)
     if not positions or not sum(len(p) for p in positions):
         return None
     points, grey = np.vstack(positions), np.concatenate(greys)

@@ -73,12 +73,12 @@ IMAGE_WORK_THRESHOLD_BYTES = 32 * 1024 * 1024  # glibc's own ceiling for its ada
 
 @contextmanager
 def heap_for_image_work() -> Iterator[None]:
-    """Blocks up to 32 MB from the heap while images are worked on (the image front-end), then
-    the held thresholds again and the heap's free memory handed back (malloc_trim). Images,
-    and OpenCV's and numpy's buffers around them, come and go thousands of times; at the held
-    128 kB threshold each is mapped afresh and every page of it faulted in and zeroed by the
-    kernel (docs/performance.md: a run from rendered short_trail images spent 28 of its 45 s in
-    the kernel). Elsewhere than glibc, nothing."""
+    """Blocks up to 32 MB from the heap while images are worked on (the image front-end,
+    rendering), then the held thresholds again and the heap's free memory handed back
+    (malloc_trim). Images, and OpenCV's and numpy's buffers around them, come and go thousands
+    of times; at the held 128 kB threshold each is mapped afresh and every page of it faulted in
+    and zeroed by the kernel (docs/performance.md: a run from rendered short_trail images spent
+    28 of its 45 s in the kernel). Elsewhere than glibc, nothing."""
     global _image_work_depth
     if not _glibc():
         yield

@@ -207,7 +207,7 @@ def _read_stereo(path: Path, camera: Camera) -> tuple[list[float], list[float], 
     if (bad := _first_true(time_s != time_s[first])) is not None:
         raise InputError(f"{path}: line {lines[bad]}: stop {stop[bad]} has time {float(time_s[bad])}, earlier rows "
                          f"say {float(time_s[first[bad]])}")
-    dwell = _optional_numbers(table, "dwell_s", 0.0)
+    dwell = table.optional_numbers("dwell_s", 0.0)
     if (bad := _first_true((dwell < 0) | (dwell != dwell[first]))) is not None:
         raise InputError(f"{path}: line {lines[bad]}: stop {stop[bad]}: dwell_s must be >= 0 and the same on every "
                          "row")
@@ -254,18 +254,6 @@ def _rows_by_key(key: np.ndarray, n: int) -> list[np.ndarray]:
     """For each key 0..n-1, the rows that have it, in file order."""
     order = np.argsort(key, kind="stable")
     return np.split(order, np.searchsorted(key[order], np.arange(1, n)))
-
-
-def _optional_numbers(table: CsvTable, column: str, default: float) -> np.ndarray:
-    """An optional column: `default` where the table has no such column or a row leaves it empty."""
-    i = table.optional_index.get(column)
-    if i is None:
-        return np.full(len(table.rows), default)
-    texts = [row[i] if i < len(row) else "" for _, row in table.rows]
-    filled = np.array([t != "" for t in texts], dtype=bool).reshape(-1)
-    values = np.full(len(texts), default)
-    values[filled] = table.where(filled).numbers(column)
-    return values
 
 
 def _read_frames_csv(path: Path) -> tuple[list[float], list[float], list[tuple[Path, Path]]]:
