@@ -44,15 +44,10 @@ def raw_stereo_pair(camera: Camera, baseline_m: float, config: RenderConfig) -> 
                              right.distortion(), (camera.width, camera.height), right_R_left, translation)
 
 
+@heap_for_image_work()  # images and their buffers from the heap (runtime/processes.py)
 def render_scenario(scenario: Scenario, folder: Path, seed: int | None = None,
                     progress: Callable[[str, int, int], None] | None = None) -> int:
     """Write the image folder; returns the number of images."""
-    with heap_for_image_work():
-        return _render_scenario(scenario, folder, seed, progress)
-
-
-def _render_scenario(scenario: Scenario, folder: Path, seed: int | None,
-                     progress: Callable[[str, int, int], None] | None) -> int:
     seed = scenario.seed if seed is None else seed
     config = scenario.render
     if progress is not None:

@@ -19,6 +19,7 @@ from .registry import SourceData
 ReadPair = Callable[[int], tuple[np.ndarray, np.ndarray]]
 
 
+@heap_for_image_work()  # images and their buffers from the heap (runtime/processes.py)
 def track_frames(stops: Sequence[Stop], read_pair: ReadPair, tracker: StereoTracker,
                  finish: Callable[[list[Stop], list[str]], SourceData], skip_bad_frames: bool = False,
                  progress: Callable[[str, int, int], None] | None = None,
@@ -29,11 +30,6 @@ def track_frames(stops: Sequence[Stop], read_pair: ReadPair, tracker: StereoTrac
 
     A frame that cannot be read: with `skip_bad_frames` its stop gets no observations (the VO
     bridges it) and a note; otherwise FrameError, whose `partial` is `finish` of the stops before."""
-    with heap_for_image_work():
-        return _track(stops, read_pair, tracker, finish, skip_bad_frames, progress, camera_motion)
-
-
-def _track(stops, read_pair, tracker, finish, skip_bad_frames, progress, camera_motion) -> SourceData:
     tracked: list[Stop] = []
     notes: list[str] = []
     moved: np.ndarray | None = None  # the body's dead-reckoned motion since the last tracked frame

@@ -88,6 +88,7 @@ def images_by_stop(obs: ObservationSet, camera: str = "wac") -> dict[int, list]:
     return dict(sorted(by_stop.items()))
 
 
+@heap_for_image_work()  # images and their buffers from the heap (runtime/processes.py)
 def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadViewPair, vo: VoMotions,
                         frontend: FrontendConfig, skip_bad_frames: bool = False,
                         progress: Callable[[str, int, int], None] | None = None,
@@ -96,12 +97,6 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
     with `read_hrc`, also the HRC frames' views of the site's features (its tie points
     included). A panorama frame that cannot be read stops with the message naming it, or with
     `skip_bad_frames` is left out of its panorama."""
-    with heap_for_image_work():
-        return _with_site_panoramas(obs, stops, read_pair, vo, frontend, skip_bad_frames, progress, read_hrc)
-
-
-def _with_site_panoramas(obs, stops, read_pair, vo, frontend, skip_bad_frames, progress, read_hrc
-                         ) -> tuple[list[Stop], SiteReport]:
     report = SiteReport()
     by_stop = {stop: images for stop, images in images_by_stop(obs).items() if stop < len(stops)}
     if not by_stop:
