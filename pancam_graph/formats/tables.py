@@ -143,7 +143,7 @@ class CsvTable:
         i = self.optional_index.get(column)
         if i is None:
             return np.full(len(self.rows), default)
-        filled = np.array([i < len(row) and row[i] != "" for _, row in self.rows], dtype=bool).reshape(-1)
+        filled = np.array([i < len(row) and row[i] != "" for _, row in self.rows], dtype=bool)
         values = np.full(len(self.rows), default)
         values[filled] = self.where(filled).numbers(column)
         return values

@@ -213,14 +213,14 @@ def _read_stereo(path: Path, camera: Camera) -> tuple[list[float], list[float], 
                          "row")
     # a stop that saw nothing has one row with empty track and pixel fields
     seen = np.array([any(t) for t in zip(*(table.texts(c) for c in ("track", "u_left", "u_right", "v")),
-                                         strict=True)], dtype=bool).reshape(-1)
+                                         strict=True)], dtype=bool)
     observed = table.where(seen)
     track = observed.tracks()
     if (bad := _first_true(_first_rows(stop[seen], track) != np.arange(len(track)))) is not None:
         raise InputError(f"{path}: line {lines[seen][bad]}: stop {stop[seen][bad]} lists track {track[bad]} a second "
                          "time")
     uvv = np.column_stack([observed.pixels("u_left", camera.width), observed.pixels("u_right", camera.width),
-                           observed.pixels("v", camera.height)]).reshape(-1, 3)
+                           observed.pixels("v", camera.height)])
     stops, at = np.unique(stop, return_index=True)
     n = len(stops)
     if n == 0 or stops[-1] != n - 1:
@@ -252,6 +252,8 @@ def _first_true(flags: np.ndarray) -> int | None:
 
 def _rows_by_key(key: np.ndarray, n: int) -> list[np.ndarray]:
     """For each key 0..n-1, the rows that have it, in file order."""
+    if n == 0:
+        return []
     order = np.argsort(key, kind="stable")
     return np.split(order, np.searchsorted(key[order], np.arange(1, n)))
 
@@ -307,11 +309,11 @@ def _read_frames(table: CsvTable, n: int, measured: list[str], camera: Camera
         raise InputError(f"{table.path}: line {lines[bad]}: track {track[bad]} a second time in the frame at stop "
                          f"{stop[bad]}, pan {pan[bad]:g} rad, tilt {tilt[bad]:g} rad (line {lines[repeated[bad]]}): "
                          "one row per track and frame")
-    uv = np.column_stack([table.pixels(c, camera.height if c == "v" else camera.width)
-                          for c in measured]).reshape(-1, len(measured))
-    frame = _first_rows(stop, pan, tilt)  # per row, the first row of its frame
+    uv = np.column_stack([table.pixels(c, camera.height if c == "v" else camera.width) for c in measured])
+    # each row's frame, numbered in the order the frames first appear
+    firsts, frame = np.unique(_first_rows(stop, pan, tilt), return_inverse=True)
     frames: dict[int, dict[tuple[float, float], tuple]] = defaultdict(dict)
-    for rows in _rows_by_key(np.unique(frame, return_inverse=True)[1].reshape(-1), len(np.unique(frame))):
+    for rows in _rows_by_key(frame, len(firsts)):
         first = rows[0]  # frames in the order they first appear, each one's rows in file order
         frames[int(stop[first])][(float(pan[first]), float(tilt[first]))] = (track[rows], uv[rows])
     return frames
@@ -376,7 +378,7 @@ def _read_truth_landmarks(path: Path) -> np.ndarray:
     table = CsvTable(path, ["track", "x_m", "y_m", "z_m"])
     table.check_widths()
     track = table.integers("track", 0, _MAX_TRACK, f"track {{value}} outside 0..{_MAX_TRACK - 1}")
-    xyz = np.column_stack([table.numbers(c) for c in ("x_m", "y_m", "z_m")]).reshape(-1, 3)
+    xyz = np.column_stack([table.numbers(c) for c in ("x_m", "y_m", "z_m")])
     points = np.full((int(track.max(initial=-1)) + 1, 3), np.nan)
     points[track] = xyz  # a track listed twice: its last row
     return points

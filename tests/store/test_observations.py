@@ -282,3 +282,14 @@ def test_rows_a_run_would_misuse_are_refused_in_one_line(folders, tmp_path, edit
     assert result.exit_code == 2 and len(lines) == 1, result.output
     assert words.format(track=track) in lines[0] and lines[0].startswith(f"error: {folder}")
     assert not out.exists() and not out.with_name("out.partial").exists()
+
+
+def test_tables_with_a_header_and_no_rows_read_as_nothing_seen(folders, tmp_path):
+    folder = _copy(folders, tmp_path)
+    for name in ("panorama.csv", "hrc.csv", "truth_landmarks.csv"):
+        path = folder / name
+        path.write_text(path.read_text().splitlines()[0] + "\n")
+    obs = read_observations(folder)
+    assert len(obs.traverse.stops) > 100
+    assert not any(stop.panorama or stop.hrc or stop.is_site for stop in obs.traverse.stops)
+    assert obs.truth.landmarks.shape == (0, 3)
