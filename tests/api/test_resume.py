@@ -43,14 +43,19 @@ def _start_until_first_checkpoint(tmp_path: Path, past_stop: int = 0, *options: 
     return run
 
 
+def _killed_past(tmp_path: Path, past_stop: int, *options: str, source: str = "short_trail") -> None:
+    """That run (_start_until_first_checkpoint) killed with SIGKILL, its staging folder left behind."""
+    killed = _start_until_first_checkpoint(tmp_path, past_stop, *options, source=source)
+    assert killed.poll() is None, "the run ended before it could be killed"
+    os.kill(killed.pid, signal.SIGKILL)
+    killed.wait()
+
+
 def test_a_killed_run_resumes_to_the_same_estimate(tmp_path):
     whole = _run("run", "short_trail", "--out", "whole", "--quiet", cwd=tmp_path)
     assert whole.returncode == 0, whole.stderr
 
-    killed = _start_until_first_checkpoint(tmp_path, past_stop=10)
-    assert killed.poll() is None, "the run ended before it could be killed"
-    os.kill(killed.pid, signal.SIGKILL)
-    killed.wait()
+    _killed_past(tmp_path, 10)
     _, [saved] = read_checkpoint(tmp_path / "res.partial")  # short_trail runs in one process
     stops = len(saved.localizers["vo"].traverse.stops)
     assert 0 < saved.next_stop < stops  # killed midway
@@ -75,10 +80,7 @@ def test_a_killed_run_with_the_estimated_calibration_resumes_to_the_same_estimat
     scenario.write_text(resolve_scenario("short_trail").read_text() + '\n[errors]\nprofile = "realistic"\n')
     whole = _run("run", "realistic.toml", "--configs", "vo_sites", "--out", "whole", "--quiet", cwd=tmp_path)
     assert whole.returncode == 0, whole.stderr
-    killed = _start_until_first_checkpoint(tmp_path, 60, "--configs", "vo_sites", source="realistic.toml")
-    assert killed.poll() is None, "the run ended before it could be killed"
-    os.kill(killed.pid, signal.SIGKILL)
-    killed.wait()
+    _killed_past(tmp_path, 60, "--configs", "vo_sites", source="realistic.toml")
     _, [saved] = read_checkpoint(tmp_path / "res.partial")
     assert "stereo_calibration" in saved.localizers["vo_sites"].kinds
     sites_before = sum(stop.is_site for stop in saved.localizers["vo_sites"].traverse.stops[:saved.next_stop])

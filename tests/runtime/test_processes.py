@@ -64,14 +64,12 @@ def test_only_a_long_scenario_is_simulated_apart():
     assert scenario.apart("long_traverse") and not scenario.apart("denver_trail")
 
 
-# In a fresh interpreter: 1 MB blocks, each followed by a 64 KB one that stays, after an 8 MB
-# block was freed (glibc's dynamic threshold then serves 1 MB blocks from the heap); the MB of
-# them still resident once every 1 MB block is freed.
-_KEPT_AFTER_FREEING = """
-import ctypes, sys
-from pancam_graph.runtime.processes import hold_malloc_thresholds
-if sys.argv[1] == "held":
-    hold_malloc_thresholds()
+GLIBC = pytest.mark.skipif(platform.system() != "Linux" or platform.libc_ver()[0] != "glibc", reason="glibc's malloc")
+
+# What each malloc script below starts with: glibc's malloc and free, and the resident MB.
+_LIBC = """
+import contextlib, ctypes, resource, sys
+from pancam_graph.runtime.processes import heap_for_image_work, hold_malloc_thresholds
 libc = ctypes.CDLL("libc.so.6")
 libc.malloc.restype = ctypes.c_void_p
 libc.free.argtypes = [ctypes.c_void_p]
@@ -80,7 +78,22 @@ def rss_mb():
     for line in open("/proc/self/status"):
         if line.startswith("VmRSS"):
             return int(line.split()[1]) / 1024
+"""
 
+
+def _in_a_fresh_interpreter(script: str, mode: str) -> list[str]:
+    """What `script` (after _LIBC) prints, run with sys.argv[1] = `mode`, split in words."""
+    out = subprocess.run([sys.executable, "-c", _LIBC + script, mode], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).parent)
+    return out.stdout.split()
+
+
+# 1 MB blocks, each followed by a 64 KB one that stays, after an 8 MB block was freed (glibc's
+# dynamic threshold then serves 1 MB blocks from the heap); the MB of them still resident once
+# every 1 MB block is freed.
+_KEPT_AFTER_FREEING = """
+if sys.argv[1] == "held":
+    hold_malloc_thresholds()
 big = libc.malloc(8 << 20)
 ctypes.memset(big, 1, 8 << 20)
 libc.free(big)
@@ -96,33 +109,20 @@ print(rss_mb() - before)
 """
 
 
-@pytest.mark.skipif(platform.system() != "Linux" or platform.libc_ver()[0] != "glibc", reason="glibc's malloc")
+@GLIBC
 def test_freed_blocks_go_back_with_the_thresholds_held():
     def kept_mb(mode: str) -> float:
-        out = subprocess.run([sys.executable, "-c", _KEPT_AFTER_FREEING, mode], capture_output=True, text=True,
-                             check=True, cwd=Path(__file__).parent)
-        return float(out.stdout)
+        return float(_in_a_fresh_interpreter(_KEPT_AFTER_FREEING, mode)[0])
 
     assert kept_mb("dynamic") > 150.0  # glibc's default behaviour: the 200 MB stay resident
     assert kept_mb("held") < 10.0
 
 
-# In a fresh interpreter with the thresholds held: 200 times a 1 MB block written and freed, a
-# 64 KB one kept beside each, inside heap_for_image_work or not; the page faults that took, and
-# the MB still resident after the context (or the loop) ends and the 1 MB blocks are freed.
+# With the thresholds held: 200 times a 1 MB block written and freed, a 64 KB one kept beside
+# each, inside heap_for_image_work or not; the page faults that took, and the MB still resident
+# after the context (or the loop) ends.
 _FAULTS_AND_KEPT = """
-import contextlib, ctypes, resource, sys
-from pancam_graph.runtime.processes import heap_for_image_work, hold_malloc_thresholds
 hold_malloc_thresholds()
-libc = ctypes.CDLL("libc.so.6")
-libc.malloc.restype = ctypes.c_void_p
-libc.free.argtypes = [ctypes.c_void_p]
-
-def rss_mb():
-    for line in open("/proc/self/status"):
-        if line.startswith("VmRSS"):
-            return int(line.split()[1]) / 1024
-
 before = rss_mb()
 faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
 small = []
@@ -137,12 +137,10 @@ print(faults, rss_mb() - before)
 """
 
 
-@pytest.mark.skipif(platform.system() != "Linux" or platform.libc_ver()[0] != "glibc", reason="glibc's malloc")
+@GLIBC
 def test_image_work_reuses_the_heap_and_hands_it_back_after():
     def faults_and_kept(mode: str) -> tuple[int, float]:
-        out = subprocess.run([sys.executable, "-c", _FAULTS_AND_KEPT, mode], capture_output=True, text=True,
-                             check=True, cwd=Path(__file__).parent)
-        faults, kept = out.stdout.split()
+        faults, kept = _in_a_fresh_interpreter(_FAULTS_AND_KEPT, mode)
         return int(faults), float(kept)
 
     held_faults, _ = faults_and_kept("held")
