@@ -413,7 +413,7 @@ class _EstimatorCore(_Strict):
                                                  description="name -> measurement kinds (pancam_graph/kinds/)")
     calibration: Literal["auto", "trusted", "estimated"] = Field(
         "auto", description="the stereo pair's calibration: trusted as given, or estimated (every configuration "
-        "with sites gets stereo_calibration, with vo vo_scale); auto: estimated where a scenario's [errors] "
+        "with vo or sites gets stereo_calibration, in place of vo_scale); auto: estimated where a scenario's [errors] "
         "profile is realistic, trusted elsewhere")
 
     @model_validator(mode="before")
@@ -635,12 +635,12 @@ def _describe(err: dict) -> str:
 
 
 def _with_calibration(kinds):
-    if not isinstance(kinds, list | tuple):
+    """A configuration that measures through the stereo pair (VO or sites) with the pair's
+    calibration estimated: stereo_calibration builds its VO steps' factors, in place of vo_scale's."""
+    if not isinstance(kinds, list | tuple) or not {"vo", "sites"} & set(kinds):
         return kinds
-    kinds = list(kinds)
-    if "sites" in kinds and "stereo_calibration" not in kinds:
-        kinds.append("stereo_calibration")
-    return _with_shared_scale(kinds)
+    kinds = [k for k in kinds if k != "vo_scale"]
+    return kinds if "stereo_calibration" in kinds else [*kinds, "stereo_calibration"]
 
 
 def _with_shared_scale(kinds):

@@ -33,6 +33,9 @@ class Motion:
     # The raw odometry increment behind a dead-reckoning motion: the wheel-slip kind builds its
     # own factor from it (prev_T_curr above already has the expected slip taken out).
     odometry: DeadReckoning | None = None
+    # A VO motion's first-order change with the stereo pair's calibration error (6 x 6, see
+    # TwoStopSolution): the stereo_calibration kind measures the step again with its estimate.
+    calibration_sensitivity: np.ndarray | None = None
 
     @property
     def bridged(self) -> bool:
@@ -45,11 +48,12 @@ _SOURCES = ("vo", "dead_reckoning", "constant_velocity")
 class Motions:
     """Every stop's motion from the previous one (None for the first) as columns of numbers,
     appended a stop at a time and read back as `Motion`s (a list of `Motion` objects costs
-    kilobytes a stop): 48 numbers and 3 integers, in blocks of `BLOCK` stops (a large array
+    kilobytes a stop): 84 numbers and 3 integers, in blocks of `BLOCK` stops (a large array
     of a group's inputs is mapped by its worker, not copied: side_by_side.Handover)."""
 
     BLOCK = 4096
-    _WIDTH = 12 + 36  # prev_T_curr's 3x4 [R | t] row by row, then the 6x6 covariance
+    # prev_T_curr's 3x4 [R | t] row by row, the 6x6 covariance, the 6x6 calibration sensitivity (NaN: none)
+    _WIDTH = 12 + 36 + 36
 
     def __init__(self, motions: Iterable[Motion | None] = ()):
         self._numbers: list[np.ndarray] = []  # (BLOCK, _WIDTH) float
@@ -78,7 +82,9 @@ class Motions:
             if motion.vo_failure not in self._failures:
                 self._failures.append(motion.vo_failure)
             self._numbers[block][i, :12] = motion.prev_T_curr.matrix()[:3].ravel()
-            self._numbers[block][i, 12:] = np.asarray(motion.covariance).ravel()
+            self._numbers[block][i, 12:48] = np.asarray(motion.covariance).ravel()
+            sensitivity = motion.calibration_sensitivity
+            self._numbers[block][i, 48:] = np.nan if sensitivity is None else np.asarray(sensitivity).ravel()
             self._codes[block][i] = (_SOURCES.index(motion.source), motion.vo_inliers,
                                      self._failures.index(motion.vo_failure))
             self._odometry.append(motion.odometry)
@@ -109,8 +115,10 @@ class Motions:
         numbers = self._numbers[block][i]
         pose = np.eye(4)
         pose[:3] = numbers[:12].reshape(3, 4)
-        return Motion(gtsam.Pose3(pose), numbers[12:].reshape(6, 6).copy(), _SOURCES[source], inliers,
-                      self._failures[failure], self._odometry[k])
+        sensitivity = numbers[48:].reshape(6, 6)
+        return Motion(gtsam.Pose3(pose), numbers[12:48].reshape(6, 6).copy(), _SOURCES[source], inliers,
+                      self._failures[failure], self._odometry[k],
+                      sensitivity.copy() if np.all(np.isfinite(sensitivity)) else None)
 
     def __iter__(self) -> Iterator[Motion | None]:
         for k in range(self._n):
@@ -168,7 +176,8 @@ def motion_between(vo: StereoVO, prev: Stop, curr: Stop, last: Motion | None, sl
 def motion_from(result: VoResult, curr: Stop, last: Motion | None, slip: SlipPrior) -> Motion:
     """The VO's motion to stop `curr`, bridged where it failed."""
     if result.ok:
-        return Motion(result.prev_T_curr, result.covariance, "vo", result.inliers)
+        return Motion(result.prev_T_curr, result.covariance, "vo", result.inliers,
+                      calibration_sensitivity=result.calibration_sensitivity)
     return dead_reckoning_motion(curr, last, slip, result.inliers, result.reason)
 
 

@@ -30,7 +30,8 @@ _INDETERMINATE = "two-stop adjustment indeterminate"
 
 @dataclass(frozen=True)
 class VoResult:
-    """prev_T_curr of the rover body and its covariance ([rotation, translation], current frame)."""
+    """prev_T_curr of the rover body and its covariance ([rotation, translation], current frame);
+    its sensitivity to the pair's calibration error (TwoStopSolution.calibration_sensitivity)."""
 
     ok: bool
     prev_T_curr: gtsam.Pose3 | None
@@ -38,6 +39,7 @@ class VoResult:
     matches: int
     inliers: int
     reason: str = ""
+    calibration_sensitivity: np.ndarray | None = None
 
 
 @dataclass
@@ -107,7 +109,7 @@ class StereoVO:
         curr_T_prev_cam = gtsam.Pose3(gtsam.Rot3(rot), tvec.ravel())
         guess = self.body_T_left.compose(curr_T_prev_cam.inverse()).compose(self.left_T_body)
 
-        pose, _, keep = self._bundle_adjust(a[inl], b[inl], p_prev[inl], guess, covariance=False)
+        pose, _, keep, _ = self._bundle_adjust(a[inl], b[inl], p_prev[inl], guess, covariance=False)
         if pose is None:
             return VoResult(False, None, None, matches, len(inl), _INDETERMINATE)
         if keep.sum() < self.min_inliers:
@@ -121,7 +123,7 @@ class StereoVO:
         agree = self._consistent(a, b, p_prev, pose)
         first = inl[keep]
         for inl in ([np.flatnonzero(agree), first] if agree.sum() >= keep.sum() else [first]):
-            refined, cov, keep = self._bundle_adjust(a[inl], b[inl], p_prev[inl], pose)
+            refined, cov, keep, sensitivity = self._bundle_adjust(a[inl], b[inl], p_prev[inl], pose)
             if refined is not None and keep.sum() >= self.min_inliers:
                 break
         if refined is None:
@@ -130,13 +132,14 @@ class StereoVO:
             return VoResult(False, None, None, matches, int(keep.sum()), "too few inliers after BA")
         pose = refined
         if keep.sum() < len(keep):
-            pose, cov, _ = self._bundle_adjust(a[inl][keep], b[inl][keep], p_prev[inl][keep], pose)
+            pose, cov, _, sensitivity = self._bundle_adjust(a[inl][keep], b[inl][keep], p_prev[inl][keep], pose)
             if pose is None:
                 return VoResult(False, None, None, matches, int(keep.sum()), _INDETERMINATE)
         step = float(np.linalg.norm(pose.translation()))
         if step > self.max_step_m:
             return VoResult(False, None, None, matches, int(keep.sum()), f"implausible step {step:.1f} m")
-        return VoResult(True, pose, self._with_floor(cov, step), matches, int(keep.sum()))
+        return VoResult(True, pose, self._with_floor(cov, step), matches, int(keep.sum()),
+                        calibration_sensitivity=sensitivity)
 
     def _with_floor(self, cov: np.ndarray, step_m: float) -> np.ndarray:
         """The two-stop adjustment's covariance plus what white pixel noise does not explain on
@@ -165,10 +168,12 @@ class StereoVO:
         return d2 < _CHI2_3DOF_999
 
     def _bundle_adjust(self, a, b, p_prev_cam, guess: gtsam.Pose3, covariance: bool = True):
-        """(pose, its 6x6 covariance or None without `covariance`, which matches pass the outlier gate);
-        (None, None, None) when the two-stop system is indeterminate."""
+        """(pose, its 6x6 covariance, which matches pass the outlier gate, its 6x6 calibration
+        sensitivity), the two matrices None without `covariance`; all None when the two-stop
+        system is indeterminate."""
         solution = adjust_two_stops(a, b, p_prev_cam, guess, self.intrinsics, self.body_T_left, self.pixel_sigma,
                                     covariance)
         if solution is None:
-            return None, None, None
-        return solution.prev_T_curr, solution.covariance, solution.point_chi2 < _CHI2_6DOF_99
+            return None, None, None, None
+        return (solution.prev_T_curr, solution.covariance, solution.point_chi2 < _CHI2_6DOF_99,
+                solution.calibration_sensitivity)

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from ..geometry.calibration_error import pixel_shifts
+
 _MAX_ITERATIONS = 15  # as the GTSAM adjustment it replaces
 _RELATIVE_DECREASE = 1e-5  # stop when the cost falls by less than this fraction
 _LAMBDA0, _LAMBDA_UP, _LAMBDA_DOWN, _LAMBDA_MAX = 1e-5, 10.0, 0.1, 1e5  # GTSAM's LM defaults
@@ -62,12 +64,17 @@ class StereoIntrinsics:
 
 @dataclass(frozen=True)
 class TwoStopSolution:
-    """The refined prev_T_curr, its 6x6 marginal covariance (None when not asked for) and each
-    point's chi-square: the squared whitened residuals of its two stereo observations."""
+    """The refined prev_T_curr, its 6x6 marginal covariance and calibration sensitivity (None
+    when not asked for) and each point's chi-square: the squared whitened residuals of its two
+    stereo observations. The sensitivity is d prev_T_curr / d c (6 x 6: the pose's tangent,
+    [rotation, translation], against geometry/calibration_error.py's six terms): to first order
+    the adjustment, had it known the pair's calibration error c, would have found
+    prev_T_curr * Expmap(sensitivity @ c)."""
 
     prev_T_curr: gtsam.Pose3
     covariance: np.ndarray | None
     point_chi2: np.ndarray
+    calibration_sensitivity: np.ndarray | None = None
 
 
 def adjust_two_stops(prev_px: np.ndarray, curr_px: np.ndarray, points: np.ndarray, guess: gtsam.Pose3,
@@ -100,19 +107,23 @@ def adjust_two_stops(prev_px: np.ndarray, curr_px: np.ndarray, points: np.ndarra
         lam = max(lam * _LAMBDA_DOWN, _LAMBDA_MIN)
         if decrease <= _RELATIVE_DECREASE * now.cost or now.cost < 1e-12:
             break
-    cov = None
+    cov = sensitivity = None
     if covariance:
-        schur = _schur(problem.normal_equations(now), 0.0)
+        jacobians = problem.jacobians(now)
+        system = problem.normal_equations(now, jacobians)
+        schur = _schur(system, 0.0)
         if schur is None:
             return None
         try:
-            cov = pixel_sigma**2 * np.linalg.inv(schur[0])
+            information_inverse = np.linalg.inv(schur[0])
         except np.linalg.LinAlgError:
             return None
+        cov = pixel_sigma**2 * information_inverse
         if not np.all(np.isfinite(cov)) or np.any(np.linalg.eigvalsh(0.5 * (cov + cov.T)) <= 0):
             return None
+        sensitivity = problem.calibration_sensitivity(jacobians, system[2], system[3], information_inverse)
     chi2 = (np.sum(now.r0**2, axis=1) + np.sum(now.r1**2, axis=1)) / pixel_sigma**2
-    return TwoStopSolution(now.pose, cov, chi2)
+    return TwoStopSolution(now.pose, cov, chi2, sensitivity)
 
 
 @dataclass(frozen=True)
@@ -145,9 +156,9 @@ class _Problem:
         r1 = self.intrinsics.project(cam) - self.curr_px
         return _Estimate(pose, points, q, cam, r0, r1, float(np.sum(r0 * r0) + np.sum(r1 * r1)))
 
-    def normal_equations(self, e: _Estimate):
-        """Gauss-Newton blocks (unwhitened: one pixel sigma for all): the pose's 6x6 and
-        gradient, each point's 3x3 and gradient, and the 6x3 coupling of each point to the pose."""
+    def jacobians(self, e: _Estimate) -> tuple[np.ndarray, np.ndarray]:
+        """The residuals' Jacobians: the previous view's (n, 3, 3) in the point, the current
+        view's (n, 3, 9) in the pose (right perturbation) and the point."""
         n, q = len(e.q), e.q
         J0 = self.intrinsics.jacobian(e.points)  # previous view: the points only
         # current view: d q = [q]x w - v for the right perturbation [w, v] of the pose, and
@@ -158,7 +169,12 @@ class _Problem:
         dq[:, 2, 0], dq[:, 2, 1] = -q[:, 1], q[:, 0]
         dq[:, :, 3:6] = -np.eye(3)
         dq[:, :, 6:] = e.pose.rotation().matrix().T @ self.R_B
-        J1 = self.intrinsics.jacobian(e.cam) @ (self.R_B.T @ dq)  # (n, 3, 9): pose, point
+        return J0, self.intrinsics.jacobian(e.cam) @ (self.R_B.T @ dq)
+
+    def normal_equations(self, e: _Estimate, jacobians: tuple[np.ndarray, np.ndarray] | None = None):
+        """Gauss-Newton blocks (unwhitened: one pixel sigma for all): the pose's 6x6 and
+        gradient, each point's 3x3 and gradient, and the 6x3 coupling of each point to the pose."""
+        J0, J1 = jacobians or self.jacobians(e)
         J1t = J1.transpose(0, 2, 1)
         H1 = J1t @ J1
         g1 = (J1t @ e.r1[:, :, None])[:, :, 0]
@@ -166,6 +182,20 @@ class _Problem:
         H_pp = J0t @ J0 + H1[:, 6:, 6:]
         g_p = (J0t @ e.r0[:, :, None])[:, :, 0] + g1[:, 6:]
         return H1[:, :6, :6].sum(axis=0), g1[:, :6].sum(axis=0), H_pp, H1[:, :6, 6:], g_p
+
+    def calibration_sensitivity(self, jacobians, H_pp: np.ndarray, H_xp: np.ndarray,
+                                information_inverse: np.ndarray) -> np.ndarray:
+        """d pose / d c at the optimum: a calibration error c moves every residual by its pixel
+        shift C c, and the Gauss-Newton step that takes back is linear in c (the points eliminated
+        as in _schur)."""
+        J0, J1 = jacobians
+        i = self.intrinsics
+        C0, C1 = pixel_shifts(self.prev_px, i.fx, i.cx, i.cy), pixel_shifts(self.curr_px, i.fx, i.cx, i.cy)
+        J1t = J1.transpose(0, 2, 1)
+        g_x = (J1t[:, :6] @ C1).sum(axis=0)  # (6, 6): the pose's gradient per unit of each term
+        g_p = J0.transpose(0, 2, 1) @ C0 + J1t[:, 6:] @ C1  # (n, 3, 6): each point's
+        W = H_xp @ np.linalg.inv(H_pp)
+        return -information_inverse @ (g_x - (W @ g_p).sum(axis=0))
 
 
 def _schur(system, lam: float):

@@ -70,6 +70,20 @@ def gps_at(pose_key: int, antenna_enu: np.ndarray, lever_arm_m: np.ndarray, mode
     return gtsam.GPSFactorArm(pose_key, antenna_enu, np.asarray(lever_arm_m, dtype=float), model)
 
 
+def between_error(measured: gtsam.Pose3, world_T_a: gtsam.Pose3,
+                  world_T_b: gtsam.Pose3) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """GTSAM's BetweenFactor error, Logmap(measured^-1 a_T_b) ([rotation, translation]), with its
+    Jacobians in the measurement's, world_T_a's and world_T_b's tangent spaces: for Python
+    factors whose measurement depends on variables of their own (wheel slip, calibration)."""
+    h_a, h_b = np.zeros((6, 6), order="F"), np.zeros((6, 6), order="F")
+    a_T_b = world_T_a.between(world_T_b, h_a, h_b)
+    h_measured, h_relative = np.zeros((6, 6), order="F"), np.zeros((6, 6), order="F")
+    delta = measured.between(a_T_b, h_measured, h_relative)
+    h_log = np.zeros((6, 6), order="F")
+    error = gtsam.Pose3.Logmap(delta, h_log)
+    return error, h_log @ h_measured, h_log @ h_relative @ h_a, h_log @ h_relative @ h_b
+
+
 def between(key_a: int, key_b: int, a_T_b: gtsam.Pose3, covariance: np.ndarray) -> gtsam.BetweenFactorPose3:
     """Relative body motion between any two pose variables."""
     return gtsam.BetweenFactorPose3(key_a, key_b, a_T_b, noise.pose_covariance(covariance))

@@ -2,7 +2,7 @@
 pose at the time of a measurement between two stops (j counts them), S(k) a scalar a kind shares
 across the traverse (the wheel slip, the VO scale, a map's bias: handed out by `shared`), E(k) an
 error two neighbouring sites' orbital registrations share (a 4-vector), C(0) the stereo pair's
-calibration error that every site view shares (a 5-vector, kinds/stereo_calibration.py)."""
+calibration error that every site view and VO step shares (a 6-vector, geometry/calibration_error.py)."""
 
 import gtsam
 from gtsam.symbol_shorthand import C, E, L, S, T, X

@@ -12,6 +12,7 @@ import gtsam
 import numpy as np
 
 from ..errors import GraphError
+from ..geometry.calibration_error import NAMES as CALIBRATION_TERMS
 from .frozen import FrozenRows, row_of, value_of
 from .keys import C, E, L, S, T, X
 from .update_log import Rebuild, UpdateLog
@@ -39,7 +40,7 @@ class RelinearizeThresholds:
         pose = np.r_[np.full(3, self.rotation_rad), np.full(3, self.translation_m)]  # GTSAM: rotation first
         for symbol, vector in ((X, pose), (T, pose), (L, np.full(3, self.translation_m)),
                                (S, np.full(1, self.scalar)), (E, np.full(4, self.scalar)),
-                               (C, np.full(5, self.scalar))):  # E, C: keys.py's vector sizes
+                               (C, np.full(len(CALIBRATION_TERMS), self.scalar))):  # E, C: keys.py's vector sizes
             thresholds.insert((chr(gtsam.Symbol(symbol(0)).chr()), vector))
         return thresholds
 

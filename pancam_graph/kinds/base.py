@@ -26,8 +26,9 @@ from pydantic import BaseModel, ConfigDict
 from ..records import GroundTruth, Stop, Traverse
 
 NO_TIE_LINKS = np.zeros((0, 2), dtype=np.int64)  # (track, site stop) rows: a kind that ties nothing
-# (key_a, key_b, a_T_b, covariance) -> factor: a motion step's between factor
-MotionFactor = Callable[[int, int, gtsam.Pose3, np.ndarray], gtsam.NonlinearFactor]
+# (key_a, key_b, a_T_b, covariance) -> factor: a motion step's between factor; a VO step's also
+# takes the step's calibration sensitivity (Motion.calibration_sensitivity, None where unknown)
+MotionFactor = Callable[..., gtsam.NonlinearFactor]
 # (stop key, landmark key, uvv, camera, body_T_left, noise) -> factor: a site's stereo view
 SiteStereoFactor = Callable[[int, int, np.ndarray, tuple, np.ndarray, tuple], gtsam.NonlinearFactor]
 
@@ -180,7 +181,8 @@ class Kind:
 
     def motion_factor(self) -> MotionFactor | None:
         """The factor builder for `builds_motion`'s steps: (key_a, key_b, a_T_b, covariance) ->
-        factor, with this kind's shared variables in it."""
+        factor, with this kind's shared variables in it; for "vo", (key_a, key_b, a_T_b,
+        covariance, calibration sensitivity or None) -> factor."""
         return None
 
     def site_stereo_factor(self) -> SiteStereoFactor | None:

@@ -1,26 +1,18 @@
-"""The stereo pair's calibration error as one unknown shared by every stereo view at the sites.
+"""The stereo pair's calibration error as one unknown shared by every measurement through the pair.
 
 A stereo pair is calibrated once, on the ground; what is left of its error is the same in every
-frame of the traverse. Both focal lengths off by a ratio s, the right camera's off by a further
-ratio e, and the right camera turned by a small rotation w (rad, in the left camera's axes)
-move the pixels, to first order, by
-
-    du_left = s (u_left - cx),   dv = s (v - cy),
-    du_right = s (u_right - cx) + f (w_x x y - w_y (1 + x^2) + w_z y + e x),
-    x, y = (u_right - cx, v - cy) / f
-
-(sim/errors.py's TrueRig is that error). About the vertical (w_y) it is a disparity bias of
-f w_y (0.3 px for 0.01 deg on the WAC) that scales every range by (1 + Z w_y / B): a site's
-landmarks come out nearer or farther by a fraction growing with their range, the same at every
-site. Treated as independent pixel noise it cannot average out, and the sites' estimate is
-over-confident (docs/simulation_errors.md). Here (w_x, w_y, w_z, e, s) are one 5-vector C(0)
-shared by the whole traverse, with the calibration's own stated sigmas as its prior, and every
-site stereo view becomes a factor on its pose, its landmark and C(0): ties seen from sites at
-different ranges and in different parts of the frames observe it. (The baseline's own error is
-a scale of every range, which nothing but an absolute reference observes.)
-
-The VO's steps are solved in the front-end before the graph sees them: their share of the error
-is a scale of every step, which the vo_scale kind carries.
+frame of the traverse (its six terms and the pixels they move: geometry/calibration_error.py).
+Treated as independent pixel noise it cannot average out, and the estimate is over-confident
+(docs/simulation_errors.md). Here the six terms are one vector C(0) shared by the whole traverse,
+with the calibration's own stated sigmas as its prior, and
+- every site stereo view becomes a factor on its pose, its landmark and C(0): ties seen from
+  sites at different ranges and in different parts of the frames observe it;
+- every VO step becomes a factor on its two poses and C(0): the step as the two-stop adjustment
+  would have measured it with the pair as C(0) says, to first order (Motion.calibration_sensitivity).
+  A turn of the right camera about the vertical pitches every step alike (a range error growing
+  with range tilts the ground ahead); shared by every step, it accumulates, and the sites see it.
+The baseline's own error scales every range, the VO's and the sites' alike: nothing but an
+absolute reference observes it, and its prior stays.
 """
 
 from __future__ import annotations
@@ -30,20 +22,12 @@ import numpy as np
 from pydantic import Field
 
 from ..errors import GraphError
-from ..graph import keys, noise
+from ..geometry.calibration_error import NAMES, pixel_shifts
+from ..graph import factors, keys, noise
 from .base import Kind, Section
+from .motion import VisualOdometry
 
-
-def pixel_coefficients(uvv: np.ndarray, focal_px: float, cx: float, cy: float) -> np.ndarray:
-    """d (u_left, u_right, v) / d (w_x, w_y, w_z, e, s) at a measured (u_left, u_right, v): 3 x 5."""
-    x, y = (uvv[1] - cx) / focal_px, (uvv[2] - cy) / focal_px
-    return np.array([[0.0, 0.0, 0.0, 0.0, uvv[0] - cx],
-                     [focal_px * x * y, -focal_px * (1.0 + x * x), focal_px * y, focal_px * x, uvv[1] - cx],
-                     [0.0, 0.0, 0.0, 0.0, uvv[2] - cy]])
-
-
-RIGHT_CAMERA = keys.C(0)
-NAMES = ("right_rotation_x_rad", "right_rotation_y_rad", "right_rotation_z_rad", "right_focal_ratio", "focal_scale")
+CALIBRATION = keys.C(0)
 
 
 def calibrated_stereo_error(measured: np.ndarray, coefficients: np.ndarray, calibration: gtsam.Cal3_S2Stereo,
@@ -80,7 +64,7 @@ def calibrated_stereo_factor(stop_key: int, landmark_key: int, uvv: np.ndarray, 
     calibration = gtsam.Cal3_S2Stereo(fx, fy, 0.0, cx, cy, baseline)
     mount = gtsam.Pose3(body_T_left)
     measured = np.asarray(uvv, dtype=float)
-    coefficients = pixel_coefficients(measured, fx, cx, cy)
+    coefficients = pixel_shifts(measured, fx, cx, cy)
 
     def error(factor: gtsam.CustomFactor, values: gtsam.Values, jacobians: list | None) -> np.ndarray:
         pose_key, point_key, calibration_key = factor.keys()
@@ -89,7 +73,36 @@ def calibrated_stereo_factor(stop_key: int, landmark_key: int, uvv: np.ndarray, 
 
     kernel, sigma_px, k = model
     return gtsam.CustomFactor(noise.robust(kernel, noise.stereo_pixels(sigma_px), k),
-                              [stop_key, landmark_key, RIGHT_CAMERA], error)
+                              [stop_key, landmark_key, CALIBRATION], error)
+
+
+def calibrated_vo_error(vo_T: gtsam.Pose3, sensitivity: np.ndarray, world_T_a: gtsam.Pose3, world_T_b: gtsam.Pose3,
+                        calibration_error: np.ndarray, jacobians: list | None = None) -> np.ndarray:
+    """Logmap(m^-1 a_T_b) with m = vo_T Expmap(sensitivity c), the step measured again with the
+    pair's error c; [rotation, translation] like GTSAM's BetweenFactor, analytic Jacobians."""
+    h_exp = np.zeros((6, 6), order="F")
+    correction = gtsam.Pose3.Expmap(sensitivity @ calibration_error, h_exp)
+    h_correction = np.zeros((6, 6), order="F")
+    m = vo_T.compose(correction, None, h_correction)
+    error, d_m, d_a, d_b = factors.between_error(m, world_T_a, world_T_b)
+    if jacobians is not None:
+        jacobians[0], jacobians[1] = d_a, d_b
+        jacobians[2] = d_m @ h_correction @ h_exp @ sensitivity
+    return error
+
+
+def calibrated_vo_factor(key_a: int, key_b: int, vo_T: gtsam.Pose3, covariance: np.ndarray,
+                         sensitivity: np.ndarray | None) -> gtsam.CustomFactor:
+    """A VO step on its two poses and the pair's calibration error (a step without a sensitivity,
+    none known: the plain step, the error's Jacobian zero)."""
+    sensitivity = np.zeros((6, len(NAMES))) if sensitivity is None else np.asarray(sensitivity, dtype=float)
+
+    def error(factor: gtsam.CustomFactor, values: gtsam.Values, jacobians: list | None) -> np.ndarray:
+        a, b, c = factor.keys()
+        return calibrated_vo_error(vo_T, sensitivity, values.atPose3(a), values.atPose3(b), values.atVector(c),
+                                   jacobians)
+
+    return gtsam.CustomFactor(noise.pose_covariance(covariance), [key_a, key_b, CALIBRATION], error)
 
 
 class StereoCalibrationSettings(Section):
@@ -102,43 +115,54 @@ class StereoCalibrationSettings(Section):
                                      "left by the calibration (the same calibration: 0.002-0.007 %)")
     focal_scale_sigma: float = Field(3e-4, gt=0.0, le=0.05, description="1-sigma of both focal lengths' common "
                                      "error left by the calibration (the same calibration: fx to 0.54 px of 1,724)")
+    baseline_scale_sigma: float = Field(1e-4, gt=0.0, le=0.05, description="1-sigma of the baseline's error left "
+                                        "by the calibration, as a ratio (the same calibration: 0.034 mm of 500 mm)")
 
 
 class StereoCalibration(Kind):
     name = "stereo_calibration"
     order = 10
     Settings = StereoCalibrationSettings
-    needs = {"sites": "it calibrates the sites' stereo views"}
     builds_site_stereo = True
+    builds_motion = "vo"
+    cost = 3.0  # its VO steps' and site views' factors are Python CustomFactors (wheel slip's steps: 2)
 
     def __init__(self, localizer):
         super().__init__(localizer)
         settings: StereoCalibrationSettings = localizer.estimator.stereo_calibration
         rotation = np.deg2rad(settings.rotation_sigma_deg)
         prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([rotation, rotation, rotation, settings.focal_ratio_sigma,
-                                                           settings.focal_scale_sigma]))
-        localizer.smoother.add(gtsam.PriorFactorVector(RIGHT_CAMERA, np.zeros(len(NAMES)), prior))
-        localizer.smoother.insert(RIGHT_CAMERA, np.zeros(len(NAMES)), shared=True)
+                                                           settings.focal_scale_sigma, settings.baseline_scale_sigma]))
+        localizer.smoother.add(gtsam.PriorFactorVector(CALIBRATION, np.zeros(len(NAMES)), prior))
+        localizer.smoother.insert(CALIBRATION, np.zeros(len(NAMES)), shared=True)
+
+    @classmethod
+    def unavailable(cls, traverse) -> str | None:
+        # it measures through the stereo pair: the VO's steps or the sites' views
+        return VisualOdometry.unavailable(traverse)
 
     def site_stereo_factor(self):
         return calibrated_stereo_factor
 
+    def motion_factor(self):
+        return calibrated_vo_factor
+
     def true_values(self, truth, values: gtsam.Values) -> bool:
         # zero where the truth has none (real data, or a simulation with a trusted pair)
         known = truth.kinds.get(self.name, {})
-        values.insert(RIGHT_CAMERA, np.array([float(known.get(name, 0.0)) for name in NAMES]))
+        values.insert(CALIBRATION, np.array([float(known.get(name, 0.0)) for name in NAMES]))
         return True
 
     def against_truth(self, truth) -> dict[str, float]:
         known = truth.kinds.get(self.name)
         if not known:
             return {}
-        estimate = self.loc.smoother.vector(RIGHT_CAMERA)
+        estimate = self.loc.smoother.vector(CALIBRATION)
         return {f"{name}_error": float(estimate[i] - known[name]) for i, name in enumerate(NAMES)}
 
     def counters(self) -> dict:
-        estimate = self.loc.smoother.vector(RIGHT_CAMERA)
-        sigmas = np.sqrt(np.diag(self.loc.smoother.marginal_covariance(RIGHT_CAMERA)))
+        estimate = self.loc.smoother.vector(CALIBRATION)
+        sigmas = np.sqrt(np.diag(self.loc.smoother.marginal_covariance(CALIBRATION)))
         counts = {}
         for i, name in enumerate(NAMES):
             counts[name], counts[f"{name}_sigma"] = float(estimate[i]), float(sigmas[i])

@@ -29,7 +29,8 @@ VO_SCALE, VO_LATERAL, VO_VERTICAL = keys.shared("vo_scale", 3)
 _STEP = 1e-6  # central differences in the direction angles (rad): the error is smooth in them
 
 
-def vo_scale_factor(key_a: int, key_b: int, vo_T: gtsam.Pose3, covariance):
+def vo_scale_factor(key_a: int, key_b: int, vo_T: gtsam.Pose3, covariance, sensitivity=None):
+    # (a VO factor's calibration sensitivity: this kind models no calibration)
     return slip_odometry_factor(key_a, key_b, vo_T, covariance, scale_key=VO_SCALE)
 
 
@@ -53,7 +54,8 @@ def biased_vo_error(vo_T: gtsam.Pose3, world_T_a: gtsam.Pose3, world_T_b: gtsam.
     return error
 
 
-def biased_vo_factor(key_a: int, key_b: int, vo_T: gtsam.Pose3, covariance: np.ndarray) -> gtsam.CustomFactor:
+def biased_vo_factor(key_a: int, key_b: int, vo_T: gtsam.Pose3, covariance: np.ndarray,
+                     sensitivity=None) -> gtsam.CustomFactor:
     """A VO step on its two poses, the shared scale and the shared direction bias."""
 
     def error(factor: gtsam.CustomFactor, values: gtsam.Values, jacobians: list | None) -> np.ndarray:

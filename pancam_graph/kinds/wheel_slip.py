@@ -13,7 +13,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from ..graph import keys, noise
+from ..graph import factors, keys, noise
 from .base import Kind
 from .motion import DeadReckoningMotion
 
@@ -27,19 +27,13 @@ def slip_odometry_error(odom_T: gtsam.Pose3, world_T_a: gtsam.Pose3, world_T_b: 
     world_T_a, world_T_b (tangent spaces) and slip when `jacobians` is given."""
     scale = 1.0 / (1.0 + slip)
     m = gtsam.Pose3(odom_T.rotation(), odom_T.translation() * scale)
-    h_a, h_b = np.zeros((6, 6), order="F"), np.zeros((6, 6), order="F")
-    a_T_b = world_T_a.between(world_T_b, h_a, h_b)
-    h_m, h_rel = np.zeros((6, 6), order="F"), np.zeros((6, 6), order="F")
-    delta = m.between(a_T_b, h_m, h_rel)
-    h_log = np.zeros((6, 6), order="F")
-    error = gtsam.Pose3.Logmap(delta, h_log)
+    error, d_m, d_a, d_b = factors.between_error(m, world_T_a, world_T_b)
     if jacobians is not None:
         # m moves along its own translation: in m's tangent space (body frame) that is R^T dt
         dm_dslip = np.zeros(6)
         dm_dslip[3:] = odom_T.rotation().matrix().T @ (-odom_T.translation() * scale**2)
-        jacobians[0] = h_log @ h_rel @ h_a
-        jacobians[1] = h_log @ h_rel @ h_b
-        jacobians[2] = (h_log @ h_m @ dm_dslip).reshape(6, 1)
+        jacobians[0], jacobians[1] = d_a, d_b
+        jacobians[2] = (d_m @ dm_dslip).reshape(6, 1)
     return error
 
 

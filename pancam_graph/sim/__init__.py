@@ -132,7 +132,7 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
     )
     truth = GroundTruth(world_T_body=poses, landmarks=landmarks, wheel_slip=float(traverse_slip),
                         terrain=terrain.height,
-                        kinds={} if true_rig is None else {"stereo_calibration": true_rig.state(rig.wac)})
+                        kinds={} if true_rig is None else {"stereo_calibration": true_rig.state(rig)})
     return _with_kind_measurements(scenario, traverse, truth, seed)
 
 

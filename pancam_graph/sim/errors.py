@@ -20,8 +20,8 @@ import gtsam
 import numpy as np
 
 from ..config import SimulationErrors
+from ..geometry.calibration_error import NAMES as CALIBRATION_NAMES
 from ..geometry.rig import Camera, Rig
-from ..kinds.stereo_calibration import NAMES as CALIBRATION_NAMES
 from ..records import HrcFrame, PanoramaFrame, StereoObservations, Stop
 
 CALIBRATION_STREAM, POINTING_STREAM, TIES_STREAM = 31, 32, 33
@@ -60,13 +60,15 @@ class TrueRig:
         rotation = gtsam.Rot3.Expmap(rng.normal(0.0, np.deg2rad(errors.boresight_sigma_deg), 3)).matrix()
         return cls(left, right, baseline, rotation)
 
-    def state(self, calibrated: Camera) -> dict[str, float]:
-        """The error as the stereo_calibration kind estimates it: the right camera's rotation
-        vector (rad, left camera axes), its focal ratio to the left one's less 1, and the left
-        one's to the `calibrated` camera's less 1."""
+    def state(self, calibrated: Rig) -> dict[str, float]:
+        """The error as the stereo_calibration kind estimates it (geometry/calibration_error.py):
+        the right camera's rotation vector (rad, left camera axes), its focal ratio to the left
+        one's less 1, the left one's to the `calibrated` camera's less 1, and the baseline's ratio
+        to the calibrated one less 1."""
         rotation = gtsam.Rot3.Logmap(gtsam.Rot3(self.left_R_right))
         return dict(zip(CALIBRATION_NAMES, (*map(float, rotation), self.right.fx / self.left.fx - 1.0,
-                                            self.left.fx / calibrated.fx - 1.0), strict=True))
+                                            self.left.fx / calibrated.wac.fx - 1.0,
+                                            self.baseline_m / calibrated.baseline_m - 1.0), strict=True))
 
     def observe(self, p_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(u, v) in the left image and u in the right one of left-camera points, through the

@@ -169,14 +169,15 @@ class Localizer:
         keys.append(X(stop.index))
 
         step, covariance, build = motion.prev_T_curr, motion.covariance, factors.between
+        sensitivity = None  # a VO factor's (Kind.motion_factor): the step's calibration sensitivity
         if motion.odometry is not None and self.odometry_factor is not None:
             step, covariance = gtsam.Pose3(motion.odometry.prev_T_curr), motion.odometry.covariance
             build = self.odometry_factor
         elif motion.source == "vo" and self.vo_factor is not None:
-            build = self.vo_factor
+            build, sensitivity = self.vo_factor, motion.calibration_sensitivity
         start = self.smoother.pose(keys[0])
         if len(keys) == 2:
-            self._add_motion_factor(build, keys[0], keys[1], step, covariance)
+            self._add_motion_factor(build, keys[0], keys[1], step, covariance, *self._vo_only(build, sensitivity, 1.0))
             self.smoother.insert(keys[1], start.compose(motion.prev_T_curr))
             return
         twist = gtsam.Pose3.Logmap(step)
@@ -184,8 +185,15 @@ class Localizer:
         bounds = [0.0, *fractions, 1.0]
         for key_a, key_b, a, b in zip(keys[:-1], keys[1:], bounds[:-1], bounds[1:], strict=True):
             piece = gtsam.Pose3.Expmap((b - a) * twist)
-            self._add_motion_factor(build, key_a, key_b, piece, (b - a) * covariance)
+            self._add_motion_factor(build, key_a, key_b, piece, (b - a) * covariance,
+                                    *self._vo_only(build, sensitivity, b - a))
             self.smoother.insert(key_b, start.compose(gtsam.Pose3.Expmap(b * estimated_twist)))
+
+    def _vo_only(self, build: MotionFactor, sensitivity: np.ndarray | None, share: float) -> tuple:
+        """The VO factor's last argument, the sensitivity of its share of the step; none for the others."""
+        if build is not self.vo_factor:
+            return ()
+        return (None if sensitivity is None else share * sensitivity,)
 
     def _add_motion_factor(self, build: MotionFactor, *arguments) -> None:
         # a kind's motion factor may be a Python CustomFactor: its recipe goes with it (checkpoints)

@@ -32,12 +32,13 @@ CHECKPOINT_DIR = "checkpoint"
 INPUTS_FILE = "inputs.pkl"
 STATE_FILE = "state.pkl"  # a run in one process; side by side, group g's is state-g.pkl
 STATE_HEADER = "pancam-graph state; next stop"
-FORMAT = 12  # a checkpoint of another format is refused, not misread (2: the smoother's window; 3: groups;
+FORMAT = 13  # a checkpoint of another format is refused, not misread (2: the smoother's window; 3: groups;
 # 4: the partial relinearization check; 5: the smoothers' update logs in files beside the states;
 # 6: the run loop's classes in pancam_graph.solve; 7: per-stop results and tie links as columns;
 # 8: the variables that left the window as rows, graph.frozen; 9: the motions as columns;
 # 10: the per-stop columns, stops, views and landmark tracks in files, spill.Column; 11: modules moved into
-# geometry/, runtime/ and orbital/, shared scalars numbered by graph.keys.shared; 12: SourceData in sources/)
+# geometry/, runtime/ and orbital/, shared scalars numbered by graph.keys.shared; 12: SourceData in sources/;
+# 13: the motions' calibration sensitivity)
 LOG_DIR = "log"  # the smoothers' update logs, one folder per configuration
 
 

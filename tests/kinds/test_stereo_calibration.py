@@ -1,5 +1,5 @@
-"""The stereo_calibration kind: the right camera's calibration error estimated through the sites'
-stereo views (kinds/stereo_calibration.py)."""
+"""The stereo_calibration kind: the stereo pair's calibration error estimated through the sites'
+stereo views and the VO's steps (kinds/stereo_calibration.py, geometry/calibration_error.py)."""
 
 import pickle
 
@@ -8,13 +8,14 @@ import numpy as np
 import pytest
 
 from pancam_graph.config import SimulationErrors, load_scenario, resolve_scenario
+from pancam_graph.geometry.calibration_error import NAMES, pixel_shifts
 from pancam_graph.geometry.rig import rig_preset
 from pancam_graph.graph.keys import C, L, X
 from pancam_graph.kinds.stereo_calibration import (
-    NAMES,
     calibrated_stereo_error,
     calibrated_stereo_factor,
-    pixel_coefficients,
+    calibrated_vo_error,
+    calibrated_vo_factor,
 )
 from pancam_graph.sim.errors import TrueRig
 from pancam_graph.solve.pipeline import RunOptions, run_scenario
@@ -25,7 +26,7 @@ CAMERA = (RIG.wac.fx, RIG.wac.fy, RIG.wac.cx, RIG.wac.cy, RIG.baseline_m)
 MOUNT = gtsam.Pose3(gtsam.Rot3.Ypr(0.3, -0.2, 0.0) .compose(gtsam.Rot3.Ypr(-np.pi / 2, 0.0, -np.pi / 2)),
                     np.array([0.1, 0.2, 1.5]))
 POSE = gtsam.Pose3(gtsam.Rot3.Ypr(0.2, 0.01, -0.02), np.array([5.0, -3.0, 0.2]))
-STATE = np.array([2e-4, -1.5e-4, 1e-4, 4e-5, -3e-4])  # rad, rad, rad, ratio, ratio
+STATE = np.array([2e-4, -1.5e-4, 1e-4, 4e-5, -3e-4, 2e-4])  # rad, rad, rad, ratio, ratio, ratio
 
 
 def _point_ahead(u: float, v: float, range_m: float) -> np.ndarray:
@@ -37,7 +38,7 @@ def _point_ahead(u: float, v: float, range_m: float) -> np.ndarray:
 def _measured(point: np.ndarray, state: np.ndarray) -> np.ndarray:
     projected = gtsam.StereoCamera(POSE.compose(MOUNT), CALIBRATION).project(point)
     uvv = np.array([projected.uL(), projected.uR(), projected.v()])
-    return uvv + pixel_coefficients(uvv, RIG.wac.fx, RIG.wac.cx, RIG.wac.cy) @ state
+    return uvv + pixel_shifts(uvv, RIG.wac.fx, RIG.wac.cx, RIG.wac.cy) @ state
 
 
 def test_without_a_calibration_error_it_is_gtsams_stereo_factor():
@@ -49,7 +50,7 @@ def test_without_a_calibration_error_it_is_gtsams_stereo_factor():
     values = gtsam.Values()
     values.insert(X(0), POSE)
     values.insert(L(0), point)
-    values.insert(C(0), np.zeros(5))
+    values.insert(C(0), np.zeros(6))
     assert ours.keys() == [X(0), L(0), C(0)]
     np.testing.assert_allclose(ours.unwhitenedError(values), gtsams.unwhitenedError(values), atol=1e-9)
     ours_jacobian, gtsams_jacobian = ours.linearize(values).jacobian()[0], gtsams.linearize(values).jacobian()[0]
@@ -63,7 +64,7 @@ def test_without_a_calibration_error_it_is_gtsams_stereo_factor():
 def test_the_true_state_explains_the_measurement_and_the_jacobians_match_central_differences():
     point = _point_ahead(300.0, 800.0, 25.0)
     measured = _measured(point, STATE)
-    coefficients = pixel_coefficients(measured, RIG.wac.fx, RIG.wac.cx, RIG.wac.cy)
+    coefficients = pixel_shifts(measured, RIG.wac.fx, RIG.wac.cx, RIG.wac.cy)
     # (the coefficients at the measured pixel, not the predicted one: 1e-4 px apart)
     assert np.allclose(calibrated_stereo_error(measured, coefficients, CALIBRATION, MOUNT, POSE, point, STATE), 0.0,
                        atol=1e-3)
@@ -82,9 +83,9 @@ def test_the_true_state_explains_the_measurement_and_the_jacobians_match_central
                               / (2 * eps) for i in range(6)])
     d_point = np.column_stack([(error(p=point + eps * unit[i, :3]) - error(p=point - eps * unit[i, :3])) / (2 * eps)
                                for i in range(3)])
-    unit5 = np.eye(5)
-    d_state = np.column_stack([(error(state=STATE + 1e-7 * unit5[i]) - error(state=STATE - 1e-7 * unit5[i])) / 2e-7
-                               for i in range(5)])
+    unit_c = np.eye(len(NAMES))
+    d_state = np.column_stack([(error(state=STATE + 1e-7 * unit_c[i]) - error(state=STATE - 1e-7 * unit_c[i])) / 2e-7
+                               for i in range(len(NAMES))])
     np.testing.assert_allclose(analytic[0], d_pose, rtol=1e-5, atol=1e-3)
     np.testing.assert_allclose(analytic[1], d_point, rtol=1e-5, atol=1e-3)
     np.testing.assert_allclose(analytic[2], d_state, rtol=1e-6, atol=1e-3)
@@ -95,9 +96,10 @@ def test_its_first_order_model_is_the_simulators_miscalibrated_pair_across_the_i
     draw: both focal lengths 0.063 % long, the right one 0.014 % more, the right camera turned
     0.002-0.02 deg): the same pixels within 0.001 px over the whole image at 2-40 m, where the
     error itself reaches 1.5 px."""
-    errors = SimulationErrors(focal_scale_sigma=6e-4, focal_difference_sigma=8e-5, boresight_sigma_deg=0.015)
+    errors = SimulationErrors(focal_scale_sigma=6e-4, focal_difference_sigma=8e-5, boresight_sigma_deg=0.015,
+                              baseline_scale_sigma=1e-3)
     true_rig = TrueRig.draw(RIG, errors, np.random.default_rng(6))
-    state = np.array([true_rig.state(RIG.wac)[name] for name in NAMES])
+    state = np.array([true_rig.state(RIG)[name] for name in NAMES])
     u, v = (grid.ravel() for grid in np.meshgrid(np.linspace(20, 1004, 9), np.linspace(20, 1004, 9)))
     worst, largest = 0.0, 0.0
     for range_m in (2.0, 8.0, 40.0):
@@ -107,7 +109,7 @@ def test_its_first_order_model_is_the_simulators_miscalibrated_pair_across_the_i
         true_uv, true_u_right = true_rig.observe(points)
         true = np.column_stack([true_uv[:, 0], true_u_right, true_uv[:, 1]])
         for k in range(len(points)):
-            predicted = nominal[k] + pixel_coefficients(true[k], RIG.wac.fx, RIG.wac.cx, RIG.wac.cy) @ state
+            predicted = nominal[k] + pixel_shifts(true[k], RIG.wac.fx, RIG.wac.cx, RIG.wac.cy) @ state
             worst = max(worst, float(np.abs(predicted - true[k]).max()))
             largest = max(largest, float(np.abs(true[k] - nominal[k]).max()))
     assert largest > 1.0  # measured 1.49 px
@@ -118,8 +120,8 @@ def test_a_realistic_profile_estimates_the_calibration_unless_the_estimator_says
     text = resolve_scenario("short_trail").read_text()
     realistic = load_scenario_text(text + '\n[errors]\nprofile = "realistic"\n')
     assert realistic.estimator.calibration == "estimated"
-    assert realistic.estimator.configurations["vo_sites"] == ["vo", "sites", "stereo_calibration", "vo_scale"]
-    assert realistic.estimator.configurations["vo"] == ["vo", "vo_scale"]
+    assert realistic.estimator.configurations["vo_sites"] == ["vo", "sites", "stereo_calibration"]
+    assert realistic.estimator.configurations["vo"] == ["vo", "stereo_calibration"]
     assert "stereo_calibration" not in realistic.estimator.configurations["dead_reckoning"]
     trusted = load_scenario_text(text + '\n[estimator]\ncalibration = "trusted"\n[errors]\nprofile = "realistic"\n')
     assert trusted.estimator.configurations["vo_sites"] == ["vo", "sites"]
@@ -154,3 +156,66 @@ def test_estimated_the_realistic_calibration_leaves_the_sites_consistent_and_nea
     turn = estimated.counters
     assert abs(turn["right_rotation_y_rad_error"]) < 3.0 * turn["right_rotation_y_rad_sigma"]
     assert turn["right_rotation_y_rad_sigma"] < 0.3 * np.deg2rad(0.01)  # the sites observe it, not the prior
+
+
+def test_a_vo_step_measured_through_a_miscalibrated_pair_comes_back_with_its_calibration_error():
+    """Two stops 1.5 m apart, noiseless pixels through the simulator's miscalibrated pair (turned
+    0.02 deg about the vertical among the rest): the two-stop adjustment's step is off the truth
+    by a pitch of 116 urad and 0.5 mm (measured); the step corrected by its sensitivity and the
+    true error by 0.06 urad and 0.0001 mm. The factor's Jacobians are central differences'."""
+    from pancam_graph.frontend.two_stop_adjustment import StereoIntrinsics, adjust_two_stops
+    from pancam_graph.geometry.rig import triangulate_rectified
+
+    rng = np.random.default_rng(4)
+    errors = SimulationErrors(focal_scale_sigma=3e-4, focal_difference_sigma=5e-5, boresight_sigma_deg=0.02,
+                              baseline_scale_sigma=1e-4)
+    true_rig = TrueRig.draw(RIG, errors, np.random.default_rng(11))
+    state = np.array([true_rig.state(RIG)[name] for name in NAMES])
+    body_T_left = gtsam.Pose3(gtsam.Rot3.Ypr(-np.pi / 2, 0.0, -np.pi / 2 - np.deg2rad(20.0)), [0.0, 0.1, 1.9])
+    truth = gtsam.Pose3(gtsam.Rot3.Ypr(np.deg2rad(3.0), 0.002, -0.001), [1.5, 0.05, 0.01])
+    cam = np.column_stack([rng.uniform(-4, 4, 150), rng.uniform(0.5, 1.8, 150), rng.uniform(3, 30, 150)])
+    cam1 = np.array([(body_T_left.inverse() * truth.inverse() * body_T_left).transformFrom(p) for p in cam])
+
+    def observed(points):
+        uv, u_right = true_rig.observe(points)
+        return np.column_stack([uv[:, 0], u_right, uv[:, 1]])
+
+    a, b = observed(cam), observed(cam1)
+    start = triangulate_rectified(a[:, 0], a[:, 1], a[:, 2], RIG.wac, RIG.baseline_m)
+    solution = adjust_two_stops(a, b, start, truth, StereoIntrinsics.of(CALIBRATION), body_T_left, 0.3)
+    vo_T, sensitivity = solution.prev_T_curr, solution.calibration_sensitivity
+    off = truth.localCoordinates(vo_T)
+    corrected = truth.localCoordinates(vo_T.compose(gtsam.Pose3.Expmap(sensitivity @ state)))
+    assert np.linalg.norm(off[:3]) > 5e-5  # the miscalibrated pair turns the step
+    assert np.linalg.norm(corrected[:3]) < 0.01 * np.linalg.norm(off[:3])
+    assert np.linalg.norm(corrected[3:]) < 0.01 * np.linalg.norm(off[3:])
+
+    # the factor: zero at the truth with the true error, and its Jacobians
+    world_T_a = gtsam.Pose3(gtsam.Rot3.Ypr(0.4, 0.02, -0.01), np.array([10.0, 4.0, -1.0]))
+    world_T_b = world_T_a.compose(truth)
+    assert np.abs(calibrated_vo_error(vo_T, sensitivity, world_T_a, world_T_b, state)).max() < \
+        0.05 * np.abs(calibrated_vo_error(vo_T, sensitivity, world_T_a, world_T_b, 0 * state)).max()
+    analytic = [None, None, None]
+    c = state * 3.0
+    calibrated_vo_error(vo_T, sensitivity, world_T_a, world_T_b, c, analytic)
+    unit, eps = np.eye(6), 1e-6
+
+    def error(a=world_T_a, b=world_T_b, cal=c):
+        return calibrated_vo_error(vo_T, sensitivity, a, b, cal)
+
+    d_a = np.column_stack([(error(a=world_T_a.retract(eps * u)) - error(a=world_T_a.retract(-eps * u))) / (2 * eps)
+                           for u in unit])
+    d_b = np.column_stack([(error(b=world_T_b.retract(eps * u)) - error(b=world_T_b.retract(-eps * u))) / (2 * eps)
+                           for u in unit])
+    d_c = np.column_stack([(error(cal=c + 1e-7 * u) - error(cal=c - 1e-7 * u)) / 2e-7 for u in unit])
+    np.testing.assert_allclose(analytic[0], d_a, atol=1e-6)
+    np.testing.assert_allclose(analytic[1], d_b, atol=1e-6)
+    np.testing.assert_allclose(analytic[2], d_c, rtol=1e-5, atol=1e-6)
+    # a checkpoint makes the factor again from its plain arguments
+    arguments = (X(0), X(1), vo_T, np.eye(6) * 1e-4, sensitivity)
+    values = gtsam.Values()
+    values.insert(X(0), world_T_a)
+    values.insert(X(1), world_T_b)
+    values.insert(C(0), c)
+    np.testing.assert_array_equal(calibrated_vo_factor(*pickle.loads(pickle.dumps(arguments))).unwhitenedError(values),
+                                  calibrated_vo_factor(*arguments).unwhitenedError(values))
