@@ -390,6 +390,9 @@ class _EstimatorCore(_Strict):
                                              "whose position, moved this far (GPS moves whole stretches of "
                                              "poses by centimetres: a 5 cm threshold relinearized hundreds a stop)")
     relinearize_scalar: float = Field(0.05, gt=0.0, description="... or a scalar (wheel slip, VO scale) this far")
+    relinearize_calibration: float = Field(2e-5, gt=0.0, description="... or a term of the stereo pair's "
+                                           "calibration error this far (a tenth of its prior's rotation sigma): "
+                                           "its factors' robust weights are taken at its linearization point")
     relinearize_check: Literal["auto", "full", "partial"] = Field(
         "auto", description="which variables iSAM2 checks against the thresholds: full, every one; partial, "
         "from the newest down only while a clique has one past them (GTSAM's partial check). auto is partial for "

@@ -34,13 +34,14 @@ class RelinearizeThresholds:
     rotation_rad: float
     translation_m: float
     scalar: float
+    calibration: float  # each term of the stereo pair's calibration error, C(0)
 
     def threshold_map(self) -> gtsam.ISAM2ThresholdMap:
         thresholds = gtsam.ISAM2ThresholdMap()
         pose = np.r_[np.full(3, self.rotation_rad), np.full(3, self.translation_m)]  # GTSAM: rotation first
         for symbol, vector in ((X, pose), (T, pose), (L, np.full(3, self.translation_m)),
                                (S, np.full(1, self.scalar)), (E, np.full(4, self.scalar)),
-                               (C, np.full(len(CALIBRATION_TERMS), self.scalar))):  # E, C: keys.py's vector sizes
+                               (C, np.full(len(CALIBRATION_TERMS), self.calibration))):  # E, C: keys.py's vector sizes
             thresholds.insert((chr(gtsam.Symbol(symbol(0)).chr()), vector))
         return thresholds
 

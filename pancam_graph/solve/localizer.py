@@ -62,7 +62,7 @@ GPS_RELINEARIZE_SKIP = 10  # GTSAM's default; see EstimatorConfig.relinearize_sk
 def smoother_for(estimator: EstimatorConfig, with_gps: bool = False) -> Smoother:
     """The smoother an estimator configuration asks for (`with_gps`: for a configuration with GPS)."""
     thresholds = RelinearizeThresholds(estimator.relinearize_rotation_rad, estimator.relinearize_translation_m,
-                                       estimator.relinearize_scalar)
+                                       estimator.relinearize_scalar, estimator.relinearize_calibration)
     factorization = estimator.factorization.upper()
     if factorization == "AUTO":
         factorization = "CHOLESKY" if with_gps else "QR"

@@ -24,7 +24,7 @@ from pancam_graph.store.documents import metrics_document
 def test_crlb_of_a_chain_is_the_sum_of_its_step_variances():
     # start prior 0.1 m, three 1 m steps of 0.02 m each, rotations pinned: var_k = 0.1^2 + k 0.02^2
     tight = 1e-9
-    smoother = Smoother(RelinearizeThresholds(0.02, 0.1, 0.05), relinearize_skip=1, window_m=np.inf,
+    smoother = Smoother(RelinearizeThresholds(0.02, 0.1, 0.05, 2e-5), relinearize_skip=1, window_m=np.inf,
                         wildfire_threshold=0.001)
     smoother.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Diagonal.Sigmas(
         np.array([tight] * 3 + [0.1] * 3))))
