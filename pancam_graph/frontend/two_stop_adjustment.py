@@ -121,7 +121,7 @@ def adjust_two_stops(prev_px: np.ndarray, curr_px: np.ndarray, points: np.ndarra
         cov = pixel_sigma**2 * information_inverse
         if not np.all(np.isfinite(cov)) or np.any(np.linalg.eigvalsh(0.5 * (cov + cov.T)) <= 0):
             return None
-        sensitivity = problem.calibration_sensitivity(jacobians, system[2], system[3], information_inverse)
+        sensitivity = problem.calibration_sensitivity(jacobians, system[3] @ schur[2], information_inverse)
     chi2 = (np.sum(now.r0**2, axis=1) + np.sum(now.r1**2, axis=1)) / pixel_sigma**2
     return TwoStopSolution(now.pose, cov, chi2, sensitivity)
 
@@ -183,18 +183,16 @@ class _Problem:
         g_p = (J0t @ e.r0[:, :, None])[:, :, 0] + g1[:, 6:]
         return H1[:, :6, :6].sum(axis=0), g1[:, :6].sum(axis=0), H_pp, H1[:, :6, 6:], g_p
 
-    def calibration_sensitivity(self, jacobians, H_pp: np.ndarray, H_xp: np.ndarray,
-                                information_inverse: np.ndarray) -> np.ndarray:
+    def calibration_sensitivity(self, jacobians, W: np.ndarray, information_inverse: np.ndarray) -> np.ndarray:
         """d pose / d c at the optimum: a calibration error c moves every residual by its pixel
         shift C c, and the Gauss-Newton step that takes back is linear in c (the points eliminated
-        as in _schur)."""
+        as in _schur: W = H_xp H_pp^-1, (n, 6, 3))."""
         J0, J1 = jacobians
         i = self.intrinsics
         C0, C1 = pixel_shifts(self.prev_px, i.fx, i.cx, i.cy), pixel_shifts(self.curr_px, i.fx, i.cx, i.cy)
         J1t = J1.transpose(0, 2, 1)
         g_x = (J1t[:, :6] @ C1).sum(axis=0)  # (6, 6): the pose's gradient per unit of each term
         g_p = J0.transpose(0, 2, 1) @ C0 + J1t[:, 6:] @ C1  # (n, 3, 6): each point's
-        W = H_xp @ np.linalg.inv(H_pp)
         return -information_inverse @ (g_x - (W @ g_p).sum(axis=0))
 
 
