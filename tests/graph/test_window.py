@@ -296,3 +296,55 @@ def test_the_calibration_is_relinearized_once_it_moves_past_its_threshold():
     linearized = smoother.isam.getLinearizationPoint().atVector(C(0))
     np.testing.assert_allclose(linearized, target, atol=2e-5)
     assert np.abs(linearized).max() > 1e-4  # it moved from where it started
+
+
+_HANDED: list[gtsam.Values] = []  # what the chain's error functions were handed, in order
+
+
+def _recording_step(key_a: int, key_b: int) -> gtsam.CustomFactor:
+    """A between factor of a unit step in x, in Python, that keeps the Values it is handed."""
+    step = gtsam.Pose3(gtsam.Rot3(), np.array([1.0, 0.0, 0.0]))
+
+    def error(factor, values, jacobians):
+        _HANDED.append(values)
+        a, b = values.atPose3(key_a), values.atPose3(key_b)
+        if jacobians is not None:
+            jacobians[0], jacobians[1] = np.zeros((6, 6)), np.zeros((6, 6))
+            return gtsam.Pose3.Logmap(step.between(a.between(b, jacobians[0], jacobians[1])))
+        return gtsam.Pose3.Logmap(step.between(a.between(b)))
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(6, 0.01), [key_a, key_b], error)
+
+
+def test_python_factors_are_handed_the_linearization_point_itself_not_a_copy():
+    """pybind11 copies the Values it hands a Python factor (the whole window, every time)
+    unless a Python object already wraps it: the smoother holds iSAM2's, in its updates, after a
+    replay and in the bound's replay alike (smoother.py, the held linearization point)."""
+    smoother = smoother_for(EstimatorConfig(window_m=10.0))
+    smoother.insert(X(0), gtsam.Pose3())
+    smoother.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 0.01)))
+    smoother.update()
+
+    def drive(smoother, stops):
+        for k in stops:
+            smoother.clock_m += 1.0
+            smoother.insert(X(k), gtsam.Pose3(gtsam.Rot3(), np.array([k + 0.3, 0.2, 0.0])))  # off: relinearized
+            smoother.add(_recording_step(X(k - 1), X(k)), rebuild=(_recording_step, (X(k - 1), X(k))))
+            smoother.update()
+
+    _HANDED.clear()
+    drive(smoother, range(1, 25))
+    assert len(_HANDED) > 24 and all(v is smoother._linearization_point for v in _HANDED)
+    resumed = pickle.loads(pickle.dumps(smoother))
+    _HANDED.clear()
+    drive(resumed, range(25, 30))
+    assert len(_HANDED) > 5 and all(v is resumed._linearization_point for v in _HANDED)
+    _HANDED.clear()
+    def on_the_line(keys):
+        values = gtsam.Values()
+        for key in keys:
+            values.insert(key, gtsam.Pose3(gtsam.Rot3(), np.array([gtsam.Symbol(key).index(), 0.0, 0.0])))
+        return values
+
+    resumed.marginals_at(on_the_line, [X(29)])
+    assert len(_HANDED) > 5 and all(v is _HANDED[0] for v in _HANDED)
