@@ -5,9 +5,7 @@ and odometry beside them and, in their own files, the truth."""
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -56,77 +54,32 @@ def render_scenario(scenario: Scenario, folder: Path, seed: int | None = None,
         progress("terrain", 0, 1)
     renderer = TerrainRenderer(terrain_tiles(scenario, dense_path(scenario.path), seed), seed=seed)
     traverse, truth = maps_of_rendered_ground(scenario, *simulate(scenario, seed), seed, renderer)
-    calibration = raw_stereo_pair(traverse.rig.wac, traverse.rig.baseline_m, config)
-    folder = Path(folder)
-    (folder / "images").mkdir(parents=True, exist_ok=True)
-    with _SensorWriter(folder, np.random.default_rng([seed, 3]), config.sensor_noise_dn) as writer:
-        frames, panorama = _shoot_traverse(traverse, truth, renderer, writer, calibration, config.panoramas, progress)
-    # The scenario's own VO error model: on these renders white pixel noise holds over the run
-    # and KITTI's rotation floor made the covariance ten times too wide (docs/frontend.md,
-    # "Leave one out").
-    write_observations(folder, traverse, scenario.estimator, seed, truth, scenario.rig, frames=frames,
-                       panorama_frames=panorama, calibration=calibration)
-    return 2 * len(frames) + sum(2 if p.camera == "wac" else 1 for p in panorama)
-
-
-class _SensorWriter:
-    """The sensor's read noise and the PNG encoding of each rendered image, in one thread beside
-    the renderer (numpy's draws and OpenCV's encoding let the GIL go). One thread takes the
-    images in the order they were shot, so the noise drawn is what drawing it image by image
-    gives; at most `ahead` images wait, so memory stays flat."""
-
-    def __init__(self, folder: Path, rng: np.random.Generator, noise_dn: float, ahead: int = 8):
-        self.folder, self.rng, self.noise_dn, self.ahead = folder, rng, noise_dn, ahead
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sensor")
-        self._waiting: deque[Future] = deque()
-
-    def __enter__(self) -> _SensorWriter:
-        return self
-
-    def __exit__(self, kind, error, trace) -> None:
-        try:
-            if kind is None:
-                while self._waiting:
-                    self._waiting.popleft().result()
-        finally:
-            self._pool.shutdown(wait=True, cancel_futures=True)
-
-    def write(self, name: str, radiance: np.ndarray) -> str:
-        while len(self._waiting) >= self.ahead:
-            self._waiting.popleft().result()  # raises the writer's error here, in the render loop
-        self._waiting.append(self._pool.submit(self._expose, name, radiance))
-        return name
-
-    def _expose(self, name: str, radiance: np.ndarray) -> None:
-        if not cv2.imwrite(str(self.folder / name), sensor_image(radiance, self.rng, self.noise_dn)):
-            raise ResultsError(f"{self.folder / name}: cannot write the image (disk full or no permission?)")
-
-
-def _shoot_traverse(traverse: Traverse, truth: GroundTruth, renderer: TerrainRenderer, writer: _SensorWriter,
-                    calibration: StereoCalibration, panoramas: bool,
-                    progress: Callable[[str, int, int], None] | None
-                    ) -> tuple[list[tuple[str, str]], list[PanoramaImage]]:
-    """Every stop's navigation pair and, with `panoramas`, the sites' WAC pairs and HRC frames:
-    the frames' names and the panorama's records."""
     rig = traverse.rig
+    calibration = raw_stereo_pair(rig.wac, rig.baseline_m, config)
     left_camera, right_camera = calibration.cameras()
     left_T_right = calibration.left_T_right()
+    rng = np.random.default_rng([seed, 3])
+    folder = Path(folder)
+    (folder / "images").mkdir(parents=True, exist_ok=True)
 
     def shoot(name: str, world_T_camera: np.ndarray, camera: Camera) -> str:
-        return writer.write(name, renderer.render(world_T_camera, camera))
+        image = sensor_image(renderer.render(world_T_camera, camera), rng, config.sensor_noise_dn)
+        if not cv2.imwrite(str(folder / name), image):
+            raise ResultsError(f"{folder / name}: cannot write the image (disk full or no permission?)")
+        return name
 
     def stereo(prefix: str, world_T_left: np.ndarray) -> tuple[str, str]:
         return (shoot(f"{prefix}_left.png", world_T_left, left_camera),
                 shoot(f"{prefix}_right.png", world_T_left @ left_T_right, right_camera))
 
-    total = len(traverse.stops) + (_panorama_count(traverse) if panoramas else 0)
+    total = len(traverse.stops) + (_panorama_count(traverse) if config.panoramas else 0)
     done = 0
     frames, panorama = [], []
     for stop, world_T_body in zip(traverse.stops, truth.world_T_body, strict=True):
         k = stop.index
         frames.append(stereo(f"images/{k:06d}", world_T_body @ traverse.body_T_nav().matrix()))
         done += 1
-        if panoramas:
+        if config.panoramas:
             for f in stop.panorama:
                 world_T_left = world_T_body @ rig.body_T_left(f.pan_rad, f.tilt_rad).matrix()
                 left, right = stereo(_frame_name(stop.site_id, "wac", f.pan_rad, f.tilt_rad), world_T_left)
@@ -139,7 +92,12 @@ def _shoot_traverse(traverse: Traverse, truth: GroundTruth, renderer: TerrainRen
                 done += 1
         if progress is not None:
             progress("rendering", done, total)
-    return frames, panorama
+    # The scenario's own VO error model: on these renders white pixel noise holds over the run
+    # and KITTI's rotation floor made the covariance ten times too wide (docs/frontend.md,
+    # "Leave one out").
+    write_observations(folder, traverse, scenario.estimator, seed, truth, scenario.rig, frames=frames,
+                       panorama_frames=panorama, calibration=calibration)
+    return 2 * len(frames) + sum(2 if p.camera == "wac" else 1 for p in panorama)
 
 
 def maps_of_rendered_ground(scenario: Scenario, traverse: Traverse, truth: GroundTruth, seed: int,

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from pancam_graph.config import Scenario
-from pancam_graph.errors import FrameError, FrontendError, InputError, ResultsError
+from pancam_graph.errors import FrameError, FrontendError, InputError
 from pancam_graph.render.renderer import TerrainRenderer, sensor_image
 from pancam_graph.render.scenario_images import raw_stereo_pair, render_scenario
 from pancam_graph.render.terrain import terrain_tiles
@@ -334,22 +334,3 @@ def test_a_sites_ground_from_its_rendered_panorama_is_found_in_the_rendered_orth
     assert np.hypot(*error) < 0.5, error
     assert error @ np.linalg.solve(found.covariance, error) < 3.5**2, (error, found.covariance)
     assert found.peak > 0.2 and found.margin > 0.05
-
-
-def test_the_sensor_writer_draws_the_noise_in_the_order_shot_and_reports_a_failed_write(tmp_path):
-    """The noise and PNG encoding run in a thread beside the renderer: each image gets the noise
-    drawing it image by image gives, and a write that fails stops the render with its file."""
-    import cv2
-
-    from pancam_graph.render.scenario_images import _SensorWriter
-
-    radiances = [np.full((40, 60), 0.1 * k, dtype=np.float32) for k in range(1, 12)]
-    with _SensorWriter(tmp_path, np.random.default_rng(5), 1.5, ahead=3) as writer:
-        names = [writer.write(f"{k:02d}.png", r) for k, r in enumerate(radiances)]
-    rng = np.random.default_rng(5)
-    for name, radiance in zip(names, radiances, strict=True):
-        np.testing.assert_array_equal(cv2.imread(str(tmp_path / name), cv2.IMREAD_UNCHANGED),
-                                      sensor_image(radiance, rng, 1.5))
-    with pytest.raises(ResultsError, match="nowhere/00.png: cannot write the image"):
-        with _SensorWriter(tmp_path / "nowhere", np.random.default_rng(5), 1.5) as writer:
-            writer.write("00.png", radiances[0])
