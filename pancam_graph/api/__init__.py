@@ -104,6 +104,18 @@ def open_data(source: str | Path, options: SourceOptions = SourceOptions(), out:
     return _with_vo_error_model(data, vo_error_model)
 
 
+def check_configs(source: str | Path, configs: tuple[str, ...] | None) -> None:
+    """Refuse a requested configuration that its name alone rules out (unknown, a kind it lacks),
+    before the source loads: a typo costs no simulation or front-end run. What the traverse
+    must feed is checked once it is loaded."""
+    if configs is None:
+        return
+    from ..solve.pipeline import configuration_kinds
+    from ..sources import estimator_before_loading
+
+    configuration_kinds(estimator_before_loading(str(source)), configs)
+
+
 def _with_vo_error_model(data: SourceData, name: str | None) -> SourceData:
     """The source with the VO error model `name` in effect (as it is: None, or its own)."""
     if name is None or name == data.estimator.vo_error_model:
@@ -161,6 +173,8 @@ def run(source: str | Path = "denver_trail", *, out: Path | str | None = None, s
         start_process_server()  # it imports while the source loads
     check_out(out)
     source_options = source_options or SourceOptions(seed=seed)
+    if opened is None:
+        check_configs(source, options.configs)
     data = _with_vo_error_model(opened, vo_error_model) if opened else open_data(source, source_options, out,
                                                                                    progress, vo_error_model,
                                                                                    options.processes)
@@ -502,5 +516,5 @@ def sweep(planned: SweepPlan, *, workers: int = 2, scheduler: str | None = None,
 
 
 __all__ = ["AnalysisOutcome", "ProgressCallback", "ResumePoint", "RunInterrupted", "RunOptions", "RunOutcome",
-           "SourceOptions", "SweepOutcome", "SweepPlan", "analyze", "check_out", "evaluate", "open_data",
-           "plan_sweep", "resume", "resume_point", "run", "simulate", "sweep", "track", "view"]
+           "SourceOptions", "SweepOutcome", "SweepPlan", "analyze", "check_configs", "check_out", "evaluate",
+           "open_data", "plan_sweep", "resume", "resume_point", "run", "simulate", "sweep", "track", "view"]

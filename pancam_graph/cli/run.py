@@ -153,6 +153,7 @@ def run_command(
         target = rerun_target(rerun, viewer_memory)
         names = parse_configs(configs)
         api.check_out(out)
+        api.check_configs(source, names)  # before a long simulation or front-end
         data = with_progress(Path(source).name or source, quiet,
                               lambda report: api.open_data(source, source_options, out, report,
                                                            vo_error_model=vo_error_model, processes=processes))

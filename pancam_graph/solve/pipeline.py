@@ -44,6 +44,21 @@ def select_configurations(estimator: EstimatorConfig, traverse: Traverse, reques
         check_traverse(chosen, traverse)
         return chosen, skipped
     chosen = {}
+    for name, kinds in configuration_kinds(estimator, requested).items():
+        reason = unavailable(kinds, traverse)
+        if reason:
+            raise ConfigError(f"--configs {name}: this traverse cannot feed it ({reason})")
+        chosen[name] = kinds
+    check_traverse(chosen, traverse)
+    return chosen, {}
+
+
+def configuration_kinds(estimator: EstimatorConfig, requested: tuple[str, ...]) -> dict[str, list[str]]:
+    """name -> kinds of each requested configuration: a name the estimator defines or kinds
+    joined by '+'. What the names alone can tell, before the traverse is there (a long
+    simulation or front-end need not run for a typo)."""
+    defined = estimator.configurations
+    chosen = {}
     for name in requested:
         kinds = list(defined[name]) if name in defined else name.split("+")
         problem = configuration_problem(kinds)
@@ -51,12 +66,8 @@ def select_configurations(estimator: EstimatorConfig, traverse: Traverse, reques
             close = difflib.get_close_matches(name, list(defined), n=1)
             hint = f"did you mean {close[0]}? " if close else ""
             raise ConfigError(f"--configs {name}: {problem}; {hint}defined configurations: {', '.join(defined)}")
-        reason = unavailable(kinds, traverse)
-        if reason:
-            raise ConfigError(f"--configs {name}: this traverse cannot feed it ({reason})")
         chosen[name] = kinds
-    check_traverse(chosen, traverse)
-    return chosen, {}
+    return chosen
 
 
 def check_traverse(chosen: dict[str, list[str]], traverse: Traverse) -> None:

@@ -10,7 +10,7 @@ import dataclasses
 import time
 from pathlib import Path
 
-from ..config import SourceOptions
+from ..config import EstimatorConfig, SourceOptions
 from ..errors import ConfigError
 from ..runtime.processes import call_apart
 from .recorded import is_kitti_drive
@@ -30,6 +30,13 @@ def source_for(text: str) -> Source:
         raise ConfigError(f"{path}: a KITTI date folder; give one drive folder inside it ({', '.join(drives)})")
     expected = ", ".join(s.describes for s in SOURCES)
     raise ConfigError(f"{path}: not a source: expected {expected}")
+
+
+def estimator_before_loading(text: str) -> EstimatorConfig:
+    """The estimator settings the source `text` will run with (its configurations among them),
+    read without loading it."""
+    source = source_for(text)
+    return EstimatorConfig() if source.estimator is None else source.estimator(text)
 
 
 def source_kind(text: str) -> str:
@@ -61,5 +68,6 @@ def _load(name: str, text: str, options: SourceOptions) -> SourceData:
     return next(s for s in SOURCES if s.name == name).load(text, options, None)
 
 
-__all__ = ["SOURCES", "Source", "SourceData", "SourceOptions", "open_source", "source_for", "source_kind",
+__all__ = ["SOURCES", "Source", "SourceData", "SourceOptions", "estimator_before_loading", "open_source",
+           "source_for", "source_kind",
            "stereo_image_sources"]

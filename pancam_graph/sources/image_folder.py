@@ -157,5 +157,11 @@ def stereo_frames(folder: Path) -> StereoFrames:
                         None if pairs.rectify is None else pairs.rectified, odometry_camera_motion(obs.traverse))
 
 
+def _estimator(text: str):
+    from ..store.observation_folder import read_estimator
+
+    return read_estimator(Path(text))
+
+
 SOURCES = (Source("image_folder", 30, frozenset({"detector", "skip_bad_frames"}), matches, _load,
-                  "an image folder (traverse.toml with frames.csv)", frames=stereo_frames),)
+                  "an image folder (traverse.toml with frames.csv)", frames=stereo_frames, estimator=_estimator),)

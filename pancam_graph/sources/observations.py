@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..solve.results import SourceInfo
-from ..store.observation_folder import is_observation_folder, read_observations
+from ..store.observation_folder import is_observation_folder, read_estimator, read_observations
 from .registry import Source, SourceData
 
 
@@ -21,4 +21,4 @@ def load(path: Path) -> SourceData:
 
 
 SOURCES = (Source("observations", 40, frozenset(), matches, lambda text, options, progress: load(Path(text)),
-                  "an observation folder (traverse.toml)"),)
+                  "an observation folder (traverse.toml)", estimator=lambda text: read_estimator(Path(text))),)

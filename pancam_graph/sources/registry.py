@@ -60,6 +60,10 @@ class Source:
     apart: Callable[[str], bool] = lambda text: False
     # Its stereo frames, when it reads stereo images the front-end tracks (track, bench frontend).
     frames: Callable[[Path], StereoFrames] | None = None
+    # Its estimator settings read without loading it, when it has its own (a scenario's, a
+    # folder's manifest): `--configs` is checked against them before a long simulation or
+    # front-end. None: the defaults'.
+    estimator: Callable[[str], EstimatorConfig] | None = None
 
     @property
     def stereo_images(self) -> bool:

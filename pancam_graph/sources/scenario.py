@@ -25,4 +25,5 @@ def matches(path: Path) -> bool:
 SOURCES = (Source("scenario", 100, frozenset({"seed"}), matches,
                   lambda text, options, progress: load(text, options.seed),
                   "a bundled scenario name or a scenario TOML file",
-                  lambda text: worth_simulating_apart(load_scenario(resolve_scenario(text)))),)
+                  lambda text: worth_simulating_apart(load_scenario(resolve_scenario(text))),
+                  estimator=lambda text: load_scenario(resolve_scenario(text)).estimator),)

@@ -162,6 +162,11 @@ def _read_kind_tables(folder: Path, traverse: Traverse) -> dict[str, tuple]:
     return out
 
 
+def read_estimator(folder: Path) -> EstimatorConfig:
+    """The folder's estimator settings, from its manifest alone (no table read)."""
+    return _manifest(Path(folder) / MANIFEST).estimator
+
+
 def _manifest(path: Path) -> Manifest:
     return load_toml_model(path, Manifest, "observation manifest", InputError)
 
