@@ -28,7 +28,8 @@ _POSE_CHR = gtsam.Symbol(X(0)).chr()
 # object already wraps that very Values. The copy costs in proportion to the window (a factor's
 # linearization took 842 us against 25 us with 5,000 poses in it), on every CustomFactor
 # relinearized. Holding iSAM2's own `getLinearizationPoint()` (a reference, not a copy) for as
-# long as the smoother lives makes pybind11 pass that object instead.
+# long as the smoother lives makes pybind11 pass that object instead. That object keeps iSAM2
+# alive: it goes wherever iSAM2 goes (`_new_isam`, `release_solver`).
 
 
 @dataclass(frozen=True)
@@ -250,6 +251,7 @@ class Smoother:
         the bound's replay (`marginals_at`) builds a window of its own from the update log, and
         would otherwise come on top of every live one. Nothing but `marginals_at` may be asked
         after this."""
+        self._linearization_point = None  # it holds iSAM2 alive (see the held linearization point)
         self.isam = None
 
     # -- checkpoints ---------------------------------------------------------------------------

@@ -340,6 +340,7 @@ def test_python_factors_are_handed_the_linearization_point_itself_not_a_copy():
     drive(resumed, range(25, 30))
     assert len(_HANDED) > 5 and all(v is resumed._linearization_point for v in _HANDED)
     _HANDED.clear()
+
     def on_the_line(keys):
         values = gtsam.Values()
         for key in keys:
@@ -348,3 +349,17 @@ def test_python_factors_are_handed_the_linearization_point_itself_not_a_copy():
 
     resumed.marginals_at(on_the_line, [X(29)])
     assert len(_HANDED) > 5 and all(v is _HANDED[0] for v in _HANDED)
+
+
+def test_released_solver_lets_isam2_go():
+    """The held linearization point keeps its iSAM2 alive: releasing the solver must let go of
+    both, or the bound's replay builds its window on top of the live one."""
+    import weakref
+
+    smoother = smoother_for(EstimatorConfig(window_m=10.0))
+    smoother.insert(X(0), gtsam.Pose3())
+    smoother.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 0.01)))
+    smoother.update()
+    isam = weakref.ref(smoother.isam)
+    smoother.release_solver()
+    assert isam() is None
