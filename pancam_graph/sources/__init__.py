@@ -32,11 +32,11 @@ def source_for(text: str) -> Source:
     raise ConfigError(f"{path}: not a source: expected {expected}")
 
 
-def estimator_before_loading(text: str) -> EstimatorConfig:
+def estimator_before_loading(text: str) -> EstimatorConfig | None:
     """The estimator settings the source `text` will run with (its configurations among them),
-    read without loading it."""
+    read without loading it; None when only loading it tells (Source.estimator)."""
     source = source_for(text)
-    return EstimatorConfig() if source.estimator is None else source.estimator(text)
+    return None if source.estimator is None else source.estimator(text)
 
 
 def source_kind(text: str) -> str:

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..config import FrontendConfig, SourceOptions
+from ..config import EstimatorConfig, FrontendConfig, SourceOptions
 from ..errors import FrameError, InputError
 from ..formats.images import read_gray
 from ..frontend.motion import VoMotions
@@ -157,7 +157,7 @@ def stereo_frames(folder: Path) -> StereoFrames:
                         None if pairs.rectify is None else pairs.rectified, odometry_camera_motion(obs.traverse))
 
 
-def _estimator(text: str):
+def _estimator(text: str) -> EstimatorConfig:
     from ..store.observation_folder import read_estimator
 
     return read_estimator(Path(text))

@@ -100,4 +100,4 @@ def _load(text: str, options: SourceOptions, progress) -> SourceData:
 
 SOURCES = (Source("kitti_odometry", 50, frozenset({"detector", "skip_bad_frames"}), matches, _load,
                   "a KITTI odometry sequence (calib.txt with image_0/image_1 or image_l/image_r)",
-                  frames=stereo_frames),)
+                  frames=stereo_frames, estimator=lambda text: REAL_IMAGE_ESTIMATOR),)

@@ -273,5 +273,5 @@ SOURCES = (
                                     "skip_bad_frames"}), is_bag, _load_bag,
            "a ROS1 bag or a ROS2 bag folder (metadata.yaml)"),
     Source("kitti_raw", 20, frozenset({"geoid_height_m", "holdout_every"}), is_kitti_drive, _load_kitti_raw,
-           "a KITTI raw drive folder (oxts/)"),
+           "a KITTI raw drive folder (oxts/)", estimator=lambda text: EstimatorConfig()),
 )

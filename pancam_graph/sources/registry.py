@@ -60,9 +60,10 @@ class Source:
     apart: Callable[[str], bool] = lambda text: False
     # Its stereo frames, when it reads stereo images the front-end tracks (track, bench frontend).
     frames: Callable[[Path], StereoFrames] | None = None
-    # Its estimator settings read without loading it, when it has its own (a scenario's, a
-    # folder's manifest): `--configs` is checked against them before a long simulation or
-    # front-end. None: the defaults'.
+    # The estimator settings it will run with, read without loading it (a scenario's, a folder's
+    # manifest): `--configs` is checked against their configurations before a long simulation or
+    # front-end. None: they depend on what loading finds (a bag's topics, a PDS folder's
+    # cameras), and the names are checked once it is loaded.
     estimator: Callable[[str], EstimatorConfig] | None = None
 
     @property

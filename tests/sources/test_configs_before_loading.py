@@ -5,7 +5,7 @@ folder's own configurations count."""
 import pytest
 
 from pancam_graph import api
-from pancam_graph.config import load_scenario, resolve_scenario
+from pancam_graph.config import dump_scenario, load_scenario, resolve_scenario
 from pancam_graph.errors import ConfigError, FrameError
 from pancam_graph.sim import simulate
 from pancam_graph.store.observation_writer import write_observations
@@ -38,6 +38,20 @@ def test_a_configuration_typo_is_refused_before_the_front_end_runs(image_folder,
 
 
 def test_a_scenarios_own_configurations_pass_and_others_are_refused(tmp_path):
-    api.check_configs("short_trail", ("vo", "vo_sites", "vo+gps"))
+    scenario = load_scenario(resolve_scenario("short_trail"))
+    estimator = scenario.estimator.model_copy(update={"configurations": {"my_vo": ["vo"]}})
+    path = tmp_path / "own.toml"
+    path.write_text(dump_scenario(scenario.model_copy(update={"estimator": estimator})), encoding="utf-8")
+    api.check_configs(path, ("my_vo", "vo+gps"))
+    with pytest.raises(ConfigError, match="--configs my_v: .*did you mean my_vo"):
+        api.check_configs(path, ("my_v",))
     with pytest.raises(ConfigError, match="--configs full_mar: .*did you mean full_mars"):
         api.check_configs("mars_excerpt", ("vo", "full_mar"))
+
+
+def test_a_source_whose_configurations_loading_tells_is_checked_once_loaded():
+    """A bag's configurations depend on its topics (stereo or not): no early verdict."""
+    from pathlib import Path
+
+    bag = Path(__file__).parents[1] / "data" / "real" / "robot_localization" / "test1.bag"
+    api.check_configs(bag, ("anything",))  # refused by select_configurations after loading
