@@ -126,7 +126,7 @@ class StereoCalibration(Kind):
     builds_site_stereo = True
     builds_motion = "vo"
     # its VO steps' and site views' factors are Python CustomFactors: a guess, not measured as a
-    # ratio (vo_sites' iSAM2 time on mars_excerpt 20005 went 13.6 -> 42.7 s with it on the VO)
+    # ratio (vo_sites' iSAM2 updates on mars_excerpt 20005: 7.9 s in all; docs/performance.md)
     cost = 3.0
 
     def __init__(self, localizer):
