@@ -1,5 +1,8 @@
 """Every user mistake exits 2 with one line naming the argument, writes nothing and shows no
-traceback. Run as a real process (the installed console script), as a user would."""
+traceback. The mistakes go through the command-line application in this process (each in a
+process of its own cost a second of imports, 20 s of the suite); that the installed console
+script says the same, exit code and words, is checked on a few of them in real processes, as is
+everything that needs one (two runs at once, a viewer, a dead run)."""
 
 import os
 import socket
@@ -71,31 +74,49 @@ def _make_work_folder(folder: Path) -> list[Path]:
     return sorted(p.relative_to(folder) for p in folder.rglob("*"))
 
 
-@pytest.fixture(scope="module")
-def mistakes(tmp_path_factory):
-    """Every mistake run once, two at a time (each a process that mostly waits on its imports):
-    (result, files before, files after) per case."""
-    from concurrent.futures import ThreadPoolExecutor
+def _app(*args: str, cwd: Path, env: dict | None = None) -> subprocess.CompletedProcess:
+    """The command-line application run here, in `cwd`, as the console script runs it; an
+    exception that escapes it is shown as the traceback a user would see."""
+    import traceback
 
-    # the folders made here, not in the threads: pytest's tmp_path_factory is not made for threads
-    folders = [tmp_path_factory.mktemp("mistakes") / f"case{case}" for case in range(len(MISTAKES))]
+    from typer.testing import CliRunner
 
-    def attempt(case: int):
-        folder = folders[case]
-        before = _make_work_folder(folder)
-        result = _cli(*MISTAKES[case][0], cwd=folder, env={"DISPLAY": ""})
-        return result, before, sorted(p.relative_to(folder) for p in folder.rglob("*"))
+    from pancam_graph.cli.app import app
 
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        return list(pool.map(attempt, range(len(MISTAKES))))
+    here = os.getcwd()
+    os.chdir(cwd)
+    try:
+        result = CliRunner().invoke(app, list(args), env=env, prog_name="pancam-graph")
+    finally:
+        os.chdir(here)
+    stderr = result.stderr
+    if result.exception is not None and not isinstance(result.exception, SystemExit):
+        stderr += "".join(traceback.format_exception(result.exception))
+    return subprocess.CompletedProcess(args, result.exit_code, result.stdout, stderr)
 
 
 @pytest.mark.parametrize("case", range(len(MISTAKES)), ids=[" ".join(args[:2]) for args, _ in MISTAKES])
-def test_mistake_exits_2_names_the_argument_and_writes_nothing(mistakes, case):
-    result, before, after = mistakes[case]
+def test_mistake_exits_2_names_the_argument_and_writes_nothing(case, tmp_path):
+    folder = tmp_path / "work"
+    before = _make_work_folder(folder)
+    result = _app(*MISTAKES[case][0], cwd=folder, env={"DISPLAY": ""})
     _assert_usage_error(result, *MISTAKES[case][1])
-    assert after == before
+    assert sorted(p.relative_to(folder) for p in folder.rglob("*")) == before
     assert len(result.stderr.strip().splitlines()) <= 4  # a short message (click adds usage lines), not a dump
+
+
+@pytest.mark.parametrize("case", [0, 1, 12, 21], ids=lambda case: " ".join(MISTAKES[case][0][:2]))
+def test_the_console_script_says_what_the_application_says(case, tmp_path):
+    """A typed error (an --out that is a file, an unknown scenario, a bad --origin) and a click
+    usage error (a negative --seed): the installed command's exit code and words are the
+    in-process application's."""
+    folder = tmp_path / "work"
+    before = _make_work_folder(folder)
+    script = _cli(*MISTAKES[case][0], cwd=folder, env={"DISPLAY": ""})
+    here = _app(*MISTAKES[case][0], cwd=folder, env={"DISPLAY": ""})
+    _assert_usage_error(script, *MISTAKES[case][1])
+    assert sorted(p.relative_to(folder) for p in folder.rglob("*")) == before
+    assert (script.returncode, script.stderr.split()) == (here.returncode, here.stderr.split())
 
 
 def test_view_without_a_display_saves_the_replay_and_says_so(tmp_path):

@@ -79,6 +79,32 @@ def test_target_centres_are_found_to_a_tenth_of_a_pixel(field):
     assert np.sqrt(np.mean(errors**2)) < 0.12 and errors.max() < 0.5  # measured 0.09 RMS, 0.27 max
 
 
+def test_the_control_fields_rays_are_the_lens_undistorting_every_sample():
+    """The renderer's supersample rays, interpolated between the pixels' rays, against OpenCV
+    undistorting each sample: on a corner of the pair's raw camera, where the lens bends most."""
+    from dataclasses import replace
+
+    from pancam_graph.config import load_scenario, resolve_scenario
+    from pancam_graph.geometry.rig import rig_preset
+    from pancam_graph.render.control_field import SUPERSAMPLES, FieldRenderer, standard_panels
+    from pancam_graph.render.scenario_images import raw_stereo_pair
+
+    scenario = load_scenario(resolve_scenario("denver_trail"))
+    rig = rig_preset(scenario.rig)
+    _, right = raw_stereo_pair(rig.wac, rig.baseline_m, scenario.render).cameras()
+    corner = replace(right, width=96, height=64)  # the top-left 96 x 64 pixels, the same lens
+    rays = FieldRenderer(standard_panels(), corner).rays
+    offsets = (np.arange(SUPERSAMPLES) + 0.5) / SUPERSAMPLES - 0.5
+    uu, vv = np.meshgrid((np.arange(corner.width)[:, None] + offsets).ravel(),
+                         (np.arange(corner.height)[:, None] + offsets).ravel())
+    exact = cv2.undistortPoints(np.column_stack([uu.ravel(), vv.ravel()]).reshape(-1, 1, 2), corner.matrix(),
+                                corner.distortion(), None, None,
+                                criteria=(cv2.TERM_CRITERIA_COUNT, 40, 0.0)).reshape(-1, 2)
+    error_px = np.abs(rays - exact) * corner.fx
+    assert np.abs(exact - np.roll(exact, 1, axis=0)).max() * corner.fx > 0.2  # samples a fraction of a pixel apart
+    assert error_px.max() < 2e-4, error_px.max()
+
+
 def test_the_centre_is_where_the_diagonals_cross():
     # A square's centre under a homography: not the corners' mean, the diagonals' crossing.
     h = np.array([[1.2, 0.1, 5.0], [0.05, 0.9, 3.0], [1e-3, 2e-3, 1.0]])
