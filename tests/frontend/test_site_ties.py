@@ -164,11 +164,12 @@ def test_a_bad_panorama_frame_stops_with_its_name_and_keeps_the_tracking_or_is_l
 
     folder = tmp_path / "copy"
     shutil.copytree(sites[0], folder)
-    # the first two sites only (one site pair to tie instead of three: the test's time)
+    # the first two sites' WAC frames only (one site pair to tie instead of three, and no HRC
+    # frames to match: the test's time)
     frames = (folder / "panorama_frames.csv").read_text().splitlines(keepends=True)
     two_sites = sorted({int(line.split(",")[0]) for line in frames[1:]})[:2]
-    (folder / "panorama_frames.csv").write_text("".join(frames[:1] + [line for line in frames[1:]
-                                                                       if int(line.split(",")[0]) in two_sites]))
+    (folder / "panorama_frames.csv").write_text("".join(frames[:1] + [
+        line for line in frames[1:] if int(line.split(",")[0]) in two_sites and line.split(",")[2] == "wac"]))
     bad = read_observations(folder).panorama_frames[0].left
     bad.write_bytes(bad.read_bytes()[:3000])
     with pytest.raises(FrameError, match=rf"site panorama: .*{bad.name}: truncated PNG") as stopped:
@@ -182,17 +183,22 @@ def test_a_bad_panorama_frame_stops_with_its_name_and_keeps_the_tracking_or_is_l
 
 def test_a_pair_with_too_few_strong_ties_is_verified_again_with_the_weaker_peaks(sites):
     # On denver_trail the sites 51.8 m apart verify 8 ties at NCC 0.8 and 19 at 0.7, all within
-    # 3 px of the truth. Here the strong threshold is raised until too few pass.
+    # 3 px of the truth. Here, on the views that tied the first two sites, the strong threshold is
+    # raised until too few pass (at 0.97 enough did on those views alone).
     folder, obs, tracked, _, report, truth = sites
     rig, pairs = obs.traverse.rig, FramePairs(obs)
     matcher = PanoramaMatcher(rig.wac, rig.baseline_m)
     by_stop = images_by_stop(obs)
     a_stop, b_stop = list(by_stop)[:2]
+    (pair,) = [p for p in report.pairs if (p.a_stop, p.b_stop) == (a_stop, b_stop)]
+    # the views that tied the two sites in the whole run (matching the others only costs time)
+    tying = ({t.a_view for t in pair.result.ties}, {t.b_view for t in pair.result.ties})
     a, b = (matcher(stop, k, [PanoramaView(im.pan_rad, im.tilt_rad, rig.body_T_left(im.pan_rad, im.tilt_rad).matrix(),
-                                           *pairs.read_view(im)) for im in by_stop[stop]])
+                                           *pairs.read_view(im)) for v, im in enumerate(by_stop[stop])
+                              if v in tying[k]])
             for k, stop in enumerate((a_stop, b_stop)))
-    (prediction,) = [p.prediction for p in report.pairs if (p.a_stop, p.b_stop) == (a_stop, b_stop)]
-    strict = TieSettings(min_ncc=0.97, relaxed_ncc=0.8, wanted_ties=9)
+    prediction = pair.prediction
+    strict = TieSettings(min_ncc=0.99, relaxed_ncc=0.8, wanted_ties=9)
     result = TieMatcher(rig, obs.traverse.image_noise_px, strict)(a, b, prediction)
     assert "down to 0.8 verified" in result.note, result.note
     assert len(result.ties) >= 9
