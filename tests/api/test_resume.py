@@ -52,7 +52,7 @@ def _killed_past(tmp_path: Path, past_stop: int, *options: str, source: str = "s
 
 
 def test_a_killed_run_resumes_to_the_same_estimate(tmp_path):
-    whole = _run("run", "short_trail", "--out", "whole", "--quiet", cwd=tmp_path)
+    whole = _run("run", "short_trail", "--out", "whole", "--quiet", "--no-plots", cwd=tmp_path)
     assert whole.returncode == 0, whole.stderr
 
     _killed_past(tmp_path, 10)
@@ -62,7 +62,7 @@ def test_a_killed_run_resumes_to_the_same_estimate(tmp_path):
     log = saved.localizers["vo"].smoother.log
     assert log.files >= 1 and (tmp_path / "res.partial" / "checkpoint" / "log" / "vo" / "chunk-00000.pkl").is_file()
 
-    resumed = _run("run", "--resume", "res.partial", "--quiet", cwd=tmp_path)
+    resumed = _run("run", "--resume", "res.partial", "--quiet", "--no-plots", cwd=tmp_path)  # trajectories compared
     assert resumed.returncode == 0, resumed.stderr
     assert f"resuming short_trail at stop {saved.next_stop} of {stops}" in resumed.stderr
     assert not (tmp_path / "res.partial").exists() and not (tmp_path / "res" / "checkpoint").exists()
@@ -78,14 +78,15 @@ def test_a_killed_run_with_the_estimated_calibration_resumes_to_the_same_estimat
 
     scenario = tmp_path / "realistic.toml"
     scenario.write_text(resolve_scenario("short_trail").read_text() + '\n[errors]\nprofile = "realistic"\n')
-    whole = _run("run", "realistic.toml", "--configs", "vo_sites", "--out", "whole", "--quiet", cwd=tmp_path)
+    whole = _run("run", "realistic.toml", "--configs", "vo_sites", "--out", "whole", "--quiet", "--no-plots",
+                 cwd=tmp_path)
     assert whole.returncode == 0, whole.stderr
     _killed_past(tmp_path, 60, "--configs", "vo_sites", source="realistic.toml")
     _, [saved] = read_checkpoint(tmp_path / "res.partial")
     assert "stereo_calibration" in saved.localizers["vo_sites"].kinds
     sites_before = sum(stop.is_site for stop in saved.localizers["vo_sites"].traverse.stops[:saved.next_stop])
     assert sites_before >= 2  # calibrated views in the checkpoint's log
-    resumed = _run("run", "--resume", "res.partial", "--quiet", cwd=tmp_path)
+    resumed = _run("run", "--resume", "res.partial", "--quiet", "--no-plots", cwd=tmp_path)  # trajectories compared
     assert resumed.returncode == 0, resumed.stderr
     a, b = (read_tum(tmp_path / folder / "trajectory_vo_sites.tum") for folder in ("whole", "res"))
     np.testing.assert_array_equal(a.world_T_body, b.world_T_body)
