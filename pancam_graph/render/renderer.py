@@ -121,6 +121,15 @@ void main() {
 }
 """
 
+# Depth alone (the truth of measurements made on images): the same vertices, no shading.
+_DEPTH_ONLY = """
+#version 330
+out float albedo_out;
+void main() {
+    albedo_out = 0.0;
+}
+"""
+
 
 def gl_projection(camera: Camera, near: float, far: float) -> np.ndarray:
     """OpenGL clip_T_camera (camera x right, y up, z backward) reproducing the pinhole's pixels:
@@ -158,12 +167,15 @@ class TerrainRenderer:
         el, az = np.deg2rad(sun_elevation_deg), np.deg2rad(sun_azimuth_deg)
         self.program["sun"].value = (float(np.cos(el) * np.cos(az)), float(np.cos(el) * np.sin(az)), float(np.sin(el)))
         self.program["seed"].value = float(seed % 997) * 0.013
-        self.tiles = []
+        self.depth_program = self.ctx.program(vertex_shader=_VERTEX, fragment_shader=_DEPTH_ONLY)
+        self.tiles, self._depth_tiles = [], []
         for tile in tiles:
             vbo = self.ctx.buffer(tile.vertices.tobytes())
             ibo = self.ctx.buffer(tile.triangles.tobytes())
             vao = self.ctx.vertex_array(self.program, [(vbo, "4f", "in_vertex")], index_buffer=ibo)
             self.tiles.append((tile.centre, vao))
+            depth_vao = self.ctx.vertex_array(self.depth_program, [(vbo, "4f", "in_vertex")], index_buffer=ibo)
+            self._depth_tiles.append((tile.centre, depth_vao))
         self._framebuffers: dict[tuple[int, int], object] = {}
         self._lenses: dict[Camera, _Lens] = {}
         self._last: tuple[object, Camera] | None = None
@@ -178,24 +190,35 @@ class TerrainRenderer:
     def render_pinhole(self, world_T_camera: np.ndarray, camera: Camera) -> np.ndarray:
         """Albedo x shading in [0, 1] (height, width) float32 seen by an ideal pinhole camera at
         world_T_camera (OpenCV camera frame; the camera's distortion is ignored); 0.6 is sky."""
+        fbo = self._draw(self.program, self.tiles, world_T_camera, camera)
+        raw = fbo.read(components=1, dtype="f4")
+        image = np.frombuffer(raw, dtype=np.float32).reshape(camera.height, camera.width)
+        return np.flipud(image)  # OpenGL's first row is the bottom one
+
+    def render_depth(self, world_T_camera: np.ndarray, camera: Camera) -> np.ndarray:
+        """Metric depth (camera z, m) an ideal pinhole camera at world_T_camera sees, (height,
+        width): render_pinhole's depth without its shading (the fragment shader is most of a
+        frame's time)."""
+        self._draw(self.depth_program, self._depth_tiles, world_T_camera, camera)
+        return self.depth()
+
+    def _draw(self, program, tiles: list, world_T_camera: np.ndarray, camera: Camera):
         import moderngl
 
         camera_T_world = np.linalg.inv(world_T_camera)
         clip = gl_projection(camera, self.near, self.far) @ _GL_T_CV @ camera_T_world
-        self.program["clip_T_world"].write(clip.T.astype("f4").tobytes())  # GLSL is column-major
+        program["clip_T_world"].write(clip.T.astype("f4").tobytes())  # GLSL is column-major
         fbo = self._framebuffer((camera.width, camera.height))
         fbo.use()
         self.ctx.clear(0.6, 0.6, 0.6, 1.0, depth=1.0)
         self.ctx.enable(moderngl.DEPTH_TEST)
         here = world_T_camera[:2, 3]
         reach = self.far + TILE_M
-        for centre, vao in self.tiles:
+        for centre, vao in tiles:
             if np.linalg.norm(centre - here) < reach:
                 vao.render()
         self._last = (fbo, camera)
-        raw = fbo.read(components=1, dtype="f4")
-        image = np.frombuffer(raw, dtype=np.float32).reshape(camera.height, camera.width)
-        return np.flipud(image)  # OpenGL's first row is the bottom one
+        return fbo
 
     def render_top_down(self, map_T_world: np.ndarray, corner: tuple[float, float], pixel_m: float,
                         size: tuple[int, int], sun_azimuth_deg: float, sun_elevation_deg: float,
@@ -255,7 +278,7 @@ class TerrainRenderer:
         return lens(self.render_pinhole(world_T_camera, lens.pinhole))
 
     def depth(self) -> np.ndarray:
-        """Metric depth (camera z, m) of the last pinhole render, (height, width)."""
+        """Metric depth (camera z, m) of the last pinhole or depth render, (height, width)."""
         fbo, camera = self._last
         raw = fbo.read(attachment=-1, components=1, dtype="f4")
         z = np.flipud(np.frombuffer(raw, dtype=np.float32).reshape(camera.height, camera.width))

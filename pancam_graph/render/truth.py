@@ -29,8 +29,7 @@ class RenderedTruth:
         world_T_camera = self.world_T_body[stop] @ body_T_camera
         key = (stop, body_T_camera.tobytes())
         if key not in self._depth:
-            self.renderer.render_pinhole(world_T_camera, cam)
-            self._depth[key] = self.renderer.depth().astype(np.float32)
+            self._depth[key] = self.renderer.render_depth(world_T_camera, cam).astype(np.float32)
         z = float(cv2.getRectSubPix(self._depth[key], (1, 1), (float(uv[0]), float(uv[1])))[0, 0])
         ray = np.array([(uv[0] - cam.cx) / cam.fx, (uv[1] - cam.cy) / cam.fy, 1.0])
         return world_T_camera[:3, :3] @ (z * ray) + world_T_camera[:3, 3]

@@ -37,6 +37,8 @@ def test_depth_seen_through_the_rig_intrinsics_is_where_the_terrain_is():
     world_T_cam = truth.world_T_body[3] @ traverse.body_T_nav().matrix()
     renderer.render_pinhole(world_T_cam, camera)
     depth = renderer.depth()
+    # the unshaded depth pass (the truth of tie points and matches) draws the very same depth
+    np.testing.assert_array_equal(renderer.render_depth(world_T_cam, camera), depth)
     # terrain vertices in view, projected with the pinhole model: the depth buffer there is theirs
     vertices = np.vstack([t.vertices[:, :3] for t in tiles]).astype(float)
     p_cam = (vertices - world_T_cam[:3, 3]) @ world_T_cam[:3, :3]
