@@ -115,8 +115,11 @@ def localize_group(job: GroupJob, state: RunState | None, known: VoMotions | Non
         localizer = state.localizers.pop(name)
         results[name] = _configuration_result(job, name, localizer, finished.pop(name), state.steps[name], progress,
                                               inliers if localizer.uses_vo else np.full(n, -1))
-        del localizer  # its graphs are no more use: their memory goes to the next one's bound
-        release_memory()
+        # its graphs are no more use: their memory goes to the next one's bound, freed at once
+        # (closed: no cycle left, so no garbage collection, which walks the whole process)
+        localizer.close()
+        del localizer
+        release_memory(collect_cycles=False)
     sample_memory(state, n - 1, last=True)
     use = ProcessUse(label, os.getpid(), tuple(results), time.perf_counter() - began,
                      time.process_time() - began_cpu, state.memory_mb, state.peak_pss_mb or None)

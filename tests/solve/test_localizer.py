@@ -66,3 +66,40 @@ def test_no_false_match_reaches_the_graph_and_true_ties_do(short_scenario):
     # the true ones: 3 pixel components of 0.3 px noise each
     assert np.sqrt(np.mean(pixels_off**2)) < 0.3 * np.sqrt(3) * 1.15
     assert loc.kind("sites").rejected_ties > 0
+
+
+def test_a_closed_localizer_is_freed_without_a_garbage_collection(short_scenario):
+    """Its kinds (and the factor builders they lend) refer back to it: dropped as it is, only a
+    full collection frees it; closed, it goes the moment it is dropped (the run frees each
+    configuration's graphs that way, without a collection's walk over the whole process)."""
+    import gc
+    import weakref
+
+    from pancam_graph.frontend.motion import dead_reckoning_motion
+
+    traverse, _ = simulate(short_scenario, 4)
+    vo = StereoVO.for_traverse(traverse, short_scenario.estimator)
+    refs = {}
+    gc.disable()
+    try:
+        for kinds in (["dead_reckoning", "wheel_slip"], ["vo", "sites", "hrc"]):
+            for close in (False, True):
+                loc = Localizer(traverse, kinds, short_scenario.estimator)
+                last = None
+                for k, stop in enumerate(traverse.stops[:25]):
+                    if k > 0:
+                        previous = traverse.stops[k - 1]
+                        last = (motion_between(vo, previous, stop, last, traverse.wheel_slip) if "vo" in kinds
+                                else dead_reckoning_motion(stop, last, traverse.wheel_slip))
+                    loc.step(stop, last)
+                refs[kinds[-1], close] = weakref.ref(loc)
+                if close:
+                    loc.close()
+                del loc
+        alive = {key: ref() is not None for key, ref in refs.items()}
+    finally:
+        gc.enable()
+    assert alive == {("wheel_slip", False): True, ("wheel_slip", True): False,
+                     ("hrc", False): True, ("hrc", True): False}
+    gc.collect()
+    assert all(ref() is None for ref in refs.values())
