@@ -108,11 +108,13 @@ def check_configs(source: str | Path, configs: tuple[str, ...] | None) -> None:
     """Refuse a requested configuration that its name alone rules out (unknown, a kind it lacks),
     before the source loads: a typo costs no simulation or front-end run. What the traverse
     must feed is checked once it is loaded."""
+    if configs is None:
+        return
     from ..solve.pipeline import configuration_kinds
     from ..sources import estimator_before_loading
 
-    estimator = None if configs is None else estimator_before_loading(str(source))
-    if estimator is not None:
+    estimator = estimator_before_loading(str(source))
+    if estimator is not None:  # None: only loading the source tells its configurations
         configuration_kinds(estimator, configs)
 
 

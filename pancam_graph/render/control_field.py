@@ -115,8 +115,8 @@ class FieldRenderer:
         grid = cv2.undistortPoints(np.column_stack([gu.ravel(), gv.ravel()]).reshape(-1, 1, 2), camera.matrix(),
                                    camera.distortion(), None, None, criteria=(cv2.TERM_CRITERIA_COUNT, 20, 0.0))
         grid = grid.reshape(gu.shape + (2,)).astype(np.float32)  # x/z, y/z: 1e-7 relative is 1e-4 px
-        # The supersamples' rays bilinear between the pixels': within 1e-4 px of undistorting each
-        # sample (the float32 rays' own rounding; tests/frontend/test_calibrate.py), with 16 times
+        # The supersamples' rays bilinear between the pixels': 1.0e-4 px at most from undistorting
+        # each sample (the float32 rays' own rounding; tests/frontend/test_calibrate.py), with 16 times
         # fewer undistortions. The samples sit at multiples of 1/8 px, which remap's 1/32-px
         # interpolation table holds exactly.
         s = SUPERSAMPLES
