@@ -22,7 +22,7 @@ import numpy as np
 from pydantic import Field
 
 from ..errors import GraphError
-from ..geometry.calibration_error import NAMES, pixel_shifts
+from ..geometry.calibration_error import NAMES, pixel_shift_derivative, pixel_shifts
 from ..graph import factors, keys, noise
 from .base import Kind, Section
 from .motion import VisualOdometry
@@ -30,12 +30,13 @@ from .motion import VisualOdometry
 CALIBRATION = keys.C(0)
 
 
-def calibrated_stereo_error(measured: np.ndarray, coefficients: np.ndarray, calibration: gtsam.Cal3_S2Stereo,
-                            body_T_left: gtsam.Pose3, world_T_body: gtsam.Pose3, point: np.ndarray,
-                            calibration_error: np.ndarray, jacobians: list | None = None) -> np.ndarray:
+def calibrated_stereo_error(measured: np.ndarray, calibration: gtsam.Cal3_S2Stereo, body_T_left: gtsam.Pose3,
+                            world_T_body: gtsam.Pose3, point: np.ndarray, calibration_error: np.ndarray,
+                            jacobians: list | None = None) -> np.ndarray:
     """GTSAM's stereo residual (predicted - measured, u_left, u_right, v) with the prediction
-    moved by the calibration error; a point behind the camera gives GTSAM's own
-    answer (2 f, zero Jacobians)."""
+    moved by the calibration error, the shift taken at the predicted pixel (pixel_shifts says why
+    not at the measured one); a point behind the camera gives GTSAM's own answer (2 f, zero
+    Jacobians)."""
     h_pose = np.zeros((6, 6), order="F")
     world_T_left = world_T_body.compose(body_T_left, h_pose, None)
     h_camera, h_point = np.zeros((3, 6), order="F"), np.zeros((3, 3), order="F")
@@ -45,10 +46,14 @@ def calibrated_stereo_error(measured: np.ndarray, coefficients: np.ndarray, cali
         if jacobians is not None:
             jacobians[0], jacobians[1], jacobians[2] = np.zeros((3, 6)), np.zeros((3, 3)), np.zeros((3, len(NAMES)))
         return np.full(3, 2.0 * calibration.fx())
-    error = np.array([predicted.uL(), predicted.uR(), predicted.v()]) + coefficients @ calibration_error - measured
+    uvv = np.array([predicted.uL(), predicted.uR(), predicted.v()])
+    fx, cx, cy = calibration.fx(), calibration.px(), calibration.py()
+    coefficients = pixel_shifts(uvv, fx, cx, cy)
+    error = uvv + coefficients @ calibration_error - measured
     if jacobians is not None:
-        jacobians[0] = h_camera @ h_pose
-        jacobians[1] = h_point
+        moved = np.eye(3) + pixel_shift_derivative(uvv, calibration_error, fx, cx, cy)
+        jacobians[0] = moved @ h_camera @ h_pose
+        jacobians[1] = moved @ h_point
         jacobians[2] = coefficients
     return error
 
@@ -64,11 +69,10 @@ def calibrated_stereo_factor(stop_key: int, landmark_key: int, uvv: np.ndarray, 
     calibration = gtsam.Cal3_S2Stereo(fx, fy, 0.0, cx, cy, baseline)
     mount = gtsam.Pose3(body_T_left)
     measured = np.asarray(uvv, dtype=float)
-    coefficients = pixel_shifts(measured, fx, cx, cy)
 
     def error(factor: gtsam.CustomFactor, values: gtsam.Values, jacobians: list | None) -> np.ndarray:
         pose_key, point_key, calibration_key = factor.keys()
-        return calibrated_stereo_error(measured, coefficients, calibration, mount, values.atPose3(pose_key),
+        return calibrated_stereo_error(measured, calibration, mount, values.atPose3(pose_key),
                                        values.atPoint3(point_key), values.atVector(calibration_key), jacobians)
 
     kernel, sigma_px, k = model
