@@ -13,6 +13,7 @@ the measurements are.
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import gtsam
@@ -47,13 +48,31 @@ def panorama_views(stop: Stop, rig: Rig) -> defaultdict[int, list[tuple[gtsam.Po
     return views
 
 
-def site_point_cloud(stop: Stop, rig: Rig, sigma_px: float) -> tuple[np.ndarray, np.ndarray] | None:
+def site_point_cloud(stop: Stop, rig: Rig, sigma_px: float,
+                     corrected: Callable[[np.ndarray], np.ndarray] | None = None
+                     ) -> tuple[np.ndarray, np.ndarray] | None:
     """A site panorama's triangulated points in the body frame (N, 3) and their covariances
-    (N, 3, 3): its local elevation map; None when nothing triangulates."""
-    points = [p for p in site_points(panorama_views(stop, rig), rig, sigma_px).values() if p is not None]
+    (N, 3, 3): its local elevation map; None when nothing triangulates. `corrected` maps a
+    frame's pixels to what a calibrated pair would have seen (Host.site_stereo_pixels)."""
+    views = panorama_views(stop, rig)
+    if corrected is not None:
+        views = _corrected_views(views, corrected)
+    points = [p for p in site_points(views, rig, sigma_px).values() if p is not None]
     if not points:
         return None
     return np.array([p.p_body for p in points]), np.array([p.cov_body for p in points])
+
+
+def _corrected_views(views, corrected: Callable[[np.ndarray], np.ndarray]):
+    """The views with every pixel triple through `corrected`, in one call."""
+    tracks = [(track, mount) for track, vs in views.items() for mount, _ in vs]
+    if not tracks:
+        return views
+    uvv = corrected(np.array([m for vs in views.values() for _, m in vs], dtype=float))
+    out: defaultdict[int, list] = defaultdict(list)
+    for (track, mount), pixels in zip(tracks, uvv, strict=True):
+        out[track].append((mount, pixels))
+    return out
 
 
 def site_points(views: dict[int, list[tuple[gtsam.Pose3, np.ndarray]]], rig: Rig, sigma_px: float

@@ -65,6 +65,9 @@ class Host(Protocol):
     bridged_stops: int
     rng: np.random.Generator
     site_stereo_factor: SiteStereoFactor | None  # a kind's (builds_site_stereo), or None: factors.stereo
+    # a site's stereo pixels (N, 3) as the pair would have seen them calibrated as its estimate
+    # says (the kind that builds_site_stereo), or None: the pixels as they are
+    site_stereo_pixels: Callable[[np.ndarray], np.ndarray] | None
 
     def kind(self, name: str) -> Kind: ...
 
@@ -190,6 +193,11 @@ class Kind:
         landmark key, (u_left, u_right, v), camera (fx, fy, cx, cy, baseline), body_T_left 4x4,
         noise (kernel, sigma_px, k)) -> factor, plain arguments a checkpoint can pickle."""
         return None
+
+    def site_stereo_pixels(self, uvv: np.ndarray) -> np.ndarray:
+        """With `builds_site_stereo`: a site's stereo pixels (N, 3) corrected by this kind's
+        current estimate of the pair's error, for what triangulates them outside the graph."""
+        return uvv
 
     def update_before(self, stop: Stop) -> str | None:
         """Why the estimate must be updated before this kind's factors of `stop` (a gate or a

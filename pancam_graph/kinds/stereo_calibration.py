@@ -153,6 +153,13 @@ class StereoCalibration(Kind):
     def motion_factor(self):
         return calibrated_vo_factor
 
+    def site_stereo_pixels(self, uvv: np.ndarray) -> np.ndarray:
+        # the error's shifts taken out, to first order (at the measured pixels: a correction of a
+        # few tenths of a pixel, not a fit's gradient)
+        rig = self.loc.traverse.rig
+        uvv = np.asarray(uvv, dtype=float)
+        return uvv - pixel_shifts(uvv, rig.wac.fx, rig.wac.cx, rig.wac.cy) @ self.loc.smoother.vector(CALIBRATION)
+
     def true_values(self, truth, values: gtsam.Values) -> bool:
         # zero where the truth has none (real data, or a simulation with a trusted pair)
         known = truth.kinds.get(self.name, {})

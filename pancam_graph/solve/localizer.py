@@ -99,6 +99,7 @@ class Localizer:
         # (Kind.builds_site_stereo); None: factors.stereo.
         stereo = self._only_builder([k for k in self.kinds.values() if k.builds_site_stereo], "the sites' stereo")
         self.site_stereo_factor = stereo.site_stereo_factor() if stereo else None
+        self.site_stereo_pixels = stereo.site_stereo_pixels if stereo else None
 
     def _motion_factor(self, motion: str) -> MotionFactor | None:
         builder = self._only_builder([k for k in self.kinds.values() if k.builds_motion == motion],
@@ -213,7 +214,7 @@ class Localizer:
         run drops it, with no garbage collection (a full one walks every object of the process,
         0.1-0.25 s)."""
         self.kinds = {}
-        self.odometry_factor = self.vo_factor = self.site_stereo_factor = None
+        self.odometry_factor = self.vo_factor = self.site_stereo_factor = self.site_stereo_pixels = None
 
     # -- queries (for listeners and results) -------------------------------------------------
 
