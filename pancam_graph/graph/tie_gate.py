@@ -56,14 +56,14 @@ def site_point_cloud(stop: Stop, rig: Rig, sigma_px: float,
     frame's pixels to what a calibrated pair would have seen (Host.site_stereo_pixels)."""
     views = panorama_views(stop, rig)
     if corrected is not None:
-        views = _corrected_views(views, corrected)
+        views = corrected_views(views, corrected)
     points = [p for p in site_points(views, rig, sigma_px).values() if p is not None]
     if not points:
         return None
     return np.array([p.p_body for p in points]), np.array([p.cov_body for p in points])
 
 
-def _corrected_views(views, corrected: Callable[[np.ndarray], np.ndarray]):
+def corrected_views(views, corrected: Callable[[np.ndarray], np.ndarray]):
     """The views with every pixel triple through `corrected`, in one call."""
     tracks = [(track, mount) for track, vs in views.items() for mount, _ in vs]
     if not tracks:
