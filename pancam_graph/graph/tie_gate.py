@@ -63,8 +63,10 @@ def site_point_cloud(stop: Stop, rig: Rig, sigma_px: float,
     return np.array([p.p_body for p in points]), np.array([p.cov_body for p in points])
 
 
-def corrected_views(views, corrected: Callable[[np.ndarray], np.ndarray]):
-    """The views with every pixel triple through `corrected`, in one call."""
+def corrected_views(views: dict[int, list[tuple[gtsam.Pose3, np.ndarray]]],
+                    corrected: Callable[[np.ndarray], np.ndarray]) -> dict[int, list[tuple[gtsam.Pose3, np.ndarray]]]:
+    """The views (as panorama_views gives them) with every pixel triple through `corrected`, in
+    one call; the views themselves are left as they are (a site's are shared: sites._RECENT_SITES)."""
     tracks = [(track, mount) for track, vs in views.items() for mount, _ in vs]
     if not tracks:
         return views
