@@ -647,8 +647,11 @@ def _with_calibration(kinds):
 
 
 def _with_shared_scale(kinds):
-    return [*kinds, "vo_scale"] if isinstance(kinds, list | tuple) and "vo" in kinds and "vo_scale" not in kinds \
-        else kinds
+    """vo_scale added to a configuration with VO, unless it has it or the estimated calibration,
+    whose VO factors model the scale (and the turn) in its place (_with_calibration)."""
+    if not isinstance(kinds, list | tuple) or "vo" not in kinds or {"vo_scale", "stereo_calibration"} & set(kinds):
+        return kinds
+    return [*kinds, "vo_scale"]
 
 
 def with_vo_error_model(estimator: M, name: str) -> M:

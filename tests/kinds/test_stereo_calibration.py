@@ -8,7 +8,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from pancam_graph.config import SimulationErrors, load_scenario, resolve_scenario
+from pancam_graph.config import SimulationErrors, load_scenario, resolve_scenario, with_vo_error_model
 from pancam_graph.geometry.calibration_error import NAMES, pixel_shifts
 from pancam_graph.geometry.rig import rig_preset
 from pancam_graph.graph import tie_gate
@@ -188,6 +188,22 @@ def test_a_realistic_profile_estimates_the_calibration_unless_the_estimator_says
     assert trusted.estimator.configurations["vo_sites"] == ["vo", "sites"]
     ideal = load_scenario_text(text)
     assert ideal.estimator.calibration == "auto" and ideal.estimator.configurations["vo_sites"] == ["vo", "sites"]
+
+
+def test_the_real_image_vo_model_leaves_the_estimated_calibration_its_vo_steps():
+    """The real_images VO model adds vo_scale to every configuration with VO; under an estimated
+    calibration stereo_calibration builds the VO steps' factors instead, and the two together were
+    refused ("both build the vo steps' factors"), in a scenario and from `--vo-error-model`."""
+    text = resolve_scenario("short_trail").read_text() + '\n[errors]\nprofile = "realistic"\n'
+    in_file = load_scenario_text(text + '\n[estimator]\nvo_error_model = "real_images"\n').estimator
+    from_cli = with_vo_error_model(load_scenario_text(text).estimator, "real_images")
+    for estimator in (in_file, from_cli):
+        assert estimator.vo_error_model == "real_images"
+        assert estimator.configurations["vo"] == ["vo", "stereo_calibration"]
+        assert estimator.configurations["vo_sites"] == ["vo", "sites", "stereo_calibration"]
+    # without the calibration estimated, the model still adds its shared scale
+    trusted = load_scenario_text(text + '\n[estimator]\ncalibration = "trusted"\nvo_error_model = "real_images"\n')
+    assert trusted.estimator.configurations["vo"] == ["vo", "vo_scale"]
 
 
 def load_scenario_text(text: str):
