@@ -609,13 +609,22 @@ class _ScenarioCore(_Strict):
     @model_validator(mode="before")
     @classmethod
     def _realistic_estimator(cls, data):
-        """A realistic [errors] profile: the estimator estimates the calibration, unless it says."""
-        if isinstance(data, dict) and isinstance(data.get("errors"), dict) and \
-                data["errors"].get("profile") == "realistic":
-            estimator = data.get("estimator", {})
-            if isinstance(estimator, dict) and estimator.get("calibration", "auto") == "auto":
-                data = {**data, "estimator": {**estimator, "calibration": "estimated"}}
-        return data
+        """The estimator knows the statistics of the errors [errors] draws, not the draws: under the
+        realistic profile it estimates the calibration, and with the matcher's ties it weights a
+        tie's views by the matcher's measured error, unless it says otherwise."""
+        if not isinstance(data, dict) or not isinstance(data.get("errors"), dict):
+            return data
+        errors, estimator = data["errors"], data.get("estimator", {})
+        if not isinstance(estimator, dict):
+            return data
+        realistic = errors.get("profile") == "realistic"
+        if realistic and estimator.get("calibration", "auto") == "auto":
+            estimator = {**estimator, "calibration": "estimated"}
+        sites = estimator.get("sites", {})
+        measured_ties = errors.get("tie_matching", "measured" if realistic else "identity") == "measured"
+        if measured_ties and isinstance(sites, dict) and sites.get("tie_error") is None:
+            estimator = {**estimator, "sites": {**sites, "tie_error": "measured"}}
+        return {**data, "estimator": estimator}
 
     @model_validator(mode="after")
     def _kinds_rules(self) -> _ScenarioCore:

@@ -191,7 +191,7 @@ class Kind:
     def site_stereo_factor(self) -> SiteStereoFactor | None:
         """The factor builder of a site's stereo view when `builds_site_stereo`: (stop key,
         landmark key, (u_left, u_right, v), camera (fx, fy, cx, cy, baseline), body_T_left 4x4,
-        noise (kernel, sigma_px, k)) -> factor, plain arguments a checkpoint can pickle."""
+        noise (kernel, k, sigma_px, tie_sigma_px)) -> factor, plain arguments a checkpoint can pickle."""
         return None
 
     def site_stereo_pixels(self, uvv: np.ndarray) -> np.ndarray:

@@ -50,8 +50,11 @@ class Hrc(Kind):
         self.calibration = self.rig.hrc.gtsam_calibration()
         # HRC residuals start large (landmarks come from the WAC), so only a convex kernel keeps
         # them pulling: Huber, whatever the tie-point kernel is.
-        sigma_px = localizer.estimator.hrc.sigma_px or localizer.traverse.image_noise_px
-        self.noise = noise.robust("huber", noise.image_pixels(sigma_px), localizer.estimator.huber_k)
+        self.sigma_px = localizer.estimator.hrc.sigma_px or localizer.traverse.image_noise_px
+        self.huber_k = localizer.estimator.huber_k
+        # a tie's matching error is the WAC's, found again in the HRC image: as many HRC pixels
+        # as the HRC's focal length is the WAC's
+        self.wac_to_hrc_px = self.rig.hrc.fx / self.rig.wac.fx
         self.gate_px = localizer.estimator.hrc.gate_px
         self.added = self.rejected = 0
         localizer.kind("sites").hrc = self
@@ -62,10 +65,14 @@ class Hrc(Kind):
             for track, uv in zip(frame.track_ids, frame.uv, strict=True):
                 obs.hrc[int(track)].append((mount, uv))
 
-    def add_views(self, site: SiteObservations, track: int, world_T_body: gtsam.Pose3) -> None:
+    def add_views(self, site: SiteObservations, track: int, world_T_body: gtsam.Pose3, tie_sigma_px: float) -> None:
+        """The site's HRC views of a landmark, gated; `tie_sigma_px`: the WAC's matching error of
+        the site's views of it (Sites._tie_sigma_px)."""
         views = site.hrc.get(track, ())
         if not views:
             return
+        sigma_px = float(np.hypot(self.sigma_px, self.wac_to_hrc_px * tie_sigma_px))
+        model = noise.robust("huber", noise.image_pixels(sigma_px), self.huber_k)
         # Predict from this site's own WAC triangulation when it has one: the HRC is 0.4 m from
         # the left WAC, so the WAC's range error hardly moves the point in the HRC image. The
         # graph's landmark may still be the earlier site's triangulation, whose range error at
@@ -80,7 +87,7 @@ class Hrc(Kind):
             if p_cam[2] <= 0 or np.linalg.norm(camera.project(p_world) - uv) > self.gate_px:
                 self.rejected += 1
                 continue
-            self.loc.smoother.add(factors.projection(site.stop, track, uv, self.calibration, mount, self.noise))
+            self.loc.smoother.add(factors.projection(site.stop, track, uv, self.calibration, mount, model))
             self.added += 1
 
     def counters(self) -> dict:

@@ -16,7 +16,7 @@ import gtsam
 import numpy as np
 from pydantic import Field
 
-from ..graph import factors, noise, tie_gate
+from ..graph import factors, noise, tie_gate, tie_matching
 from ..graph.keys import L, X
 from ..graph.tie_gate import RelativePose, SitePoint
 from ..records import Stop, Traverse
@@ -104,6 +104,10 @@ class SitesSettings(Section):
     anchor_sigma_m: float = Field(3.0, gt=0.0, description="bearing-range anchor of a new landmark from its first "
                                   "site, along and across the line of sight")
     kernel: Literal["huber", "cauchy", "none"] = "huber"
+    tie_error: Literal["pixel_noise", "measured"] | None = Field(
+        None, description="a landmark's views at a later site: pixel_noise, weighted as sigma_px alone; measured, "
+        "with the image matcher's measured error at that distance from the site before, the same in both eyes "
+        "(graph/tie_matching.py); None: as the scenario's [errors] tie_matching says (pixel_noise without one)")
 
 
 class Sites(Kind):
@@ -138,8 +142,11 @@ class Sites(Kind):
         # the tie noise as plain values too: a kind's Python factor (site_stereo_factor) is made
         # again from them at a checkpoint, and from the camera's numbers
         kernel_k = est.kernel_k(settings.kernel)
-        self.noise_recipe = (settings.kernel, self.sigma_px, kernel_k)
-        self.tie_noise = noise.robust(settings.kernel, noise.stereo_pixels(self.sigma_px), kernel_k)
+        self.kernel = (settings.kernel, kernel_k)
+        self.measured_tie_error = settings.tie_error == "measured"
+        # per landmark in the window, where the last site that viewed it was (its tie error grows
+        # with the distance from there)
+        self._last_viewed_from: dict[int, np.ndarray] = {}
         self.stereo_calibration = self.rig.stereo_calibration()
         wac = self.rig.wac
         self.camera = (wac.fx, wac.fy, wac.cx, wac.cy, self.rig.baseline_m)
@@ -265,6 +272,7 @@ class Sites(Kind):
         for track in sorted(t for t in current.stereo.keys() if t in self.references and t not in tied_now):
             self._add_observations(current, track, gated=True)
         self.references = {t: r for t, r in self.references.items() if self.loc.smoother.live(L(t))}
+        self._last_viewed_from = {t: p for t, p in self._last_viewed_from.items() if t in self.references}
 
         self.rejected_ties += rejected
         self.sites.append(current)
@@ -282,20 +290,35 @@ class Sites(Kind):
             if seen is None or not self._agrees(self.references[track], site.stop, seen):
                 self.rejected_tie_views += 1
                 stereo = ()
+        hrc_views = len(site.hrc.get(track, ())) if self.hrc is not None else 0
+        tie_sigma_px = self._tie_sigma_px(site, track, len(stereo) + hrc_views)
         build = self.loc.site_stereo_factor
+        model = noise.robust(self.kernel[0], noise.stereo_tie(self.sigma_px, tie_sigma_px), self.kernel[1])
         for mount, uvv in stereo:
             if build is None:
-                self.loc.smoother.add(factors.stereo(site.stop, track, uvv, self.stereo_calibration, mount,
-                                                     self.tie_noise))
+                self.loc.smoother.add(factors.stereo(site.stop, track, uvv, self.stereo_calibration, mount, model))
             else:  # a kind's factor with its shared variables (a Python CustomFactor: its recipe too)
                 arguments = (X(site.stop), L(track), np.asarray(uvv, dtype=float), self.camera, mount.matrix(),
-                             self.noise_recipe)
+                             (*self.kernel, self.sigma_px, tie_sigma_px))
                 self.loc.smoother.add(build(*arguments), rebuild=(build, arguments))
         if stereo:
             self._view_tracks.append(track)
             self._view_stops.append(site.stop)
+            self._last_viewed_from[track] = self.site_pose(site.stop).translation()
         if self.hrc is not None:
-            self.hrc.add_views(site, track, self.site_pose(site.stop))
+            self.hrc.add_views(site, track, self.site_pose(site.stop), tie_sigma_px)
+
+    def _tie_sigma_px(self, site: SiteObservations, track: int, views: int) -> float:
+        """The matching error (px per axis, 1 sigma) of each of the site's `views` of a landmark an
+        earlier site viewed: the matcher's at the distance between the two (zero for its first
+        site's views, or with the views weighted as pixel noise alone). The site's views of it
+        (overlapping frames, its HRC views) share one error: weighted each as its own, n views
+        would count it n times, so each takes it n times over (the variance of their mean)."""
+        before = self._last_viewed_from.get(track)
+        if not self.measured_tie_error or before is None:
+            return 0.0
+        distance_m = float(np.linalg.norm(self.site_pose(site.stop).translation() - before))
+        return tie_matching.sigma_px(distance_m) * np.sqrt(max(views, 1))
 
     def landmarks(self) -> set[int]:
         return self.landmark_ids.as_set()

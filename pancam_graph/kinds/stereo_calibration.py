@@ -59,10 +59,12 @@ def calibrated_stereo_error(measured: np.ndarray, calibration: gtsam.Cal3_S2Ster
 
 
 def calibrated_stereo_factor(stop_key: int, landmark_key: int, uvv: np.ndarray, camera: tuple[float, ...],
-                             body_T_left: np.ndarray, model: tuple[str, float, float | None]) -> gtsam.CustomFactor:
+                             body_T_left: np.ndarray,
+                             model: tuple[str, float | None, float, float]) -> gtsam.CustomFactor:
     """A site's stereo view (u_left, u_right, v) of a landmark, with the calibration error in it.
     Plain arguments only (`camera` = (fx, fy, cx, cy, baseline), the mount as a 4x4 matrix,
-    `model` = (kernel, sigma_px, k)): a checkpoint pickles them to make the factor again."""
+    `model` = (kernel, k, sigma_px, tie_sigma_px): noise.robust and noise.stereo_tie's): a
+    checkpoint pickles them to make the factor again."""
     if not np.all(np.isfinite(uvv)):
         raise GraphError(f"non-finite stereo measurement of {gtsam.Symbol(landmark_key).string()}")
     fx, fy, cx, cy, baseline = camera
@@ -75,8 +77,8 @@ def calibrated_stereo_factor(stop_key: int, landmark_key: int, uvv: np.ndarray, 
         return calibrated_stereo_error(measured, calibration, mount, values.atPose3(pose_key),
                                        values.atPoint3(point_key), values.atVector(calibration_key), jacobians)
 
-    kernel, sigma_px, k = model
-    return gtsam.CustomFactor(noise.robust(kernel, noise.stereo_pixels(sigma_px), k),
+    kernel, k, sigma_px, tie_sigma_px = model
+    return gtsam.CustomFactor(noise.robust(kernel, noise.stereo_tie(sigma_px, tie_sigma_px), k),
                               [stop_key, landmark_key, CALIBRATION], error)
 
 

@@ -22,22 +22,10 @@ import numpy as np
 from ..config import SimulationErrors
 from ..geometry.calibration_error import NAMES as CALIBRATION_NAMES
 from ..geometry.rig import Camera, Rig
+from ..graph import tie_matching
 from ..records import HrcFrame, PanoramaFrame, StereoObservations, Stop
 
 CALIBRATION_STREAM, POINTING_STREAM, TIES_STREAM = 31, 32, 33
-
-# The image matcher's tie points, measured against the renderer's truth on denver_trail seeds 0
-# and 1 (`pancam-graph bench sites`, 49 site pairs, 1,913 ties; docs/simulation_errors.md), by
-# the distance between the two sites (m), the medians of the pairs 28-34, 34-42, 42-52 and 52-58 m
-# apart, linear between: the count of a pair (none from 59.9 m on: 10 pairs), the median error
-# of a tie (px) and the share of ties beyond 3 px (near misses).
-TIE_DISTANCE_M = (31.3, 37.8, 48.8, 55.9, 59.9)
-TIE_COUNT = (130.0, 51.0, 33.0, 11.0, 0.0)
-TIE_MEDIAN_ERROR_PX = (0.37, 0.44, 0.69, 1.12, 1.12)
-TIE_NEAR_MISS = (0.034, 0.006, 0.045, 0.102, 0.102)
-NEAR_MISS_PX = (3.0, 10.0)  # how far a near miss is (uniform: the bench does not resolve the tail past 3 px)
-MEDIAN_RADIUS = np.sqrt(2.0 * np.log(2.0))  # a 2-D Gaussian's median radius, in sigmas
-
 
 @dataclass(frozen=True)
 class TrueRig:
@@ -87,11 +75,6 @@ def with_pointing_error(pan_rad: float, tilt_rad: float, errors: SimulationError
     return pan_rad + rng.uniform(-half, half), tilt_rad + rng.uniform(-half, half)
 
 
-def tie_count(distance_m: float) -> float:
-    """The matcher's median count of ties between two sites this far apart."""
-    return float(np.interp(distance_m, TIE_DISTANCE_M, TIE_COUNT, right=0.0))
-
-
 def _site_ids(stop: Stop) -> np.ndarray:
     return np.unique(np.concatenate([f.observations.track_ids for f in stop.panorama]
                                     + [h.track_ids for h in stop.hrc] + [np.zeros(0, np.int64)]))
@@ -100,7 +83,7 @@ def _site_ids(stop: Stop) -> np.ndarray:
 def match_ties(stops: list[Stop], positions: np.ndarray, n_landmarks: int, memory: int, hrc_scale: float,
                rng: np.random.Generator) -> tuple[list[Stop], list[int]]:
     """The stops with their sites' tie points as the image matcher finds them: a later site keeps
-    the landmark ids of at most tie_count(distance) of what it shares with each of the last
+    the landmark ids of at most tie_matching.count(distance) of what it shares with each of the last
     `memory` sites (nearest first), each of them off by a matching error common to all its
     views at that site (HRC views `hrc_scale` times as many pixels); every other landmark an
     earlier site saw becomes a new one (a fresh id). Returns the stops and, per fresh id from
@@ -117,7 +100,7 @@ def match_ties(stops: list[Stop], positions: np.ndarray, n_landmarks: int, memor
         for a in sorted(carried, key=lambda s: -s)[:memory]:
             shared = sorted(set(ids.tolist()) & carried[a] - matched.keys())
             distance = float(np.linalg.norm(positions[k] - positions[a]))
-            n = min(len(shared), int(rng.poisson(tie_count(distance))))
+            n = min(len(shared), int(rng.poisson(tie_matching.count(distance))))
             for landmark in rng.choice(np.array(shared, dtype=np.int64), n, replace=False) if n else ():
                 matched[int(landmark)] = _tie_error(distance, rng)
         remap = {}
@@ -132,10 +115,10 @@ def match_ties(stops: list[Stop], positions: np.ndarray, n_landmarks: int, memor
 def _tie_error(distance_m: float, rng: np.random.Generator) -> np.ndarray:
     """A tie's matching error (px) between sites this far apart: a near miss, or a 2-D Gaussian
     of the measured median."""
-    if rng.random() < np.interp(distance_m, TIE_DISTANCE_M, TIE_NEAR_MISS):
+    if rng.random() < tie_matching.near_miss_share(distance_m):
         angle = rng.uniform(0.0, 2.0 * np.pi)
-        return rng.uniform(*NEAR_MISS_PX) * np.array([np.cos(angle), np.sin(angle)])
-    return rng.normal(0.0, np.interp(distance_m, TIE_DISTANCE_M, TIE_MEDIAN_ERROR_PX) / MEDIAN_RADIUS, 2)
+        return rng.uniform(*tie_matching.NEAR_MISS_PX) * np.array([np.cos(angle), np.sin(angle)])
+    return rng.normal(0.0, tie_matching.sigma_px(distance_m), 2)
 
 
 def _with_ties(stop: Stop, remap: dict[int, int], matched: dict[int, np.ndarray], hrc_scale: float) -> Stop:

@@ -47,7 +47,7 @@ def _measured(point: np.ndarray, state: np.ndarray) -> np.ndarray:
 def test_without_a_calibration_error_it_is_gtsams_stereo_factor():
     point = _point_ahead(700.0, 300.0, 12.0) + np.array([0.02, -0.03, 0.01])  # off the measurement
     measured = np.array([650.0, 560.0, 310.0])
-    ours = calibrated_stereo_factor(X(0), L(0), measured, CAMERA, MOUNT.matrix(), ("none", 0.3, None))
+    ours = calibrated_stereo_factor(X(0), L(0), measured, CAMERA, MOUNT.matrix(), ("none", None, 0.3, 0.0))
     gtsams = gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(*measured), gtsam.noiseModel.Isotropic.Sigma(3, 0.3),
                                          X(0), L(0), CALIBRATION, MOUNT)
     values = gtsam.Values()
@@ -59,7 +59,7 @@ def test_without_a_calibration_error_it_is_gtsams_stereo_factor():
     ours_jacobian, gtsams_jacobian = ours.linearize(values).jacobian()[0], gtsams.linearize(values).jacobian()[0]
     np.testing.assert_allclose(ours_jacobian[:, :9], gtsams_jacobian, atol=1e-7)
     # a checkpoint pickles the factor's plain arguments and makes it again from them
-    arguments = pickle.loads(pickle.dumps((X(0), L(0), measured, CAMERA, MOUNT.matrix(), ("none", 0.3, None))))
+    arguments = pickle.loads(pickle.dumps((X(0), L(0), measured, CAMERA, MOUNT.matrix(), ("none", None, 0.3, 0.0))))
     np.testing.assert_array_equal(calibrated_stereo_factor(*arguments).unwhitenedError(values),
                                   ours.unwhitenedError(values))
 
@@ -118,7 +118,8 @@ def test_the_pixel_noise_does_not_pull_the_calibration_one_way():
         values.insert(C(0), np.zeros(6))
         for i, j, true in views:
             measured = np.array([true.uL(), true.uR(), true.v()]) + rng.normal(0.0, sigma_px, 3)
-            graph.add(calibrated_stereo_factor(X(i), L(j), measured, CAMERA, mount.matrix(), ("none", sigma_px, None)))
+            graph.add(calibrated_stereo_factor(X(i), L(j), measured, CAMERA, mount.matrix(),
+                                               ("none", None, sigma_px, 0.0)))
         result = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
         sigmas = np.sqrt(np.diag(gtsam.Marginals(graph, result).marginalCovariance(C(0))))
         pulls.append(result.atVector(C(0)) / sigmas)

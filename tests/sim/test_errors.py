@@ -3,6 +3,7 @@ as it was; a stereo calibration error shows as the disparity error the pair's ge
 the mast's readings are the true angles rounded; ties between sites are as many as the image
 matcher finds at that distance, each off by its matching error, and the rest new landmarks."""
 
+import tomllib
 from dataclasses import replace
 
 import numpy as np
@@ -10,8 +11,9 @@ import pytest
 
 from pancam_graph.config import Scenario, SimulationErrors, load_scenario, resolve_scenario
 from pancam_graph.geometry.rig import rig_preset
+from pancam_graph.graph.tie_matching import count as tie_count
 from pancam_graph.sim import simulate
-from pancam_graph.sim.errors import TrueRig, tie_count, with_pointing_error
+from pancam_graph.sim.errors import TrueRig, with_pointing_error
 
 
 @pytest.fixture(scope="module")
@@ -136,3 +138,16 @@ def test_an_error_changes_what_it_should_and_leaves_every_other_draw_in_place(sh
                 if len(fa.observations.uvv):
                     assert np.abs(fa.observations.uvv - fb.observations.uvv).max() > 0.0
         assert (max(moved) > 0.01) == navigation_moves, errors
+
+
+def test_the_estimator_weights_ties_by_the_matchers_error_where_the_simulator_draws_it():
+    text = resolve_scenario("short_trail").read_text()
+    sites = {label: Scenario.model_validate(tomllib.loads(text + extra)).estimator.sites.tie_error for label, extra in (
+        ("ideal", ""),
+        ("realistic", '\n[errors]\nprofile = "realistic"\n'),
+        ("measured ties", '\n[errors]\ntie_matching = "measured"\n'),
+        ("realistic, identity ties", '\n[errors]\nprofile = "realistic"\ntie_matching = "identity"\n'),
+        ("said otherwise", '\n[estimator.sites]\ntie_error = "pixel_noise"\n[errors]\nprofile = "realistic"\n'),
+    )}
+    assert sites == {"ideal": None, "realistic": "measured", "measured ties": "measured",
+                     "realistic, identity ties": None, "said otherwise": "pixel_noise"}
