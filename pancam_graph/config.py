@@ -610,8 +610,9 @@ class _ScenarioCore(_Strict):
     @classmethod
     def _realistic_estimator(cls, data):
         """The estimator knows the statistics of the errors [errors] draws, not the draws: under the
-        realistic profile it estimates the calibration, and with the matcher's ties it weights a
-        tie's views by the matcher's measured error, unless it says otherwise."""
+        realistic profile it estimates the calibration, with the matcher's ties it weights a tie's
+        views by the matcher's measured error, and with the mast's resolution an HRC view by its
+        pointing error, unless it says otherwise."""
         if not isinstance(data, dict) or not isinstance(data.get("errors"), dict):
             return data
         errors, estimator = data["errors"], data.get("estimator", {})
@@ -624,6 +625,13 @@ class _ScenarioCore(_Strict):
         measured_ties = errors.get("tie_matching", "measured" if realistic else "identity") == "measured"
         if measured_ties and isinstance(sites, dict) and sites.get("tie_error") is None:
             estimator = {**estimator, "sites": {**sites, "tie_error": "measured"}}
+        hrc = estimator.get("hrc", {})
+        resolution_deg = errors.get("pan_tilt_resolution_deg", REALISTIC_ERRORS["pan_tilt_resolution_deg"][0]
+                                    if realistic else 0.0)
+        if isinstance(resolution_deg, int | float) and resolution_deg > 0 and isinstance(hrc, dict) and \
+                hrc.get("pointing_sigma_deg") is None:
+            # a reading within half the resolution, uniform
+            estimator = {**estimator, "hrc": {**hrc, "pointing_sigma_deg": resolution_deg / math.sqrt(12.0)}}
         return {**data, "estimator": estimator}
 
     @model_validator(mode="after")

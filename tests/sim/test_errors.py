@@ -151,3 +151,19 @@ def test_the_estimator_weights_ties_by_the_matchers_error_where_the_simulator_dr
     )}
     assert sites == {"ideal": None, "realistic": "measured", "measured ties": "measured",
                      "realistic, identity ties": None, "said otherwise": "pixel_noise"}
+
+
+def test_the_estimator_weights_an_hrc_view_with_the_masts_pointing_error_where_the_simulator_draws_it():
+    text = resolve_scenario("short_trail").read_text()
+    realistic = '\n[errors]\nprofile = "realistic"\n'
+    pointing = {label: Scenario.model_validate(tomllib.loads(text + extra)).estimator.hrc.pointing_sigma_deg
+                for label, extra in (
+                    ("ideal", ""),
+                    ("realistic", realistic),
+                    ("coarser mast", "\n[errors]\npan_tilt_resolution_deg = 0.1\n"),
+                    ("said otherwise", "\n[estimator.hrc]\npointing_sigma_deg = 0.0\n" + realistic),
+                )}
+    assert pointing["ideal"] is None and pointing["said otherwise"] == 0.0
+    # a reading within half the resolution, uniform: resolution / sqrt(12)
+    assert pointing["realistic"] == pytest.approx(0.013 / np.sqrt(12), rel=1e-12)
+    assert pointing["coarser mast"] == pytest.approx(0.1 / np.sqrt(12), rel=1e-12)
