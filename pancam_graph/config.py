@@ -29,6 +29,7 @@ from .runtime.text_files import read_text
 # a run's reproduce.sh all come from here.
 
 DETECTORS = ("gftt", "orb", "sift")
+ERROR_PROFILES = ("ideal", "realistic")
 
 
 def _option(flag: str, help: str, minimum: float | None = None):
@@ -40,6 +41,8 @@ class SourceOptions:
     """None: not given. One given to a source that does not take it is an error (`check`)."""
 
     seed: int | None = _option("--seed", "scenario: override its seed", minimum=0)
+    errors: str | None = _option("--errors", "scenario: the simulator's error profile, ideal or realistic, in "
+                                 "place of its [errors] table (docs/simulation_errors.md)")
     gps_topic: str | None = _option("--gps-topic", "bag: NavSatFix topic (default: the only one)")
     odom_topic: str | None = _option("--odom-topic", "bag: Odometry topic (default: the only one)")
     holdout_every: int | None = _option("--holdout-every", "bag, KITTI: keep every N-th fix out of the graph "
@@ -59,6 +62,8 @@ class SourceOptions:
             value, minimum = getattr(self, f.name), f.metadata["minimum"]
             if minimum is not None and value is not None and value < minimum:
                 raise ConfigError(f"{flags[f.name]} {value}: must be at least {minimum}")
+        if self.errors is not None and self.errors not in ERROR_PROFILES:
+            raise ConfigError(f"--errors {self.errors!r}: expected {' or '.join(ERROR_PROFILES)}")
         if self.detector is not None and self.detector not in DETECTORS:
             raise ConfigError(f"--detector {self.detector!r}: expected {', '.join(DETECTORS[:-1])} or {DETECTORS[-1]}")
         if isinstance(self.stereo_topics, str):
@@ -698,9 +703,10 @@ def validation_problems(exc: ValidationError) -> str:
     return problems[0] if len(problems) == 1 else f"{len(problems)} problems: " + "; ".join(problems)
 
 
-def load_toml_model(path: str | Path, model: type[M], what: str, error: type[PancamGraphError] = ConfigError) -> M:
-    """Read and validate a TOML file against a pydantic model; every problem names the file and
-    the field, raised as `error`."""
+def load_toml_model(path: str | Path, model: type[M], what: str, error: type[PancamGraphError] = ConfigError,
+                    replace: dict | None = None) -> M:
+    """Read and validate a TOML file against a pydantic model, with `replace`'s tables in place
+    of the file's; every problem names the file and the field, raised as `error`."""
     path = Path(path)
     text = read_text(path, what, error)
     try:
@@ -708,14 +714,17 @@ def load_toml_model(path: str | Path, model: type[M], what: str, error: type[Pan
     except (tomllib.TOMLDecodeError, ValueError) as exc:  # ValueError: an integer of thousands of digits
         raise error(f"{path}: not valid TOML: {exc}") from None
     try:
-        return model.model_validate(data)
+        return model.model_validate({**data, **(replace or {})})
     except ValidationError as exc:
         raise error(f"{path}: invalid {what}: {validation_problems(exc)}") from None
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate a scenario TOML file; every problem names the file and the field."""
-    return load_toml_model(path, Scenario, "scenario file")
+def load_scenario(path: str | Path, errors: str | None = None) -> Scenario:
+    """Read and validate a scenario TOML file; every problem names the file and the field.
+    `errors`: an error profile in place of the file's [errors] table (`run --errors`): the
+    estimator then takes the defaults that profile sets, not those the file's table set."""
+    return load_toml_model(path, Scenario, "scenario file", replace=None if errors is None else
+                           {"errors": {"profile": errors}})
 
 
 def bundled_scenarios() -> dict[str, Path]:

@@ -9,8 +9,8 @@ from ..solve.pipeline import simulated, worth_simulating_apart
 from .registry import Source, SourceData
 
 
-def load(name_or_path: str, seed: int | None = None) -> SourceData:
-    scenario = load_scenario(resolve_scenario(name_or_path))
+def load(name_or_path: str, seed: int | None = None, errors: str | None = None) -> SourceData:
+    scenario = load_scenario(resolve_scenario(name_or_path), errors)
     traverse, truth, resolved, info = simulated(scenario, seed, name_or_path)
     return SourceData(traverse, truth, scenario.estimator, resolved.seed, info, scenario=resolved)
 
@@ -22,8 +22,8 @@ def matches(path: Path) -> bool:
 
 
 # Last: what no other source took, when it is a scenario name or TOML file.
-SOURCES = (Source("scenario", 100, frozenset({"seed"}), matches,
-                  lambda text, options, progress: load(text, options.seed),
+SOURCES = (Source("scenario", 100, frozenset({"seed", "errors"}), matches,
+                  lambda text, options, progress: load(text, options.seed, options.errors),
                   "a bundled scenario name or a scenario TOML file",
                   lambda text: worth_simulating_apart(load_scenario(resolve_scenario(text))),
                   estimator=lambda text: load_scenario(resolve_scenario(text)).estimator),)

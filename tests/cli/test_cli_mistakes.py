@@ -45,6 +45,8 @@ MISTAKES = [
     (["run", str(BAG), "--seed", "3"], ["--seed does not apply to a rosbag"]),
     (["run", str(BAG), "--stereo-topics", "/left"], ["--stereo-topics '/left': expected LEFT,RIGHT"]),
     (["run", "short_trail", "--detector", "surf"], ["--detector 'surf': expected gftt, orb or sift"]),
+    (["run", "short_trail", "--errors", "harsh"], ["--errors 'harsh': expected ideal or realistic"]),
+    (["run", str(BAG), "--errors", "ideal"], ["--errors does not apply to a rosbag"]),
     (["track", "no_images", "--out", "t", "--detector", "surf"], ["--detector 'surf'"]),
     (["run", "short_trail", "--holdout-every", "-2"], ["Invalid value for '--holdout-every'"]),
     (["run", "short_trail", "--configs", "vo+lidar"], ["--configs vo+lidar", "'lidar'"]),

@@ -3,6 +3,7 @@ as it was; a stereo calibration error shows as the disparity error the pair's ge
 the mast's readings are the true angles rounded; ties between sites are as many as the image
 matcher finds at that distance, each off by its matching error, and the rest new landmarks."""
 
+import json
 import tomllib
 from dataclasses import replace
 
@@ -167,3 +168,34 @@ def test_the_estimator_weights_an_hrc_view_with_the_masts_pointing_error_where_t
     # a reading within half the resolution, uniform: resolution / sqrt(12)
     assert pointing["realistic"] == pytest.approx(0.013 / np.sqrt(12), rel=1e-12)
     assert pointing["coarser mast"] == pytest.approx(0.1 / np.sqrt(12), rel=1e-12)
+
+
+def _vo_sites_run(tmp_path, name: str, source: str, *options: str) -> dict:
+    from typer.testing import CliRunner
+
+    from pancam_graph.cli import app
+
+    out = tmp_path / name
+    result = CliRunner().invoke(app, ["run", source, "--seed", "0", "--configs", "vo_sites", "--out", str(out),
+                                      "--quiet", "--no-plots", *options])
+    assert result.exit_code == 0, result.output
+    metrics = json.loads((out / "metrics.json").read_text())["configs"]["vo_sites"]
+    metrics.pop("isam2_update_ms")
+    return metrics
+
+
+def test_run_errors_sets_the_profile_in_place_of_the_scenarios_table(tmp_path):
+    """`run --errors PROFILE` gives the run a scenario with that profile's table gives, the
+    estimator's defaults included (the realistic profile estimates the calibration), and
+    `--errors ideal` takes a realistic scenario back to the simulator as it was."""
+    realistic_file = tmp_path / "realistic.toml"
+    realistic_file.write_text(resolve_scenario("short_trail").read_text() + '\n[errors]\nprofile = "realistic"\n')
+    bundled = _vo_sites_run(tmp_path, "bundled", "short_trail")
+    flag = _vo_sites_run(tmp_path, "flag", "short_trail", "--errors", "realistic")
+    table = _vo_sites_run(tmp_path, "table", str(realistic_file))
+    back = _vo_sites_run(tmp_path, "back", str(realistic_file), "--errors", "ideal")
+    assert flag == table and back == bundled
+    assert "stereo_calibration" in flag["kinds"] and "stereo_calibration" not in bundled["kinds"]
+    assert flag["ate_rmse_m"] != bundled["ate_rmse_m"]
+    scenario = tomllib.loads((tmp_path / "flag" / "scenario.toml").read_text())
+    assert scenario["errors"]["profile"] == "realistic"
