@@ -50,7 +50,10 @@ def test_the_preset_sets_the_measured_model_and_overrules_and_undoes_its_own_key
 
 def test_a_scenario_names_the_preset_and_show_config_prints_what_it_set(tmp_path):
     path = tmp_path / "real.toml"
-    path.write_text(bundled_scenarios()["short_trail"].read_text() + '\n[estimator]\nvo_error_model = "real_images"\n')
+    # the ideal simulator: under the realistic profile the estimated calibration builds the VO's
+    # factors in place of the preset's vo_scale (tests/kinds/test_stereo_calibration.py)
+    ideal = bundled_scenarios()["short_trail"].read_text().replace('profile = "realistic"', 'profile = "ideal"')
+    path.write_text(ideal + '\n[estimator]\nvo_error_model = "real_images"\n')
     assert _values(load_scenario(path).estimator) == REAL
     result = runner.invoke(app, ["show-config", str(path)])
     assert result.exit_code == 0, result.output
@@ -62,7 +65,8 @@ def test_a_scenario_names_the_preset_and_show_config_prints_what_it_set(tmp_path
 @pytest.mark.slow
 def test_a_manifest_names_the_preset_and_the_command_line_overrules_it(tmp_path):
     folder = tmp_path / "observations"
-    assert runner.invoke(app, ["simulate", "short_trail", "--out", str(folder)]).exit_code == 0
+    # the ideal simulator's white pixel noise, which the pixel_noise model states exactly
+    assert runner.invoke(app, ["simulate", "short_trail", "--out", str(folder), "--errors", "ideal"]).exit_code == 0
     manifest = folder / "traverse.toml"
     text = manifest.read_text()
     assert 'vo_error_model = "pixel_noise"' in text  # simulate writes the whole estimator

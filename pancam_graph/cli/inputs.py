@@ -185,13 +185,14 @@ def simulate_command(
     out: Path = typer.Option(..., "--out", help="observation folder to write"),
     seed: int | None = typer.Option(None, "--seed", min=0, help="override the scenario's seed"),
     no_truth: bool = typer.Option(False, "--no-truth", help="leave the reference poses (truth.kitti) out"),
+    errors: str | None = typer.Option(None, "--errors", help=SourceOptions.help("errors")),
 ) -> None:
     """Write a scenario's simulated observations as an observation folder (docs/observation_format.md),
     the input an external front-end would give `pancam-graph run`."""
     from ..api import simulate
 
     with console.status(f"simulating {escape(scenario)}"):
-        traverse = simulate(scenario, out, seed=seed, truth=not no_truth)
+        traverse = simulate(scenario, out, seed=seed, truth=not no_truth, errors=errors)
     console.print(f"{len(traverse.stops)} stops written to {out}")
 
 

@@ -73,15 +73,12 @@ def test_a_killed_run_resumes_to_the_same_estimate(tmp_path):
 
 
 def test_a_killed_run_with_the_estimated_calibration_resumes_to_the_same_estimate(tmp_path):
-    """The stereo_calibration kind's views are Python factors, made again from their recipes."""
-    from pancam_graph.config import resolve_scenario
-
-    scenario = tmp_path / "realistic.toml"
-    scenario.write_text(resolve_scenario("short_trail").read_text() + '\n[errors]\nprofile = "realistic"\n')
-    whole = _run("run", "realistic.toml", "--configs", "vo_sites", "--out", "whole", "--quiet", "--no-plots",
+    """The stereo_calibration kind's views are Python factors, made again from their recipes
+    (short_trail as bundled: the realistic profile, which estimates the calibration)."""
+    whole = _run("run", "short_trail", "--configs", "vo_sites", "--out", "whole", "--quiet", "--no-plots",
                  cwd=tmp_path)
     assert whole.returncode == 0, whole.stderr
-    _killed_past(tmp_path, 60, "--configs", "vo_sites", source="realistic.toml")
+    _killed_past(tmp_path, 60, "--configs", "vo_sites", source="short_trail")
     _, [saved] = read_checkpoint(tmp_path / "res.partial")
     assert "stereo_calibration" in saved.localizers["vo_sites"].kinds
     sites_before = sum(stop.is_site for stop in saved.localizers["vo_sites"].traverse.stops[:saved.next_stop])

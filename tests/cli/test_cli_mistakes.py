@@ -46,6 +46,7 @@ MISTAKES = [
     (["run", str(BAG), "--stereo-topics", "/left"], ["--stereo-topics '/left': expected LEFT,RIGHT"]),
     (["run", "short_trail", "--detector", "surf"], ["--detector 'surf': expected gftt, orb or sift"]),
     (["run", "short_trail", "--errors", "harsh"], ["--errors 'harsh': expected ideal or realistic"]),
+    (["simulate", "short_trail", "--out", "sim", "--errors", "harsh"], ["--errors 'harsh': expected ideal or "]),
     (["run", str(BAG), "--errors", "ideal"], ["--errors does not apply to a rosbag"]),
     (["track", "no_images", "--out", "t", "--detector", "surf"], ["--detector 'surf'"]),
     (["run", "short_trail", "--holdout-every", "-2"], ["Invalid value for '--holdout-every'"]),
@@ -163,7 +164,9 @@ def test_show_config_prints_the_resolved_scenario(tmp_path):
     assert result.returncode == 0, result.stderr
     resolved = tomllib.loads(result.stdout)
     assert resolved["name"] == "short_trail"
-    assert resolved["estimator"]["configurations"]["full"] == ["vo", "sites", "hrc", "gps"]
+    # the realistic profile, as bundled, estimates the stereo calibration wherever VO or sites are
+    assert resolved["errors"]["profile"] == "realistic"
+    assert resolved["estimator"]["configurations"]["full"] == ["vo", "sites", "hrc", "gps", "stereo_calibration"]
     assert resolved["estimator"]["sites"]["memory"] == 3  # every constant, defaults included
 
 

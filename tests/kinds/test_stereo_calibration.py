@@ -179,15 +179,15 @@ def test_its_correction_triangulates_a_miscalibrated_pairs_points_where_they_are
 
 
 def test_a_realistic_profile_estimates_the_calibration_unless_the_estimator_says_otherwise():
-    text = resolve_scenario("short_trail").read_text()
-    realistic = load_scenario_text(text + '\n[errors]\nprofile = "realistic"\n')
+    text = resolve_scenario("short_trail").read_text()  # realistic, as bundled
+    realistic = load_scenario_text(text)
     assert realistic.estimator.calibration == "estimated"
     assert realistic.estimator.configurations["vo_sites"] == ["vo", "sites", "stereo_calibration"]
     assert realistic.estimator.configurations["vo"] == ["vo", "stereo_calibration"]
     assert "stereo_calibration" not in realistic.estimator.configurations["dead_reckoning"]
-    trusted = load_scenario_text(text + '\n[estimator]\ncalibration = "trusted"\n[errors]\nprofile = "realistic"\n')
+    trusted = load_scenario_text(text + '\n[estimator]\ncalibration = "trusted"\n')
     assert trusted.estimator.configurations["vo_sites"] == ["vo", "sites"]
-    ideal = load_scenario_text(text)
+    ideal = load_scenario(resolve_scenario("short_trail"), errors="ideal")
     assert ideal.estimator.calibration == "auto" and ideal.estimator.configurations["vo_sites"] == ["vo", "sites"]
 
 
@@ -195,7 +195,7 @@ def test_the_real_image_vo_model_leaves_the_estimated_calibration_its_vo_steps()
     """The real_images VO model adds vo_scale to every configuration with VO; under an estimated
     calibration stereo_calibration builds the VO steps' factors instead, and the two together were
     refused ("both build the vo steps' factors"), in a scenario and from `--vo-error-model`."""
-    text = resolve_scenario("short_trail").read_text() + '\n[errors]\nprofile = "realistic"\n'
+    text = resolve_scenario("short_trail").read_text()  # realistic, as bundled
     in_file = load_scenario_text(text + '\n[estimator]\nvo_error_model = "real_images"\n').estimator
     from_cli = with_vo_error_model(load_scenario_text(text).estimator, "real_images")
     for estimator in (in_file, from_cli):
@@ -223,7 +223,7 @@ def test_estimated_the_realistic_calibration_leaves_the_sites_consistent_and_nea
     (ANEES 75 and 135 on these seeds, measured); estimating it brings the ANEES under 2, the
     unaligned ATE down, and the right camera's turn about the vertical within 3 sigma of the
     simulator's."""
-    scenario = load_scenario_text(resolve_scenario("short_trail").read_text() + '\n[errors]\nprofile = "realistic"\n')
+    scenario = load_scenario(resolve_scenario("short_trail"))  # realistic, as bundled
     trusted_estimator = scenario.estimator.model_copy(update={"configurations": {"vo_sites": ["vo", "sites"]}})
     estimated = run_scenario(scenario, RunOptions(seed=seed, configs=["vo_sites"])).configurations["vo_sites"]
     trusted = run_scenario(scenario.model_copy(update={"estimator": trusted_estimator}),

@@ -19,17 +19,37 @@ from pancam_graph.sim.errors import TrueRig, with_pointing_error
 
 @pytest.fixture(scope="module")
 def short_trail():
-    return load_scenario(resolve_scenario("short_trail"))
+    return load_scenario(resolve_scenario("short_trail"), errors="ideal")
 
 
 def _with_errors(scenario, **errors) -> Scenario:
     return Scenario.model_validate({**scenario.model_dump(), "errors": errors})
 
 
-def test_the_ideal_profile_is_the_simulator_as_it_was(short_trail):
-    """An explicit ideal profile draws nothing more: the same traverse to the bit."""
-    a, truth_a = simulate(short_trail, 3)
-    b, truth_b = simulate(_with_errors(short_trail, profile="ideal"), 3)
+def _short_trail(errors: dict | None, **estimator) -> Scenario:
+    """short_trail with `errors` as its [errors] table (None: none at all) and `estimator`'s
+    [estimator.<section>] tables, validated as a file saying so would be."""
+    data = tomllib.loads(resolve_scenario("short_trail").read_text())
+    data.pop("errors", None)
+    if errors is not None:
+        data["errors"] = errors
+    data["estimator"] = {**data.get("estimator", {}), **estimator}
+    return Scenario.model_validate(data)
+
+
+def test_the_bundled_scenarios_are_realistic_unless_told_otherwise():
+    from pancam_graph.config import bundled_scenarios
+
+    for name, path in bundled_scenarios().items():
+        assert load_scenario(path).errors.profile == "realistic", name
+        assert load_scenario(path, errors="ideal").errors == SimulationErrors(), name
+
+
+def test_the_ideal_profile_is_the_simulator_as_it_was():
+    """An explicit ideal profile draws nothing more than a scenario without an [errors] table:
+    the same traverse to the bit."""
+    a, truth_a = simulate(_short_trail(None), 3)
+    b, truth_b = simulate(_short_trail({"profile": "ideal"}), 3)
     for x, y in zip(a.stops, b.stops, strict=True):
         np.testing.assert_array_equal(x.stereo.uvv, y.stereo.uvv)
         for fx, fy in zip(x.panorama, y.panorama, strict=True):
@@ -142,28 +162,26 @@ def test_an_error_changes_what_it_should_and_leaves_every_other_draw_in_place(sh
 
 
 def test_the_estimator_weights_ties_by_the_matchers_error_where_the_simulator_draws_it():
-    text = resolve_scenario("short_trail").read_text()
-    sites = {label: Scenario.model_validate(tomllib.loads(text + extra)).estimator.sites.tie_error for label, extra in (
-        ("ideal", ""),
-        ("realistic", '\n[errors]\nprofile = "realistic"\n'),
-        ("measured ties", '\n[errors]\ntie_matching = "measured"\n'),
-        ("realistic, identity ties", '\n[errors]\nprofile = "realistic"\ntie_matching = "identity"\n'),
-        ("said otherwise", '\n[estimator.sites]\ntie_error = "pixel_noise"\n[errors]\nprofile = "realistic"\n'),
+    realistic = {"profile": "realistic"}
+    sites = {label: scenario.estimator.sites.tie_error for label, scenario in (
+        ("ideal", _short_trail(None)),
+        ("realistic", _short_trail(realistic)),
+        ("measured ties", _short_trail({"tie_matching": "measured"})),
+        ("realistic, identity ties", _short_trail({**realistic, "tie_matching": "identity"})),
+        ("said otherwise", _short_trail(realistic, sites={"tie_error": "pixel_noise"})),
     )}
     assert sites == {"ideal": None, "realistic": "measured", "measured ties": "measured",
                      "realistic, identity ties": None, "said otherwise": "pixel_noise"}
 
 
 def test_the_estimator_weights_an_hrc_view_with_the_masts_pointing_error_where_the_simulator_draws_it():
-    text = resolve_scenario("short_trail").read_text()
-    realistic = '\n[errors]\nprofile = "realistic"\n'
-    pointing = {label: Scenario.model_validate(tomllib.loads(text + extra)).estimator.hrc.pointing_sigma_deg
-                for label, extra in (
-                    ("ideal", ""),
-                    ("realistic", realistic),
-                    ("coarser mast", "\n[errors]\npan_tilt_resolution_deg = 0.1\n"),
-                    ("said otherwise", "\n[estimator.hrc]\npointing_sigma_deg = 0.0\n" + realistic),
-                )}
+    realistic = {"profile": "realistic"}
+    pointing = {label: scenario.estimator.hrc.pointing_sigma_deg for label, scenario in (
+        ("ideal", _short_trail(None)),
+        ("realistic", _short_trail(realistic)),
+        ("coarser mast", _short_trail({"pan_tilt_resolution_deg": 0.1})),
+        ("said otherwise", _short_trail(realistic, hrc={"pointing_sigma_deg": 0.0})),
+    )}
     assert pointing["ideal"] is None and pointing["said otherwise"] == 0.0
     # a reading within half the resolution, uniform: resolution / sqrt(12)
     assert pointing["realistic"] == pytest.approx(0.013 / np.sqrt(12), rel=1e-12)
@@ -186,16 +204,17 @@ def _vo_sites_run(tmp_path, name: str, source: str, *options: str) -> dict:
 
 def test_run_errors_sets_the_profile_in_place_of_the_scenarios_table(tmp_path):
     """`run --errors PROFILE` gives the run a scenario with that profile's table gives, the
-    estimator's defaults included (the realistic profile estimates the calibration), and
-    `--errors ideal` takes a realistic scenario back to the simulator as it was."""
-    realistic_file = tmp_path / "realistic.toml"
-    realistic_file.write_text(resolve_scenario("short_trail").read_text() + '\n[errors]\nprofile = "realistic"\n')
+    estimator's defaults included (the realistic profile estimates the calibration): an ideal
+    file run realistic is the bundled (realistic) run, the bundled run ideal the ideal file's."""
+    ideal_file = tmp_path / "ideal.toml"
+    ideal_file.write_text(resolve_scenario("short_trail").read_text().replace('profile = "realistic"',
+                                                                              'profile = "ideal"'))
     bundled = _vo_sites_run(tmp_path, "bundled", "short_trail")
-    flag = _vo_sites_run(tmp_path, "flag", "short_trail", "--errors", "realistic")
-    table = _vo_sites_run(tmp_path, "table", str(realistic_file))
-    back = _vo_sites_run(tmp_path, "back", str(realistic_file), "--errors", "ideal")
-    assert flag == table and back == bundled
-    assert "stereo_calibration" in flag["kinds"] and "stereo_calibration" not in bundled["kinds"]
-    assert flag["ate_rmse_m"] != bundled["ate_rmse_m"]
+    flag = _vo_sites_run(tmp_path, "flag", str(ideal_file), "--errors", "realistic")
+    ideal = _vo_sites_run(tmp_path, "ideal", str(ideal_file))
+    back = _vo_sites_run(tmp_path, "back", "short_trail", "--errors", "ideal")
+    assert flag == bundled and back == ideal
+    assert "stereo_calibration" in flag["kinds"] and "stereo_calibration" not in ideal["kinds"]
+    assert flag["ate_rmse_m"] != ideal["ate_rmse_m"]
     scenario = tomllib.loads((tmp_path / "flag" / "scenario.toml").read_text())
     assert scenario["errors"]["profile"] == "realistic"

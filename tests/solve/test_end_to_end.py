@@ -47,7 +47,10 @@ def test_twenty_seeds_sites_beat_vo_and_their_covariances_tell_the_truth(short_s
 def test_at_sparse_sites_the_hrc_ties_what_the_wac_cannot():
     # Issue 14: sites 75-90 m apart, at the WAC's limit. Over seeds 0-9 the HRC lowers the mean
     # ATE from 0.079 to 0.047 m and wins on every seed; on seeds 0-2 from 0.116 to 0.069 m.
-    scenario = load_scenario(resolve_scenario("sparse_sites"))
+    # The ideal simulator: the realistic profile's ties are the WAC matcher's, and its HRC views
+    # are of the landmarks the WAC saw, so at these distances they tie next to nothing
+    # (docs/simulation_errors.md, "Not modelled yet").
+    scenario = load_scenario(resolve_scenario("sparse_sites"), errors="ideal")
     ate = {"vo_sites": [], "vo_sites_hrc": []}
     for configurations in over_seeds(scenario, range(3), tuple(ate)):
         for name, values in ate.items():

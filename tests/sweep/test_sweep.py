@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from pancam_graph.config import resolve_scenario
+from pancam_graph.config import load_scenario, resolve_scenario
 from pancam_graph.errors import ConfigError
 from pancam_graph.evaluation.consistency import last_stop_summary, monte_carlo_summary
 from pancam_graph.solve.pipeline import RunOptions, run_scenario
@@ -63,10 +63,11 @@ def test_a_failing_run_is_recorded_and_the_others_finish(swept):
 
 
 @pytest.fixture(scope="module")
-def serial(short_scenario):
-    """full over seeds 0 and 1, run one after another in this process, and their last stops'
-    NEES."""
-    results = [run_scenario(short_scenario, RunOptions(seed=s, configs=("full",))).configurations["full"]
+def serial():
+    """full over seeds 0 and 1 of short_trail as bundled (what the sweep and bench run), one after
+    another in this process, and their last stops' NEES."""
+    scenario = load_scenario(resolve_scenario("short_trail"))
+    results = [run_scenario(scenario, RunOptions(seed=s, configs=("full",))).configurations["full"]
                for s in (0, 1)]
     return monte_carlo_summary([c.consistency for c in results]) | {
         "nees_last": last_stop_summary([c.nees.last for c in results])["nees_last"]}
