@@ -75,10 +75,10 @@ def _ctrl_c_at_reports():
 
 # -- parsing ----------------------------------------------------------------------------------
 
-def load_named_scenario(scenario: str):
+def load_named_scenario(scenario: str, errors: str | None = None):
     from ..config import load_scenario, resolve_scenario
 
-    return load_scenario(resolve_scenario(scenario))
+    return load_scenario(resolve_scenario(scenario), errors)
 
 
 def rerun_help(default_file: str) -> str:

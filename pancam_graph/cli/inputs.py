@@ -77,7 +77,11 @@ def render_command(
             if control_field:
                 raise ConfigError("--pds4 writes a traverse's navigation pairs: not with --control-field")
             check_out(pds4, "--pds4")
-        sc = load_named_scenario(scenario)
+        # The images carry none of [errors]' draws yet: the pair is rendered through the calibration
+        # it writes and at the mast's recorded angles. So the folder's estimator is the ideal
+        # profile's, which trusts that calibration (docs/simulation_errors.md, "Measurement level
+        # against rendered images").
+        sc = load_named_scenario(scenario, errors="ideal")
         start = time.perf_counter()
         if control_field:
             from ..render.control_field import render_control_field
