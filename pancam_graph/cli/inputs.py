@@ -59,12 +59,15 @@ def render_command(
                                      "PDS4 rover products (CAHVOR cameras, onboard poses in site frames), which "
                                      "`run` reads as a rover's"),
     quiet: bool = typer.Option(False, "--quiet", help="no progress bar"),
+    errors: str | None = typer.Option(None, "--errors", help=SourceOptions.help("errors")),
 ) -> None:
     """Render a scenario's navigation stereo pairs and site panoramas (terrain with relief, rocks,
     texture at several scales, shading; the rig's intrinsics through a distorting lens on a
     slightly misaligned pair, with its calibration; sensor noise) into an image folder that `run`
     and `track` read; the truth goes in its own files. The scenario's [render] table sets the
-    lens, the pair's errors, rocks and panoramas. Needs the [render] extra (moderngl on EGL).
+    lens, the pair's errors, rocks and panoramas; its [errors] profile, as in `run`, turns the pair
+    off the calibration it writes and the mast off its readings (`--errors ideal`: neither).
+    Needs the [render] extra (moderngl on EGL).
     With --control-field: the same pair photographs a 3-D control field of 176 coded targets
     from several views (views/NN_left.png, NN_right.png, control_field.csv, and the pair's true
     calibration in truth_calibration.yaml)."""
@@ -77,11 +80,8 @@ def render_command(
             if control_field:
                 raise ConfigError("--pds4 writes a traverse's navigation pairs: not with --control-field")
             check_out(pds4, "--pds4")
-        # The images carry none of [errors]' draws yet: the pair is rendered through the calibration
-        # it writes and at the mast's recorded angles. So the folder's estimator is the ideal
-        # profile's, which trusts that calibration (docs/simulation_errors.md, "Measurement level
-        # against rendered images").
-        sc = load_named_scenario(scenario, errors="ideal")
+        SourceOptions(errors=errors)  # checks the profile's name
+        sc = load_named_scenario(scenario, errors)
         start = time.perf_counter()
         if control_field:
             from ..render.control_field import render_control_field

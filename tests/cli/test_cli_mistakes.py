@@ -47,6 +47,7 @@ MISTAKES = [
     (["run", "short_trail", "--detector", "surf"], ["--detector 'surf': expected gftt, orb or sift"]),
     (["run", "short_trail", "--errors", "harsh"], ["--errors 'harsh': expected ideal or realistic"]),
     (["simulate", "short_trail", "--out", "sim", "--errors", "harsh"], ["--errors 'harsh': expected ideal or "]),
+    (["render", "short_trail", "--out", "img", "--errors", "harsh"], ["--errors 'harsh': expected ideal or "]),
     (["run", str(BAG), "--errors", "ideal"], ["--errors does not apply to a rosbag"]),
     (["track", "no_images", "--out", "t", "--detector", "surf"], ["--detector 'surf'"]),
     (["run", "short_trail", "--holdout-every", "-2"], ["Invalid value for '--holdout-every'"]),
