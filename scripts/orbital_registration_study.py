@@ -68,8 +68,7 @@ def rendered_clouds(scenario, seed: int, every: int, modes: tuple[str, ...], cel
     rectify = calibration.rectification_maps()
     stereo = calibration.rectified()
     # what reading the folder makes of the rig (store/observation_folder._rig)
-    rig = replace(mounted, wac=stereo.camera, baseline_m=stereo.baseline_m,
-                  raw_R_rectified=tuple(stereo.raw_R_rectified.ravel().tolist()))
+    rig = stereo.of(mounted)
     rng = np.random.default_rng([seed, 3])
     matcher = PanoramaMatcher(rig.wac, rig.baseline_m, FrontendConfig())
     noise = scenario.render.sensor_noise_dn

@@ -15,7 +15,6 @@ rendered images"; 2026-11-29, mars_excerpt seed 5, two sites: median +0.008 px).
 from __future__ import annotations
 
 import argparse
-from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -49,8 +48,7 @@ def main() -> None:
     renderer = TerrainRenderer(terrain_tiles(scenario, dense_path(scenario.path), args.seed), seed=args.seed)
     calibration = raw_stereo_pair(traverse.rig.wac, traverse.rig.baseline_m, scenario.render)
     stereo = calibration.rectified()
-    rig = replace(traverse.rig, wac=stereo.camera, baseline_m=stereo.baseline_m,
-                  raw_R_rectified=tuple(stereo.raw_R_rectified.ravel().tolist()))
+    rig = stereo.of(traverse.rig)
     left_raw, right_raw = calibration.cameras()
     rectify = calibration.rectification_maps()
     noise = np.random.default_rng(1)

@@ -4,13 +4,13 @@ The files these come from are read in formats/calibration.py."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
 
 from ..errors import InputError
-from .rig import Camera
+from .rig import Camera, Rig
 
 
 @dataclass(frozen=True)
@@ -22,6 +22,11 @@ class RectifiedStereo:
     camera: Camera
     baseline_m: float
     raw_R_rectified: np.ndarray = field(default_factory=lambda: np.eye(3), compare=False)
+
+    def of(self, rig: Rig) -> Rig:
+        """`rig` with this pair as its WACs: what images rectified by it are taken with."""
+        return replace(rig, wac=self.camera, baseline_m=self.baseline_m,
+                       raw_R_rectified=tuple(self.raw_R_rectified.ravel().tolist()))
 
 
 @dataclass(frozen=True)

@@ -245,7 +245,6 @@ def test_dense_stereo_on_a_rendered_raw_pair_puts_the_points_on_the_ground():
     """SGBM on a raw pair rectified with its calibration: the triangulated points, taken into
     the world through the rig's rectified camera, lie on the rendered ground out to 40 m; and
     the elevation map keeps one point per 0.5 m cell, the one of median height."""
-    from dataclasses import replace
 
     from pancam_graph.frontend.dense_stereo import dense_points, elevation_map
     from pancam_graph.render.terrain import Ground
@@ -254,8 +253,7 @@ def test_dense_stereo_on_a_rendered_raw_pair_puts_the_points_on_the_ground():
     renderer = TerrainRenderer(terrain_tiles(SCENARIO, dense_path(SCENARIO.path), 0))
     calibration = raw_stereo_pair(traverse.rig.wac, traverse.rig.baseline_m, SCENARIO.render)
     stereo = calibration.rectified()
-    rig = replace(traverse.rig, wac=stereo.camera, baseline_m=stereo.baseline_m,
-                  raw_R_rectified=tuple(stereo.raw_R_rectified.ravel().tolist()))
+    rig = stereo.of(traverse.rig)
     left_raw, right_raw = calibration.cameras()
     world_T_body = truth.world_T_body[2]
     mounted = traverse.rig.body_T_left(0.0, np.deg2rad(-15.0)).matrix()
@@ -286,7 +284,6 @@ def test_a_sites_ground_from_its_rendered_panorama_is_found_in_the_rendered_orth
     bias; a site's ground patch from its rendered, rectified panorama correlated with it from a
     predicted pose 2 m and 0.3 deg off: the rover's east and north in the map's frame within
     0.5 m (measured: 0.13 m), and within 3.5 sigma of the correlation's own covariance."""
-    from dataclasses import replace
 
     import gtsam
 
@@ -311,8 +308,7 @@ def test_a_sites_ground_from_its_rendered_panorama_is_found_in_the_rendered_orth
 
     calibration = raw_stereo_pair(traverse.rig.wac, traverse.rig.baseline_m, scenario.render)
     stereo = calibration.rectified()
-    rig = replace(traverse.rig, wac=stereo.camera, baseline_m=stereo.baseline_m,
-                  raw_R_rectified=tuple(stereo.raw_R_rectified.ravel().tolist()))
+    rig = stereo.of(traverse.rig)
     left_raw, right_raw = calibration.cameras()
     rectify = calibration.rectification_maps()
     stop = next(s for s in traverse.stops if s.is_site and s.index > 0)
