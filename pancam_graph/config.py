@@ -32,6 +32,12 @@ DETECTORS = ("gftt", "orb", "sift")
 ERROR_PROFILES = ("ideal", "realistic")
 
 
+def check_error_profile(name: str | None) -> None:
+    """`--errors NAME`: a profile [errors] knows (None: not given)."""
+    if name is not None and name not in ERROR_PROFILES:
+        raise ConfigError(f"--errors {name!r}: expected {' or '.join(ERROR_PROFILES)}")
+
+
 def _option(flag: str, help: str, minimum: float | None = None):
     return field(default=None, metadata={"flag": flag, "help": help, "minimum": minimum})
 
@@ -62,8 +68,7 @@ class SourceOptions:
             value, minimum = getattr(self, f.name), f.metadata["minimum"]
             if minimum is not None and value is not None and value < minimum:
                 raise ConfigError(f"{flags[f.name]} {value}: must be at least {minimum}")
-        if self.errors is not None and self.errors not in ERROR_PROFILES:
-            raise ConfigError(f"--errors {self.errors!r}: expected {' or '.join(ERROR_PROFILES)}")
+        check_error_profile(self.errors)
         if self.detector is not None and self.detector not in DETECTORS:
             raise ConfigError(f"--detector {self.detector!r}: expected {', '.join(DETECTORS[:-1])} or {DETECTORS[-1]}")
         if isinstance(self.stereo_topics, str):
@@ -620,23 +625,23 @@ class _ScenarioCore(_Strict):
         pointing error, unless it says otherwise."""
         if not isinstance(data, dict) or not isinstance(data.get("errors"), dict):
             return data
-        errors, estimator = data["errors"], data.get("estimator", {})
+        estimator = data.get("estimator", {})
         if not isinstance(estimator, dict):
             return data
-        realistic = errors.get("profile") == "realistic"
-        if realistic and estimator.get("calibration", "auto") == "auto":
+        try:  # the table as the profile resolves it; a bad one is reported by its own field
+            errors = SimulationErrors.model_validate(data["errors"])
+        except ValidationError:
+            return data
+        if errors.profile == "realistic" and estimator.get("calibration", "auto") == "auto":
             estimator = {**estimator, "calibration": "estimated"}
         sites = estimator.get("sites", {})
-        measured_ties = errors.get("tie_matching", "measured" if realistic else "identity") == "measured"
-        if measured_ties and isinstance(sites, dict) and sites.get("tie_error") is None:
+        if errors.tie_matching == "measured" and isinstance(sites, dict) and sites.get("tie_error") is None:
             estimator = {**estimator, "sites": {**sites, "tie_error": "measured"}}
         hrc = estimator.get("hrc", {})
-        resolution_deg = errors.get("pan_tilt_resolution_deg", REALISTIC_ERRORS["pan_tilt_resolution_deg"][0]
-                                    if realistic else 0.0)
-        if isinstance(resolution_deg, int | float) and resolution_deg > 0 and isinstance(hrc, dict) and \
-                hrc.get("pointing_sigma_deg") is None:
+        if errors.pan_tilt_resolution_deg > 0 and isinstance(hrc, dict) and hrc.get("pointing_sigma_deg") is None:
             # a reading within half the resolution, uniform
-            estimator = {**estimator, "hrc": {**hrc, "pointing_sigma_deg": resolution_deg / math.sqrt(12.0)}}
+            estimator = {**estimator, "hrc": {**hrc, "pointing_sigma_deg": errors.pan_tilt_resolution_deg
+                                              / math.sqrt(12.0)}}
         return {**data, "estimator": estimator}
 
     @model_validator(mode="after")
@@ -704,9 +709,9 @@ def validation_problems(exc: ValidationError) -> str:
 
 
 def load_toml_model(path: str | Path, model: type[M], what: str, error: type[PancamGraphError] = ConfigError,
-                    replace: dict | None = None) -> M:
-    """Read and validate a TOML file against a pydantic model, with `replace`'s tables in place
-    of the file's; every problem names the file and the field, raised as `error`."""
+                    tables: dict | None = None) -> M:
+    """Read and validate a TOML file against a pydantic model, with `tables` in place of the
+    file's tables of those names; every problem names the file and the field, raised as `error`."""
     path = Path(path)
     text = read_text(path, what, error)
     try:
@@ -714,7 +719,7 @@ def load_toml_model(path: str | Path, model: type[M], what: str, error: type[Pan
     except (tomllib.TOMLDecodeError, ValueError) as exc:  # ValueError: an integer of thousands of digits
         raise error(f"{path}: not valid TOML: {exc}") from None
     try:
-        return model.model_validate({**data, **(replace or {})})
+        return model.model_validate({**data, **(tables or {})})
     except ValidationError as exc:
         raise error(f"{path}: invalid {what}: {validation_problems(exc)}") from None
 
@@ -723,7 +728,8 @@ def load_scenario(path: str | Path, errors: str | None = None) -> Scenario:
     """Read and validate a scenario TOML file; every problem names the file and the field.
     `errors`: an error profile in place of the file's [errors] table (`run --errors`): the
     estimator then takes the defaults that profile sets, not those the file's table set."""
-    return load_toml_model(path, Scenario, "scenario file", replace=None if errors is None else
+    check_error_profile(errors)
+    return load_toml_model(path, Scenario, "scenario file", tables=None if errors is None else
                            {"errors": {"profile": errors}})
 
 

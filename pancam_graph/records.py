@@ -183,6 +183,9 @@ class GroundTruth:
     # The true values of kinds' own variables, when simulated: kind name -> variable -> value
     # (the orbital kind's map biases).
     kinds: dict[str, dict[str, float]] = field(default_factory=dict)
+    # Per site stop, the mast's true (pan, tilt) of each panorama frame and then each HRC frame,
+    # when simulated off its readings ([errors] pan_tilt_resolution_deg): what a render takes.
+    mast_angles: dict[int, tuple[tuple[float, float], ...]] = field(default_factory=dict, repr=False)
 
     @property
     def positions(self) -> np.ndarray:

@@ -9,7 +9,7 @@ calibration, matches it as an image run's site panorama does (frontend/tracker.S
 and compares each feature's disparity with f b / z, z the renderer's depth under the left pixel.
 Prints the disparity error's median, mean and spread (1.4826 MAD) by range band: a bias here is
 a range error every site carries (docs/simulation_errors.md, "Measurement level against
-rendered images"; 2026-11-29, mars_excerpt seed 5, two sites: median +0.008 px).
+rendered images"; 2026-11-29, the defaults, mars_excerpt seed 5, two sites: median +0.002 px).
 """
 
 from __future__ import annotations

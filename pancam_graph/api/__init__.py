@@ -347,11 +347,10 @@ def simulate(scenario: str | Path, out: Path | str, *, seed: int | None = None, 
              errors: str | None = None) -> Traverse:
     """Write a scenario's simulated observations as an observation folder; `errors`: an error
     profile in place of the scenario's [errors] table (ideal or realistic)."""
-    from ..config import SourceOptions, load_scenario, resolve_scenario
+    from ..config import load_scenario, resolve_scenario
     from ..sim import simulate as simulate_scenario
     from ..store.observation_writer import write_observations
 
-    SourceOptions(errors=errors)  # checks the profile's name
     sc = load_scenario(resolve_scenario(str(scenario)), errors)
     out = Path(out)
     check_out(out)

@@ -80,7 +80,6 @@ def render_command(
             if control_field:
                 raise ConfigError("--pds4 writes a traverse's navigation pairs: not with --control-field")
             check_out(pds4, "--pds4")
-        SourceOptions(errors=errors)  # checks the profile's name
         sc = load_named_scenario(scenario, errors)
         start = time.perf_counter()
         if control_field:

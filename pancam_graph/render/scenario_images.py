@@ -10,20 +10,20 @@ from dataclasses import replace
 from pathlib import Path
 
 import cv2
+import gtsam
 import numpy as np
 from pyproj import CRS
 
-from ..config import RenderConfig, Scenario, SimulationErrors
+from ..config import RenderConfig, Scenario
 from ..errors import ResultsError
 from ..geometry.geodesy import LocalFrame
-from ..geometry.rig import Camera, Rig
+from ..geometry.rig import Camera
 from ..geometry.stereo_pair import StereoCalibration
 from ..kinds.orbital import Orbital, OrbitalSensor
 from ..orbital.maps import MapBias
 from ..records import GroundTruth, MapRaster, Traverse
 from ..runtime.processes import heap_for_image_work
 from ..sim import kind_rng, simulate
-from ..sim.errors import CALIBRATION_STREAM, POINTING_STREAM, TrueRig, with_pointing_error
 from ..sim.world import dense_path
 from ..store.observation_manifest import PanoramaImage
 from ..store.observation_writer import write_observations
@@ -57,8 +57,7 @@ def render_scenario(scenario: Scenario, folder: Path, seed: int | None = None,
     traverse, truth = maps_of_rendered_ground(scenario, *simulate(scenario, seed), seed, renderer)
     rig = traverse.rig
     calibration = raw_stereo_pair(rig.wac, rig.baseline_m, config)
-    left_camera, right_camera, left_T_right = _as_built(calibration, scenario.errors, rig, seed)
-    true_angles = _true_angles(traverse, scenario.errors, seed)
+    left_camera, right_camera, left_T_right = _as_built(calibration, truth.kinds.get("stereo_calibration"))
     rng = np.random.default_rng([seed, 3])
     folder = Path(folder)
     (folder / "images").mkdir(parents=True, exist_ok=True)
@@ -82,7 +81,7 @@ def render_scenario(scenario: Scenario, folder: Path, seed: int | None = None,
         done += 1
         if config.panoramas:
             # each frame taken at the mast's true angles and named by its readings
-            pointed = iter(true_angles.get(k, ()))
+            pointed = iter(truth.mast_angles.get(k, ()))
             for f in stop.panorama:
                 world_T_left = world_T_body @ rig.body_T_left(*next(pointed, (f.pan_rad, f.tilt_rad))).matrix()
                 left, right = stereo(_frame_name(stop.site_id, "wac", f.pan_rad, f.tilt_rad), world_T_left)
@@ -104,37 +103,26 @@ def render_scenario(scenario: Scenario, folder: Path, seed: int | None = None,
     return 2 * len(frames) + sum(2 if p.camera == "wac" else 1 for p in panorama)
 
 
-def _as_built(calibration: StereoCalibration, errors: SimulationErrors, rig: Rig, seed: int
+def _as_built(calibration: StereoCalibration, drawn: dict[str, float] | None
               ) -> tuple[Camera, Camera, np.ndarray]:
     """The left and right cameras and the right one's pose in the left one's frame as the pair
-    really is: the calibration's, off by the stereo calibration error the simulation drew for
-    this seed ([errors]; the draw the truth holds), which the folder's calibration does not say.
-    The errors are the rectified pair's; put on the raw pair, whose axes are a fraction of a
-    degree from the rectified ones, they are the same to second order."""
+    really is: the calibration's, off by the stereo calibration error the simulation drew
+    (`drawn`, the truth's stereo_calibration state; None: none), which the folder's calibration
+    does not say. The errors are the rectified pair's; put on the raw pair, whose axes are a
+    fraction of a degree from the rectified ones, they are the same to second order."""
     left, right = calibration.cameras()
     left_T_right = calibration.left_T_right()
-    if not errors.calibration:
+    if drawn is None:
         return left, right, left_T_right
-    drawn = TrueRig.draw(rig, errors, np.random.default_rng([seed, CALIBRATION_STREAM]))
-    state = drawn.state(rig)
-    common = 1.0 + state["focal_scale"]
-    right_scale = common * (1.0 + state["right_focal_ratio"])
+    common = 1.0 + drawn["focal_scale"]
+    right_scale = common * (1.0 + drawn["right_focal_ratio"])
     left = replace(left, fx=left.fx * common, fy=left.fy * common)
     right = replace(right, fx=right.fx * right_scale, fy=right.fy * right_scale)
+    turn = gtsam.Rot3.Expmap(np.array([drawn[f"right_rotation_{axis}_rad"] for axis in "xyz"])).matrix()
     true_T = left_T_right.copy()
-    true_T[:3, :3] = drawn.left_R_right @ left_T_right[:3, :3]
-    true_T[:3, 3] = left_T_right[:3, 3] * (1.0 + state["baseline_scale"])
+    true_T[:3, :3] = turn @ left_T_right[:3, :3]
+    true_T[:3, 3] = left_T_right[:3, 3] * (1.0 + drawn["baseline_scale"])
     return left, right, true_T
-
-
-def _true_angles(traverse: Traverse, errors: SimulationErrors, seed: int) -> dict[int, list[tuple[float, float]]]:
-    """Per site stop, the mast's true (pan, tilt) of each panorama frame and then each HRC frame,
-    drawn as the simulation drew them (its stream, its order); empty without a pointing error."""
-    if not errors.pan_tilt_resolution_deg:
-        return {}
-    rng = np.random.default_rng([seed, POINTING_STREAM])
-    return {stop.index: [with_pointing_error(f.pan_rad, f.tilt_rad, errors, rng) for f in (*stop.panorama, *stop.hrc)]
-            for stop in traverse.stops if stop.panorama or stop.hrc}
 
 
 def maps_of_rendered_ground(scenario: Scenario, traverse: Traverse, truth: GroundTruth, seed: int,

@@ -55,12 +55,19 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
                 if errors.calibration else None)
     pointing_rng = np.random.default_rng([seed, POINTING_STREAM]) if errors.pan_tilt_resolution_deg else None
 
-    def pointed(pan: float, tilt: float) -> tuple[float, float] | None:
-        """The mast's true angles for readings (pan, tilt); None where they are the readings."""
-        return None if pointing_rng is None else with_pointing_error(pan, tilt, errors, pointing_rng)
+    mast_angles: dict[int, list[tuple[float, float]]] = {}  # GroundTruth.mast_angles
 
-    def true_left(pan: float, tilt: float) -> gtsam.Pose3 | None:
-        angles = pointed(pan, tilt)
+    def pointed(stop: int, pan: float, tilt: float) -> tuple[float, float] | None:
+        """The mast's true angles for readings (pan, tilt) at a stop, kept for the truth; None
+        where they are the readings."""
+        if pointing_rng is None:
+            return None
+        angles = with_pointing_error(pan, tilt, errors, pointing_rng)
+        mast_angles.setdefault(stop, []).append(angles)
+        return angles
+
+    def true_left(stop: int, pan: float, tilt: float) -> gtsam.Pose3 | None:
+        angles = pointed(stop, pan, tilt)
         return None if angles is None else rig.body_T_left(*angles)
 
     stops, fixes, time_s, site_id = [], [], 0.0, 0
@@ -80,7 +87,7 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
                     float(p), float(np.deg2rad(t)),
                     observe_stereo(
                         field, poses[k], rig.body_T_left(p, np.deg2rad(t)), rig, site_range, cam_cfg, rng, true_rig,
-                        true_left(p, np.deg2rad(t)),
+                        true_left(k, p, np.deg2rad(t)),
                     ),
                 )
                 for p in pans
@@ -90,7 +97,7 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
                 hrc_tilt = np.deg2rad(scenario.sites.hrc_tilt_deg)
                 hrc = tuple(
                     observe_hrc(field, poses[k], float(p), hrc_tilt, rig, site_range, cam_cfg, rng,
-                                pointed(float(p), hrc_tilt))
+                                pointed(k, float(p), hrc_tilt))
                     for p in hrc_pans
                 )
         if at_stops and k % scenario.gps.every_n_stops == 0 and not _in_ranges(s, scenario.gps.dropouts):
@@ -132,7 +139,8 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
     )
     truth = GroundTruth(world_T_body=poses, landmarks=landmarks, wheel_slip=float(traverse_slip),
                         terrain=terrain.height,
-                        kinds={} if true_rig is None else {"stereo_calibration": true_rig.state(rig)})
+                        kinds={} if true_rig is None else {"stereo_calibration": true_rig.state(rig)},
+                        mast_angles={stop: tuple(angles) for stop, angles in mast_angles.items()})
     return _with_kind_measurements(scenario, traverse, truth, seed)
 
 

@@ -220,16 +220,13 @@ def test_run_errors_sets_the_profile_in_place_of_the_scenarios_table(tmp_path):
     assert scenario["errors"]["profile"] == "realistic"
 
 
-def test_render_takes_each_frame_at_the_true_angles_the_simulation_drew(short_trail):
-    """render/scenario_images draws the mast's true angles again from the simulation's stream, in
-    its order: a panorama frame's simulated pixels are the projections from those angles (median
-    0.37 px off, the pixel noise, over 11,710 views of seed 2), not from the readings nor from
-    another seed's draws (13.5 px at a 1 deg resolution)."""
-    from pancam_graph.render.scenario_images import _true_angles
-
+def test_the_truth_holds_the_true_angles_each_frame_was_taken_at(short_trail):
+    """GroundTruth.mast_angles, which render takes each site frame at: a panorama frame's simulated
+    pixels are the projections from those angles (median 0.37 px off, the pixel noise, over 11,710
+    views of seed 2), not from the readings (11.9 px at a 1 deg resolution)."""
     scenario = _with_errors(short_trail, pan_tilt_resolution_deg=1.0)
     traverse, truth = simulate(scenario, 2)
-    true_angles = _true_angles(traverse, scenario.errors, 2)
+    true_angles = truth.mast_angles
     rig = traverse.rig
     off = {"true": [], "read": []}
     for stop in traverse.stops:
