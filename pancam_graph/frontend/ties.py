@@ -14,7 +14,11 @@ see at a similar range:
 4. match b's pixel into b's right image (the stereo observation);
 5. verify all of a site pair's matches together: one rigid motion must carry a's triangulated
    points onto b's (RANSAC, Mahalanobis distance with both triangulation covariances), and it
-   must agree with the prediction.
+   must agree with the prediction, within what the stereo pair's calibration leaves uncertain:
+   a calibration error biases every range of both sites alike (a turn of the right camera
+   about the vertical by 0.01 deg puts 0.3 px into every disparity, +1 % of range at 30 m),
+   which no residual shows and which moves the fitted motion by more than a VO prediction's
+   sigma over 40 m.
 
 Each verified tie is b's observation of a's track: the back-end's tie gate checks it again.
 """
@@ -29,6 +33,7 @@ import gtsam
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..geometry.calibration_error import pixel_shifts
 from ..geometry.rig import Rig, triangulate_rectified, triangulation_covariance
 from ..graph import chi2
 from ..graph.tie_gate import RelativePose, SitePoint, site_points
@@ -85,9 +90,15 @@ class TieResult:
 
 
 class TieMatcher:
-    def __init__(self, rig: Rig, sigma_px: float, settings: TieSettings | None = None):
+    """`calibration_sigmas`: the stereo pair's calibration error's 1-sigma per term
+    (geometry/calibration_error.py's NAMES), when the estimator estimates it; None when it
+    trusts the calibration."""
+
+    def __init__(self, rig: Rig, sigma_px: float, settings: TieSettings | None = None,
+                 calibration_sigmas: np.ndarray | None = None):
         self.rig, self.camera, self.baseline_m = rig, rig.wac, rig.baseline_m
         self.sigma_px = sigma_px
+        self.calibration_sigmas = None if calibration_sigmas is None else np.asarray(calibration_sigmas, float)
         self.s = settings or TieSettings()
         self._tracker = StereoTracker()  # its stereo optical flow
 
@@ -106,10 +117,10 @@ class TieMatcher:
                 found.append(match)
         strong = [m for m in found if m.ncc >= self.s.min_ncc]
         result.matches = strong
-        result.ties = self._verify(strong, points, b, prediction, result)
+        result.ties = self.verify(strong, points, a, b, prediction, result)
         if len(result.ties) < self.s.wanted_ties and len(found) > len(strong):
             relaxed = TieResult()
-            relaxed.ties = self._verify(found, points, b, prediction, relaxed)
+            relaxed.ties = self.verify(found, points, a, b, prediction, relaxed)
             if len(relaxed.ties) > len(result.ties):
                 result.note = (f"{len(strong)} matches of NCC {self.s.min_ncc} or more verified {len(result.ties)} "
                                f"ties; all {len(found)} down to {self.s.relaxed_ncc} verified {len(relaxed.ties)}")
@@ -144,6 +155,8 @@ class TieMatcher:
         tracks = np.array([r[0] for r in picked])
         range_a = np.array([r[3] for r in picked])
         # each point in b's frame, and its uncertainty there: the relative pose's and a's triangulation's
+        # (not the calibration's: widening the search by it lost half of the ties of rendered
+        # short_trail seed 1, drawn 1.3 sigma off, to ambiguous peaks and the search's limit)
         p_b, radius = np.zeros((len(picked), 3)), np.zeros(len(picked))
         h_pose, h_point = np.zeros((3, 6), order="F"), np.zeros((3, 3), order="F")
         for k, track in enumerate(tracks):
@@ -240,10 +253,12 @@ class TieMatcher:
 
     # -- verification --------------------------------------------------------------------------------
 
-    def _verify(self, found: list[Tie], points: dict[int, SitePoint], b: SitePanorama, prediction: RelativePose,
-                result: TieResult) -> list[Tie]:
+    def verify(self, found: list[Tie], points: dict[int, SitePoint], a: SitePanorama, b: SitePanorama,
+                prediction: RelativePose, result: TieResult | None = None) -> list[Tie]:
         """The matches one rigid motion b_T_a explains (RANSAC over three-point Kabsch fits,
-        Mahalanobis inliers), when that motion agrees with the prediction."""
+        Mahalanobis inliers), when that motion agrees with the prediction; why not in
+        `result.note`."""
+        result = TieResult() if result is None else result
         s, cam = self.s, self.camera
         if len(found) < s.min_verified:
             result.note = f"{len(found)} matches, fewer than {s.min_verified}"
@@ -276,16 +291,57 @@ class TieMatcher:
             return []
         motion, fit = _refine(motion, p[best], cov_p[best], q[best], cov_q[best])
         # The fitted motion against the prediction, each with its covariance (left perturbations
-        # of b_T_a: the prediction's right one of a_T_b, negated). The points' errors are not all
-        # independent (stereo at range is biased alike by the pair's calibration): the fit's
-        # covariance is scaled by its residuals' variance factor.
+        # of b_T_a: the prediction's right one of a_T_b, negated; to first order their difference
+        # is the fit's error plus the prediction's). The points' errors are not all independent:
+        # the fit's covariance is scaled by its residuals' variance factor, and the calibration's
+        # uncertainty, which biases both sites' points alike and the VO steps between them, is
+        # added through the difference's sensitivity to it.
         xi = gtsam.Pose3.Logmap(gtsam.Pose3(motion).compose(prediction.a_T_b))
         fit *= max(1.0, _variance_factor(motion, p[best], cov_p[best], q[best], cov_q[best]))
         covariance = prediction.covariance + fit
+        if self.calibration_sigmas is not None:
+            chosen = [t for t, ok in zip(found, best, strict=True) if ok]
+            sensitivity = self._calibration_sensitivity(chosen, motion, p[best], cov_p[best], q[best], cov_q[best],
+                                                        a, b)
+            if prediction.calibration_sensitivity is not None:
+                sensitivity = sensitivity + prediction.calibration_sensitivity
+            covariance = covariance + sensitivity @ np.diag(self.calibration_sigmas**2) @ sensitivity.T
         if xi @ np.linalg.solve(covariance, xi) > _GATE_6D:
             result.note = "the matches' rigid motion disagrees with the prediction"
             return []
         return [t for t, ok in zip(found, best, strict=True) if ok]
+
+
+    def _calibration_sensitivity(self, ties: list[Tie], motion, p, cov_p, q, cov_q, a: SitePanorama,
+                                 b: SitePanorama) -> np.ndarray:
+        """d (fitted b_T_a, left perturbation) / d (calibration error) (6 x 6), by finite
+        differences: each term moves both sites' pixels (pixel_shifts), their points are
+        triangulated again, and the motion refitted."""
+        cam, baseline = self.camera, self.baseline_m
+
+        def points_of(site: SitePanorama, views: list[int], uvv: np.ndarray) -> np.ndarray:
+            mounts = np.array([site.views[v].body_T_camera for v in views])
+            in_camera = triangulate_rectified(uvv[:, 0], uvv[:, 1], uvv[:, 2], cam, baseline)
+            return np.einsum("nij,nj->ni", mounts[:, :3, :3], in_camera) + mounts[:, :3, 3]
+
+        a_views, b_views = [t.a_view for t in ties], [t.b_view for t in ties]
+        a_uvv, b_uvv = np.array([t.a_uvv for t in ties]), np.array([t.b_uvv for t in ties])
+        a_shifts, b_shifts = (pixel_shifts(uvv, cam.fx, cam.cx, cam.cy) for uvv in (a_uvv, b_uvv))
+        a_points, b_points = points_of(a, a_views, a_uvv), points_of(b, b_views, b_uvv)
+        inverse = gtsam.Pose3(motion).inverse()
+        sensitivity = np.zeros((6, a_shifts.shape[-1]))
+        step = _CALIBRATION_STEP
+        for term in range(sensitivity.shape[1]):
+            moved_p = p + points_of(a, a_views, a_uvv + step * a_shifts[:, :, term]) - a_points
+            moved_q = q + points_of(b, b_views, b_uvv + step * b_shifts[:, :, term]) - b_points
+            refitted, _ = _refine(motion, moved_p, cov_p, moved_q, cov_q, iterations=2)
+            sensitivity[:, term] = gtsam.Pose3.Logmap(gtsam.Pose3(refitted).compose(inverse)) / step
+        return sensitivity
+
+
+# finite-difference step of every calibration term (rad or ratio): a tenth of a pixel's shift or
+# less, where the fit is linear in it
+_CALIBRATION_STEP = 1e-4
 
 
 class _Ground:

@@ -124,10 +124,13 @@ def site_points(views: dict[int, list[tuple[gtsam.Pose3, np.ndarray]]], rig: Rig
 @dataclass(frozen=True)
 class RelativePose:
     """a_T_b between two site poses at the current estimate, with its 6x6 covariance
-    ([rotation, translation], GTSAM's tangent space of a_T_b)."""
+    ([rotation, translation], GTSAM's tangent space of a_T_b) and, composed from VO steps that
+    know theirs, its first-order change with the stereo pair's calibration error (6 x 6, d a_T_b
+    / d c in the same tangent space; geometry/calibration_error.py's terms)."""
 
     a_T_b: gtsam.Pose3
     covariance: np.ndarray
+    calibration_sensitivity: np.ndarray | None = None
 
     @classmethod
     def from_joint(cls, world_T_a: gtsam.Pose3, world_T_b: gtsam.Pose3, joint: np.ndarray) -> RelativePose:
@@ -140,14 +143,23 @@ class RelativePose:
         return cls(a_T_b, 0.5 * (cov + cov.T))
 
     @classmethod
-    def compose(cls, steps: list[tuple[gtsam.Pose3, np.ndarray]]) -> RelativePose:
-        """Along a chain of independent (prev_T_curr, covariance) steps from a to b."""
+    def compose(cls, steps: list[tuple[gtsam.Pose3, np.ndarray]],
+                sensitivities: list[np.ndarray | None] | None = None) -> RelativePose:
+        """Along a chain of independent (prev_T_curr, covariance) steps from a to b; with each
+        VO step's calibration sensitivity S (Motion.calibration_sensitivity: the step measured
+        through a pair off by c is the true one times Expmap(-S c); None: the step knows none),
+        the chain's."""
         a_T_b, cov = gtsam.Pose3(), np.zeros((6, 6))
+        sensitivity = None if sensitivities is None else np.zeros((6, 6))
         h_chain, h_step = np.zeros((6, 6), order="F"), np.zeros((6, 6), order="F")
-        for step, step_cov in steps:
+        for k, (step, step_cov) in enumerate(steps):
             a_T_b = a_T_b.compose(step, h_chain, h_step)
             cov = h_chain @ cov @ h_chain.T + h_step @ step_cov @ h_step.T
-        return cls(a_T_b, cov)
+            if sensitivity is not None:
+                sensitivity = h_chain @ sensitivity
+                if sensitivities[k] is not None:
+                    sensitivity -= h_step @ sensitivities[k]
+        return cls(a_T_b, cov, sensitivity)
 
 
 def disagreement2(at_a: SitePoint, at_b: SitePoint, relative: RelativePose) -> float:

@@ -124,6 +124,12 @@ class StereoCalibrationSettings(Section):
     baseline_scale_sigma: float = Field(1e-4, gt=0.0, le=0.05, description="1-sigma of the baseline's error left "
                                         "by the calibration, as a ratio (the same calibration: 0.034 mm of 500 mm)")
 
+    def sigmas(self) -> np.ndarray:
+        """The prior's 1-sigma of each term, in geometry/calibration_error.py's NAMES order."""
+        rotation = np.deg2rad(self.rotation_sigma_deg)
+        return np.array([rotation, rotation, rotation, self.focal_ratio_sigma, self.focal_scale_sigma,
+                         self.baseline_scale_sigma])
+
 
 class StereoCalibration(Kind):
     name = "stereo_calibration"
@@ -138,9 +144,7 @@ class StereoCalibration(Kind):
     def __init__(self, localizer):
         super().__init__(localizer)
         settings: StereoCalibrationSettings = localizer.estimator.stereo_calibration
-        rotation = np.deg2rad(settings.rotation_sigma_deg)
-        prior = gtsam.noiseModel.Diagonal.Sigmas(np.array([rotation, rotation, rotation, settings.focal_ratio_sigma,
-                                                           settings.focal_scale_sigma, settings.baseline_scale_sigma]))
+        prior = gtsam.noiseModel.Diagonal.Sigmas(settings.sigmas())
         localizer.smoother.add(gtsam.PriorFactorVector(CALIBRATION, np.zeros(len(NAMES)), prior))
         localizer.smoother.insert(CALIBRATION, np.zeros(len(NAMES)), shared=True)
 

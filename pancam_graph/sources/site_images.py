@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..config import FrontendConfig
+from ..config import EstimatorConfig, FrontendConfig
 from ..errors import InputError
 from ..frontend.dense_stereo import ground_patch
 from ..frontend.hrc_matching import HrcMatcher, HrcMatches, hrc_footprints
@@ -20,6 +20,7 @@ from ..frontend.motion import VoMotions
 from ..frontend.panorama import PanoramaMatcher, PanoramaView, SitePanorama
 from ..frontend.ties import TieMatcher, TieResult
 from ..graph.tie_gate import RelativePose
+from ..kinds.stereo_calibration import StereoCalibration
 from ..records import HrcFrame, PanoramaFrame, StereoObservations, Stop
 from ..runtime.processes import heap_for_image_work
 
@@ -78,6 +79,14 @@ class SiteReport:
         return min(later) if later else None
 
 
+def calibration_sigmas(estimator: EstimatorConfig) -> np.ndarray | None:
+    """The stereo pair's calibration error's prior sigmas where a configuration estimates it
+    (the tie verification allows for them: frontend/ties.py), None where all trust it."""
+    if not any(StereoCalibration.name in kinds for kinds in estimator.configurations.values()):
+        return None
+    return estimator.stereo_calibration.sigmas()
+
+
 def images_by_stop(obs: ObservationSet, camera: str = "wac") -> dict[int, list]:
     """The folder's panorama frames (PanoramaImage) of one camera ("wac" pairs or "hrc"), per
     site stop in stop order."""
@@ -104,7 +113,7 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
     rig = obs.traverse.rig
     motions = vo.motions
     matcher = PanoramaMatcher(rig.wac, rig.baseline_m, frontend, first_id=TRACK_OFFSET)
-    ties = TieMatcher(rig, obs.traverse.image_noise_px)
+    ties = TieMatcher(rig, obs.traverse.image_noise_px, calibration_sigmas=calibration_sigmas(vo.estimator))
     hrc_matcher = HrcMatcher(rig) if read_hrc is not None and rig.hrc is not None else None
     hrc_images = images_by_stop(obs, "hrc")
     # the ground from above, for the orbital kind to correlate with an orthoimage: SGBM on every
@@ -120,8 +129,9 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
         focus = hrc_footprints(rig, views, [(im.pan_rad, im.tilt_rad) for im in hrc_frames]) if hrc_frames else None
         site = matcher(stop, images[0].site, views, focus)
         for earlier in reversed(recent):
-            prediction = RelativePose.compose([(motions[k].prev_T_curr, motions[k].covariance)
-                                               for k in range(earlier.stop + 1, stop + 1)])
+            between = range(earlier.stop + 1, stop + 1)
+            prediction = RelativePose.compose([(motions[k].prev_T_curr, motions[k].covariance) for k in between],
+                                              [motions[k].calibration_sensitivity for k in between])
             distance = float(np.linalg.norm(prediction.a_T_b.translation()))
             if distance > MAX_TIE_DISTANCE_M:
                 continue

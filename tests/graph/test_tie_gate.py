@@ -118,3 +118,23 @@ def test_composed_relative_pose_covariance_matches_sampled_chains():
         errors.append(gtsam.Pose3.Logmap(composed.a_T_b.between(chain)))
     sampled = np.cov(np.array(errors).T)
     assert np.allclose(np.diag(sampled), np.diag(composed.covariance), rtol=0.1)
+
+
+def test_composed_calibration_sensitivity_is_the_chain_measured_through_an_erring_pair():
+    """Each step measured through a pair off by c is the true one times Expmap(-S c)
+    (Motion.calibration_sensitivity); the composed chain's change is compose's sensitivity times
+    c, to first order, and a step that knows no sensitivity adds none."""
+    rng = np.random.default_rng(7)
+    truth = [gtsam.Pose3(gtsam.Rot3.Ypr(0.05 * k, 0.01, -0.02), np.array([1.5, 0.1 * k, 0.03])) for k in range(40)]
+    sensitivities = [rng.normal(0.0, 50.0, (6, 6)) for _ in truth]
+    sensitivities[7] = None  # a bridged step
+    c = rng.normal(0.0, 1e-6, 6)
+    measured = [step if s is None else step.compose(gtsam.Pose3.Expmap(-s @ c))
+                for step, s in zip(truth, sensitivities, strict=True)]
+    composed = RelativePose.compose([(m, np.eye(6) * 1e-6) for m in measured], sensitivities)
+    exact = RelativePose.compose([(t, np.eye(6) * 1e-6) for t in truth]).a_T_b
+    change = gtsam.Pose3.Logmap(exact.between(composed.a_T_b))
+    predicted = composed.calibration_sensitivity @ c
+    assert np.linalg.norm(predicted) > 1e-3  # a change worth measuring: 40 steps of 50 units a term
+    np.testing.assert_allclose(change, predicted, rtol=0.0, atol=2e-3 * np.linalg.norm(predicted))
+    assert RelativePose.compose([(m, np.eye(6)) for m in measured]).calibration_sensitivity is None
