@@ -57,7 +57,7 @@ def render_scenario(scenario: Scenario, folder: Path, seed: int | None = None,
     traverse, truth = maps_of_rendered_ground(scenario, *simulate(scenario, seed), seed, renderer)
     rig = traverse.rig
     calibration = raw_stereo_pair(rig.wac, rig.baseline_m, config)
-    left_camera, right_camera, left_T_right = _as_built(calibration, truth.kinds.get("stereo_calibration"))
+    left_camera, right_camera, left_T_right = as_built(calibration, truth.kinds.get("stereo_calibration"))
     rng = np.random.default_rng([seed, 3])
     folder = Path(folder)
     (folder / "images").mkdir(parents=True, exist_ok=True)
@@ -103,7 +103,7 @@ def render_scenario(scenario: Scenario, folder: Path, seed: int | None = None,
     return 2 * len(frames) + sum(2 if p.camera == "wac" else 1 for p in panorama)
 
 
-def _as_built(calibration: StereoCalibration, drawn: dict[str, float] | None
+def as_built(calibration: StereoCalibration, drawn: dict[str, float] | None
               ) -> tuple[Camera, Camera, np.ndarray]:
     """The left and right cameras and the right one's pose in the left one's frame as the pair
     really is: the calibration's, off by the stereo calibration error the simulation drew
