@@ -741,11 +741,15 @@ def bundled_scenarios() -> dict[str, Path]:
 def resolve_scenario(name_or_path: str) -> Path:
     """A bundled scenario name (e.g. `denver_trail`) or a path to a TOML file."""
     candidate = Path(name_or_path)
+    bundled = bundled_scenarios()
+    if candidate.is_dir() and name_or_path in bundled:
+        return bundled[name_or_path]  # a folder of that name here (a render's images) is no scenario
     if candidate.suffix == ".toml" or candidate.exists():
+        if candidate.is_dir():
+            raise ConfigError(f"{candidate}: a folder, not a scenario TOML file")
         if not candidate.is_file():
             raise ConfigError(f"{candidate}: scenario file not found")
         return candidate
-    bundled = bundled_scenarios()
     if name_or_path not in bundled and ("/" in name_or_path or "\\" in name_or_path):
         raise ConfigError(f"{name_or_path}: no such file or folder")
     if name_or_path not in bundled:

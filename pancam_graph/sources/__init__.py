@@ -10,7 +10,7 @@ import dataclasses
 import time
 from pathlib import Path
 
-from ..config import EstimatorConfig, SourceOptions
+from ..config import EstimatorConfig, SourceOptions, bundled_scenarios
 from ..errors import ConfigError
 from ..runtime.processes import call_apart
 from .recorded import is_kitti_drive
@@ -29,7 +29,11 @@ def source_for(text: str) -> Source:
         drives = sorted(p.name for p in path.iterdir() if is_kitti_drive(p))
         raise ConfigError(f"{path}: a KITTI date folder; give one drive folder inside it ({', '.join(drives)})")
     expected = ", ".join(s.describes for s in SOURCES)
-    raise ConfigError(f"{path}: not a source: expected {expected}")
+    shadowed = ""
+    if path.is_dir() and text in bundled_scenarios():
+        shadowed = (f" (the folder {text}/ here hides the bundled scenario of that name: give its file, "
+                    f"{bundled_scenarios()[text]}, or run from another folder)")
+    raise ConfigError(f"{path}: not a source: expected {expected}{shadowed}")
 
 
 def estimator_before_loading(text: str) -> EstimatorConfig | None:

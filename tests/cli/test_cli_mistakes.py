@@ -260,3 +260,19 @@ def test_a_viewer_that_does_not_answer_is_a_warning_not_a_hang(tmp_path, viewer,
     assert result.returncode == 0, result.stderr
     assert "Traceback" not in result.stderr and result.stderr.count("warning:") == 1
     assert said in result.stderr and (tmp_path / "res" / "metrics.json").is_file()
+
+
+def test_a_folder_named_like_a_bundled_scenario_is_named_as_what_hides_it(tmp_path):
+    """`render short_trail --out short_trail` leaves a folder that a later `run short_trail` or
+    `show-config short_trail` in the same place would take for the argument."""
+    (tmp_path / "short_trail").mkdir()
+    (tmp_path / "short_trail" / "notes.txt").write_text("not a source")
+    result = _app("run", "short_trail", cwd=tmp_path, env={"DISPLAY": ""})
+    _assert_usage_error(result, "short_trail: not a source", "hides the bundled scenario", "short_trail.toml")
+    # a scenario command takes no folder: the name is the bundled scenario's
+    shown = _app("show-config", "short_trail", cwd=tmp_path)
+    assert shown.returncode == 0, shown.stderr
+    assert 'name = "short_trail"' in shown.stdout
+    (tmp_path / "not_a_scenario").mkdir()
+    _assert_usage_error(_app("show-config", "not_a_scenario", cwd=tmp_path),
+                        "not_a_scenario: a folder, not a scenario TOML file")
