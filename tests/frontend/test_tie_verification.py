@@ -62,3 +62,25 @@ def test_the_true_ties_of_a_turned_pair_are_verified_within_the_calibrations_unc
     # the allowance is the calibration's, not a blank cheque: a prediction 1.5 m off is refused
     off = RelativePose(A_T_B.compose(gtsam.Pose3(gtsam.Rot3(), np.array([1.5, 0.0, 0.0]))), prediction.covariance)
     assert allowing.verify(found, points, a, b, off) == []
+
+
+def test_an_orthoimage_is_laid_where_the_features_ray_meets_its_neighbours_ground():
+    """A feature's own range error must not move where its ground is resampled (the ties then
+    favoured features whose disparity error cancelled the calibration's): the ray from the
+    camera through its triangulation meets the plane of its neighbours at the true ground."""
+    from pancam_graph.frontend.ties import _Ground
+    from pancam_graph.graph.tie_gate import SitePoint
+
+    rng = np.random.default_rng(5)
+    slope = np.array([0.1, -0.05])  # a tilted ground, z = 0.1 x - 0.05 y
+    xy = rng.uniform([10.0, -3.0], [16.0, 3.0], (300, 2))
+    ground = np.column_stack([xy, xy @ slope])
+    noisy = ground + rng.normal(0.0, 0.01, ground.shape)  # the neighbours' own triangulation errors
+    points = {k: SitePoint(p, np.eye(3)) for k, p in enumerate(noisy)}
+    camera = np.array([0.0, 0.0, 1.5])
+    true = np.array([13.0, 0.5, np.array([13.0, 0.5]) @ slope])
+    for range_error_m in (-0.4, 0.3):  # the feature triangulated too near, too far
+        seen = true + range_error_m * (true - camera) / np.linalg.norm(true - camera)
+        points[-1] = SitePoint(seen, np.eye(3))
+        laid = _Ground(points).where_ray_meets(camera, seen)
+        assert np.linalg.norm(laid - true) < 0.05 < np.linalg.norm(seen - true) / 5
