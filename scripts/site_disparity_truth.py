@@ -22,10 +22,8 @@ moves the column by +0.129 px on average.
 from __future__ import annotations
 
 import argparse
-from dataclasses import replace
 
 import cv2
-import gtsam
 import numpy as np
 
 from pancam_graph.config import FrontendConfig, load_scenario, resolve_scenario
@@ -65,8 +63,7 @@ def main() -> None:
     rectify = calibration.rectification_maps()
     noise = np.random.default_rng(1)
     camera, baseline = rig.wac, rig.baseline_m
-    c = np.array([drawn[name] for name in NAMES]) if drawn else np.zeros(len(NAMES))
-    exact = _exact_pair(camera, baseline, c)
+    exact = TrueRig.of_state(rig, drawn or dict.fromkeys(NAMES, 0.0))
 
     rows = []  # u_left, u_right measured, v, depth
     sites = [s for s in traverse.stops if s.is_site][:args.sites]
@@ -87,7 +84,7 @@ def main() -> None:
     r = np.array(rows)
     # the point under the left pixel, in the calibrated left camera: the drawn common focal error
     # moved the left pixel by s (u - cx), taken out first
-    s = c[NAMES.index("focal_scale")]
+    s = exact.left.fx / camera.fx - 1.0
     u0, v0 = (camera.cx + (r[:, 0] - camera.cx) / (1 + s), camera.cy + (r[:, 2] - camera.cy) / (1 + s))
     p = np.column_stack([(u0 - camera.cx) / camera.fx, (v0 - camera.cy) / camera.fy, np.ones(len(r))]) * r[:, 3:4]
     _, u_right_exact = exact.observe(p)
@@ -108,16 +105,6 @@ def main() -> None:
     fit = np.linalg.lstsq(terms, error[kept], rcond=None)[0]
     print("  over the image (px): " + ", ".join(f"{name} {value:+.4f}" for name, value in
                                                zip(("constant", "x", "x^2", "y", "x y"), fit, strict=True)))
-
-
-def _exact_pair(camera, baseline_m: float, c: np.ndarray) -> TrueRig:
-    """The rectified pair off by the calibration error c (geometry/calibration_error.py's terms),
-    as the simulation draws it."""
-    common, ratio = 1.0 + c[NAMES.index("focal_scale")], 1.0 + c[NAMES.index("right_focal_ratio")]
-    left = replace(camera, fx=camera.fx * common, fy=camera.fy * common)
-    right = replace(camera, fx=camera.fx * common * ratio, fy=camera.fy * common * ratio)
-    return TrueRig(left, right, baseline_m * (1.0 + c[NAMES.index("baseline_scale")]),
-                   gtsam.Rot3.Expmap(c[:3]).matrix())
 
 
 if __name__ == "__main__":

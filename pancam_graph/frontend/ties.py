@@ -196,7 +196,7 @@ class TieMatcher:
         # cancelled the pair's calibration error, and the ties kept a's disparities without the
         # calibration's shift (rendered short_trail seeds 1, 3, 5: the matches' a side +0.23,
         # -0.29, -0.24 px off the drawn pair, against -0.04 to +0.00 for all of a's features;
-        # laid on the plane: -0.01, -0.08, -0.13).
+        # laid on the plane: -0.00, -0.08, -0.13).
         p_a = ground.where_ray_meets(va.body_T_camera[:3, 3], p_a)
         normal = ground.normal(p_a)
         e1 = np.cross(normal, [0.0, 1.0, 0.0])
@@ -308,8 +308,7 @@ class TieMatcher:
         covariance = prediction.covariance + fit
         if self.calibration_sigmas is not None:
             chosen = [t for t, ok in zip(found, best, strict=True) if ok]
-            sensitivity = self._calibration_sensitivity(chosen, motion, p[best], cov_p[best], q[best], cov_q[best],
-                                                        a, b)
+            sensitivity = self._calibration_sensitivity(chosen, motion, p[best], cov_p[best], cov_q[best], a, b)
             if prediction.calibration_sensitivity is not None:
                 sensitivity = sensitivity + prediction.calibration_sensitivity
             covariance = covariance + sensitivity @ np.diag(self.calibration_sigmas**2) @ sensitivity.T
@@ -318,8 +317,7 @@ class TieMatcher:
             return []
         return [t for t, ok in zip(found, best, strict=True) if ok]
 
-
-    def _calibration_sensitivity(self, ties: list[Tie], motion, p, cov_p, q, cov_q, a: SitePanorama,
+    def _calibration_sensitivity(self, ties: list[Tie], motion, p, cov_p, cov_q, a: SitePanorama,
                                  b: SitePanorama) -> np.ndarray:
         """d (fitted b_T_a, left perturbation) / d (calibration error) (6 x 6), by finite
         differences: each term moves both sites' pixels (pixel_shifts), their points are
@@ -334,13 +332,13 @@ class TieMatcher:
         a_views, b_views = [t.a_view for t in ties], [t.b_view for t in ties]
         a_uvv, b_uvv = np.array([t.a_uvv for t in ties]), np.array([t.b_uvv for t in ties])
         a_shifts, b_shifts = (pixel_shifts(uvv, cam.fx, cam.cx, cam.cy) for uvv in (a_uvv, b_uvv))
-        a_points, b_points = points_of(a, a_views, a_uvv), points_of(b, b_views, b_uvv)
+        a_points = points_of(a, a_views, a_uvv)  # p is a's merged triangulation: moved by this one's change
         inverse = gtsam.Pose3(motion).inverse()
         sensitivity = np.zeros((6, a_shifts.shape[-1]))
         step = _CALIBRATION_STEP
         for term in range(sensitivity.shape[1]):
             moved_p = p + points_of(a, a_views, a_uvv + step * a_shifts[:, :, term]) - a_points
-            moved_q = q + points_of(b, b_views, b_uvv + step * b_shifts[:, :, term]) - b_points
+            moved_q = points_of(b, b_views, b_uvv + step * b_shifts[:, :, term])  # verify's q, from b_uvv alone
             refitted, _ = _refine(motion, moved_p, cov_p, moved_q, cov_q, iterations=2)
             sensitivity[:, term] = gtsam.Pose3.Logmap(gtsam.Pose3(refitted).compose(inverse)) / step
         return sensitivity
@@ -352,7 +350,7 @@ _CALIBRATION_STEP = 1e-4
 
 
 class _Ground:
-    """The local ground plane's normal around a point, from a site's triangulated features."""
+    """The local ground plane around a point, from a site's triangulated features."""
 
     def __init__(self, points: dict[int, SitePoint], radius_m: float = 2.0):
         self.p = np.array([pt.p_body for pt in points.values()]) if points else np.zeros((0, 3))
@@ -362,32 +360,35 @@ class _Ground:
     def where_ray_meets(self, origin: np.ndarray, at: np.ndarray) -> np.ndarray:
         """Where the ray from origin through `at` meets the plane of the features around `at`
         (itself left out); `at` where they are too few or steep, or the ray runs along them."""
-        if self.tree is None:
+        plane = self._plane(at, leave_out=True)
+        if plane is None:
             return at
-        near = self.p[self.tree.query_ball_point(at[:2], self.radius_m)]
-        near = near[np.linalg.norm(near - at, axis=1) > 1e-9]
-        if len(near) < 6:
-            return at
-        centre = near.mean(axis=0)
-        _, _, vt = np.linalg.svd(near - centre, full_matrices=False)
-        if abs(vt[2][2]) < 0.9:  # steeper than 25 deg: a rock, not the ground
-            return at
+        centre, normal = plane
         direction = at - origin
-        along = float(vt[2] @ direction)
+        along = float(normal @ direction)
         if abs(along) < 1e-3 * np.linalg.norm(direction):
             return at
-        return origin + direction * float(vt[2] @ (centre - origin)) / along
+        return origin + direction * float(normal @ (centre - origin)) / along
 
     def normal(self, at: np.ndarray) -> np.ndarray:
-        up = np.array([0.0, 0.0, 1.0])
+        plane = self._plane(at)
+        return np.array([0.0, 0.0, 1.0]) if plane is None else plane[1]
+
+    def _plane(self, at: np.ndarray, leave_out: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
+        """(centroid, upward unit normal) of the features within radius_m of `at` horizontally
+        (`at` itself left out if asked); None where they are fewer than 6 or steeper than 25 deg
+        (a rock, not the ground)."""
         if self.tree is None:
-            return up
+            return None
         near = self.p[self.tree.query_ball_point(at[:2], self.radius_m)]
+        if leave_out:
+            near = near[np.linalg.norm(near - at, axis=1) > 1e-9]
         if len(near) < 6:
-            return up
-        _, _, vt = np.linalg.svd(near - near.mean(axis=0), full_matrices=False)  # U (n x n) unused
-        n = vt[2] * np.sign(vt[2][2])
-        return n if n[2] > 0.9 else up  # steeper than 25 deg: a rock, not the ground
+            return None
+        centre = near.mean(axis=0)
+        _, _, vt = np.linalg.svd(near - centre, full_matrices=False)  # U (n x n) unused
+        normal = vt[2] * np.sign(vt[2][2])
+        return (centre, normal) if normal[2] > 0.9 else None
 
 
 def _kabsch(p: np.ndarray, q: np.ndarray) -> np.ndarray | None:

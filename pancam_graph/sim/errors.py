@@ -48,6 +48,17 @@ class TrueRig:
         rotation = gtsam.Rot3.Expmap(rng.normal(0.0, np.deg2rad(errors.boresight_sigma_deg), 3)).matrix()
         return cls(left, right, baseline, rotation)
 
+    @classmethod
+    def of_state(cls, calibrated: Rig, state: dict[str, float]) -> TrueRig:
+        """The pair a `state` (as `state` gives it) says the `calibrated` rig's really is."""
+        common = 1.0 + state["focal_scale"]
+        right_scale = common * (1.0 + state["right_focal_ratio"])
+        camera = calibrated.wac
+        rotation = gtsam.Rot3.Expmap(np.array([state[f"right_rotation_{axis}_rad"] for axis in "xyz"])).matrix()
+        return cls(replace(camera, fx=camera.fx * common, fy=camera.fy * common),
+                   replace(camera, fx=camera.fx * right_scale, fy=camera.fy * right_scale),
+                   calibrated.baseline_m * (1.0 + state["baseline_scale"]), rotation)
+
     def state(self, calibrated: Rig) -> dict[str, float]:
         """The error as the stereo_calibration kind estimates it (geometry/calibration_error.py):
         the right camera's rotation vector (rad, left camera axes), its focal ratio to the left

@@ -29,10 +29,10 @@ def source_for(text: str) -> Source:
         drives = sorted(p.name for p in path.iterdir() if is_kitti_drive(p))
         raise ConfigError(f"{path}: a KITTI date folder; give one drive folder inside it ({', '.join(drives)})")
     expected = ", ".join(s.describes for s in SOURCES)
-    shadowed = ""
-    if path.is_dir() and text in bundled_scenarios():
+    shadowed, bundled = "", bundled_scenarios()
+    if path.is_dir() and text in bundled:
         shadowed = (f" (the folder {text}/ here hides the bundled scenario of that name: give its file, "
-                    f"{bundled_scenarios()[text]}, or run from another folder)")
+                    f"{bundled[text]}, or run from another folder)")
     raise ConfigError(f"{path}: not a source: expected {expected}{shadowed}")
 
 
