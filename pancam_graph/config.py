@@ -354,7 +354,20 @@ VO_ERROR_MODELS: dict[str, dict] = {
     "real_images": {"vo_max_range_m": 40.0, "vo_translation_floor": 0.005,
                     "vo_rotation_floor_deg_per_m": 0.03, "vo_scale": {"direction_sigma": 0.005}},
 }
-SHARED_SCALE_MODELS = ("real_images",)  # the models that add vo_scale to configurations with vo
+SHARED_SCALE_MODELS = ("real_images",)
+
+# What tracking errors (the image front-end's, as sim/errors.TrackingErrors draws them) do to
+# the VO: its steps' errors are correlated from step to step (a feature's disparity error and
+# drift go on along its track), which a step's own covariance cannot say, and the graph takes
+# the steps as independent. Over chains of 30 steps (about a site spacing) of the realistic
+# measurement level, the error is 1.68-1.91, 1.53-1.93 and 1.62-1.67 times the chain's claimed
+# sigma in heading, forward and lateral (short_trail seeds 0-9 and denver_trail seeds 0-3, 266
+# chains; a single step's 1.37-1.48), and below it in roll, pitch and height (0.55-0.92, left
+# at 1). A step's sigmas in the body's (roll, pitch, yaw, x, y, z) are multiplied by these where
+# the scenario's [errors] draws those errors (vo_sigma_scale). The rendered images' own VO errs
+# by 1.3-1.5 times more again over 30 steps (2.55, 2.53, 2.29; docs/simulation_errors.md):
+# what the drawn errors leave out.
+TRACKED_VO_SIGMA_SCALE = (1.0, 1.0, 1.8, 1.8, 1.65, 1.0)
 
 
 # Estimator keys that moved into their kind's own section, [estimator.<kind>] (kinds/<kind>.py).
@@ -388,6 +401,11 @@ class _EstimatorCore(_Strict):
     vo_translation_floor: float = Field(0.0, ge=0.0, lt=1.0, description="per-step translation error the pixel "
                                         "noise does not explain, as a fraction of the step (real images)")
     vo_rotation_floor_deg_per_m: float = Field(0.0, ge=0.0, lt=10.0, description="the same for rotation")
+    vo_sigma_scale: tuple[float, float, float, float, float, float] | None = Field(
+        None, description="each VO step's sigmas in the body's (roll, pitch, yaw, x, y, z) times these: what "
+        "tracking errors correlated from step to step add over a chain of steps, which a step's own covariance "
+        "cannot say (config.TRACKED_VO_SIGMA_SCALE where the scenario's [errors] stereo_tracking is measured); "
+        "None: 1")
     huber_k: float = Field(1.345, gt=0.0, description="Huber threshold in sigmas of one dimension (95 % "
                            "efficiency); a factor of d dimensions gets the norm threshold its inliers pass as often "
                            "(graph/noise.norm_threshold: 1.86 for 2, 2.22 for 3)")
@@ -556,6 +574,12 @@ REALISTIC_ERRORS: dict[str, tuple[object, str]] = {
                                   "about 0.01 deg per axis"),
     "pan_tilt_resolution_deg": (0.013, "the dissertation's pan/tilt unit resolves 0.013 deg (its stereo matching aided "
                                        "by the rotary platform's angles): a reading is off by up to half of it"),
+    "stereo_tracking": ("measured", "the image front-end's navigation features against the renderer's depth on "
+                                    "rendered short_trail seeds 0 and 5 and denver_trail seed 1 (120 stops each): "
+                                    "disparity error 0.57-0.59 px, 0.70-0.73 correlated from stop to stop along a "
+                                    "track; the left pixel's error grows along the track, 0.31-0.34 px (column) and "
+                                    "0.11 px (row) after a stop, 1.69-1.74 and 0.42-0.44 px after eight; 0.73-0.76 "
+                                    "of a stop's features tracked on (scripts/vo_tracking_truth.py)"),
     "tie_matching": ("measured", "the image front-end's tie points against the renderer's truth on denver_trail "
                                  "seeds 0 and 1 (49 site pairs): 130 ties at 31 m, 33 at 49 m, none from 60 m; "
                                  "median error 0.37-1.1 px, 3.0 % beyond 3 px (sim/errors.py)"),
@@ -578,6 +602,10 @@ class SimulationErrors(_Strict):
                                        "calibration, per axis (1 sigma): about its vertical it biases every disparity")
     pan_tilt_resolution_deg: float = Field(0.0, ge=0.0, le=5.0, description="per frame: the mast's pan and tilt "
                                            "readings are the true angles rounded to this")
+    stereo_tracking: Literal["white", "measured"] = Field(
+        "white", description="white: a navigation frame's pixels off by white noise (camera.image_noise_px); measured: "
+        "as the image front-end tracks them, a disparity error kept along the track and a pixel drifting from stop "
+        "to stop (sim/errors.TrackingErrors)")
     tie_matching: Literal["identity", "measured"] = Field(
         "identity", description="identity: every landmark two sites see is a tie at the pixel noise; measured: the "
         "image matcher's count against distance, accuracy and near-miss mismatches")
@@ -637,6 +665,8 @@ class _ScenarioCore(_Strict):
         sites = estimator.get("sites", {})
         if errors.tie_matching == "measured" and isinstance(sites, dict) and sites.get("tie_error") is None:
             estimator = {**estimator, "sites": {**sites, "tie_error": "measured"}}
+        if errors.stereo_tracking == "measured" and estimator.get("vo_sigma_scale") is None:
+            estimator = {**estimator, "vo_sigma_scale": TRACKED_VO_SIGMA_SCALE}
         hrc = estimator.get("hrc", {})
         if errors.pan_tilt_resolution_deg > 0 and isinstance(hrc, dict) and hrc.get("pointing_sigma_deg") is None:
             # a reading within half the resolution, uniform

@@ -59,6 +59,7 @@ class StereoVO:
     max_range_m: float
     translation_floor: float
     rotation_floor_rad_per_m: float
+    sigma_scale: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         self.left_T_body = self.body_T_left.inverse()
@@ -82,6 +83,7 @@ class StereoVO:
             pnp_iterations=est.vo_pnp_iterations, pnp_confidence=est.vo_pnp_confidence,
             max_range_m=est.vo_max_range_m, translation_floor=est.vo_translation_floor,
             rotation_floor_rad_per_m=np.deg2rad(est.vo_rotation_floor_deg_per_m),
+            sigma_scale=est.vo_sigma_scale,
         )
 
     def estimate(self, prev: StereoObservations, curr: StereoObservations) -> VoResult:
@@ -145,11 +147,14 @@ class StereoVO:
         """The two-stop adjustment's covariance plus what white pixel noise does not explain on
         real images (calibration residuals, errors correlated along a track): independent
         rotation and translation errors in proportion to the step (EstimatorConfig's
-        vo_rotation_floor_deg_per_m and vo_translation_floor; zero in simulation)."""
-        if self.translation_floor == 0.0 and self.rotation_floor_rad_per_m == 0.0:
-            return cov
-        floor = np.r_[np.full(3, self.rotation_floor_rad_per_m * step_m), np.full(3, self.translation_floor * step_m)]
-        return cov + np.diag(floor**2)
+        vo_rotation_floor_deg_per_m and vo_translation_floor; zero in simulation), its sigmas then
+        scaled by what errors correlated from step to step add over a chain (vo_sigma_scale)."""
+        if self.translation_floor or self.rotation_floor_rad_per_m:
+            floor = np.r_[np.full(3, self.rotation_floor_rad_per_m), np.full(3, self.translation_floor)] * step_m
+            cov = cov + np.diag(floor**2)
+        if self.sigma_scale is not None:
+            cov = cov * np.outer(self.sigma_scale, self.sigma_scale)
+        return cov
 
     def _consistent(self, a, b, p_prev_cam, pose: gtsam.Pose3) -> np.ndarray:
         """Matches whose current triangulation, moved into the previous camera frame by `pose`,

@@ -5,6 +5,8 @@ SimulationErrors; magnitudes and sources in docs/simulation_errors.md):
   baseline a little off the calibrated ones, the right camera turned a little;
 - the mast's pan and tilt readings, per frame: the true angles rounded to the encoder's
   resolution;
+- the navigation frames' features as the image front-end tracks them, not at white pixel noise:
+  a feature's disparity error persists along its track, its pixel drifts from stop to stop;
 - tie points between sites as the image matcher finds them, not by landmark identity: as
   many as it finds at that distance, each off by its matching error, a few of them near
   misses.
@@ -25,7 +27,30 @@ from ..geometry.rig import Camera, Rig
 from ..graph import tie_matching
 from ..records import HrcFrame, PanoramaFrame, StereoObservations, Stop
 
-CALIBRATION_STREAM, POINTING_STREAM, TIES_STREAM = 31, 32, 33
+CALIBRATION_STREAM, POINTING_STREAM, TIES_STREAM, TRACKING_STREAM = 31, 32, 33, 34
+
+# The image front-end's navigation features against the renderer's depth (rendered short_trail
+# seeds 0 and 5, denver_trail seed 1, realistic profile, 120 stops each, about 75,000 features
+# followed from one stop to the next in each; scripts/vo_tracking_truth.py). Spreads are 1.4826
+# MAD, the same in all three within 0.03 px.
+# Of a stop's features 0.73-0.76 are tracked on to the next: 0.25 of those 3-6 m away, which
+# leave the image as the rover drives on, and 0.81-0.90 of those beyond 10 m, which stay in it:
+# a track still in view goes on with the latter
+TRACK_SURVIVAL = 0.85
+DISPARITY_SIGMA_PX = 0.58  # a feature's disparity error, 0.57-0.59 px
+# ... which is 0.70-0.73 correlated from one stop to the next along a track, 0.54 two stops on,
+# 0.42 at three, 0.29 at five, 0.17-0.19 at eight to twelve: a part the feature keeps (0.15 of
+# the variance), a part that fades as the view changes (0.78, 0.7 of it kept a stop) and a part
+# new at every stop; the three fit those correlations within 0.01
+DISPARITY_KEPT, DISPARITY_FADING, DISPARITY_FADE = 0.15, 0.78, 0.70
+# The left pixel's error from where the feature was first found grows with the stops it is
+# tracked: column 0.31-0.34 px after one stop, 0.50-0.54 after two, 0.88-0.92 after four,
+# 1.69-1.71 after eight; row 0.11, 0.15, 0.22, 0.42-0.44 px. A drift of its own per track (the
+# feature slides by the same amount each stop) and a move new at every stop fit both within
+# 0.04 px: column 0.19 and 0.26 px a stop, row 0.036 and 0.106
+DRIFT_SIGMA_PX = (0.19, 0.036)
+MOVE_SIGMA_PX = (0.26, 0.106)
+
 
 @dataclass(frozen=True)
 class TrueRig:
@@ -147,3 +172,46 @@ def _with_ties(stop: Stop, remap: dict[int, int], matched: dict[int, np.ndarray]
         ids, shift = ids_and_shift(frame.track_ids, hrc_scale)
         hrc.append(HrcFrame(frame.pan_rad, frame.tilt_rad, ids, frame.uv + shift))
     return replace(stop, panorama=tuple(panorama), hrc=tuple(hrc))
+
+
+class TrackingErrors:
+    """The navigation frames' pixel errors as the image front-end makes them, in place of white
+    noise: a feature is where it was first found; along its track its left pixel drifts (a
+    slide of its own each stop and a new move) and its disparity is off by an error it partly
+    keeps; a track ends after a few stops (TRACK_SURVIVAL) and the landmark, still seen, starts a
+    new one under a new track id, as the front-end finds a feature again. Call once per
+    navigation frame, in order, with the landmarks it sees."""
+
+    ID_STRIDE = 2**32  # a landmark's n-th track is landmark id + n * ID_STRIDE
+
+    def __init__(self, rng: np.random.Generator):
+        self.rng = rng
+        self.ids = np.zeros(0, dtype=np.int64)  # the last frame's landmarks, sorted, and their tracks:
+        self.track = np.zeros(0, dtype=np.int64)  # how many tracks before this one
+        self.state = np.zeros((0, 6))  # left error (u, v), drift (u, v), kept and fading disparity error
+
+    def __call__(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The frame's track ids and the (len(ids), 3) errors of (u_left, u_right, v) px."""
+        n = self.rng.normal(size=(len(ids), 7))
+        survives = self.rng.random(len(ids)) < TRACK_SURVIVAL
+        kept_sigma = DISPARITY_SIGMA_PX * np.sqrt(DISPARITY_KEPT)
+        fading_sigma = DISPARITY_SIGMA_PX * np.sqrt(DISPARITY_FADING)
+        new_sigma = DISPARITY_SIGMA_PX * np.sqrt(1.0 - DISPARITY_KEPT - DISPARITY_FADING)
+
+        at = np.clip(np.searchsorted(self.ids, ids), 0, max(len(self.ids) - 1, 0))
+        seen = (self.ids[at] == ids) if len(self.ids) else np.zeros(len(ids), dtype=bool)
+        tracked = seen & survives
+        track = np.where(seen, self.track[at] if len(self.ids) else 0, 0) + (seen & ~survives)
+        state = np.column_stack([np.zeros((len(ids), 2)), np.asarray(DRIFT_SIGMA_PX) * n[:, 0:2],
+                                 kept_sigma * n[:, 2], fading_sigma * n[:, 3]])
+        old = self.state[at[tracked]]
+        state[tracked, 2:5] = old[:, 2:5]
+        state[tracked, 0:2] = old[:, 0:2] + old[:, 2:4] + np.asarray(MOVE_SIGMA_PX) * n[tracked, 4:6]
+        state[tracked, 5] = (DISPARITY_FADE * old[:, 5]
+                             + np.sqrt(1.0 - DISPARITY_FADE**2) * fading_sigma * n[tracked, 3])
+        order = np.argsort(ids)
+        self.ids, self.track, self.state = ids[order], track[order], state[order]
+
+        disparity = state[:, 4] + state[:, 5] + new_sigma * n[:, 6]
+        errors = np.column_stack([state[:, 0], state[:, 0] - disparity, state[:, 1]])
+        return ids + track * self.ID_STRIDE, errors

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import gtsam
@@ -51,12 +52,15 @@ def observe_stereo(
     rng: np.random.Generator,
     true_rig: TrueRig | None = None,
     true_body_T_left: gtsam.Pose3 | None = None,
+    tracking: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> StereoObservations:
     """Rectified stereo measurements (u_left, u_right, v) of landmarks seen by both cameras at
     `body_T_left`. Where the calibration is off (`true_rig`) or the camera really points
     elsewhere (`true_body_T_left`), the pixels are the true pair's at the true pose, but the
     landmarks seen are the nominal ones: the noise drawn after them is the ideal simulation's,
-    draw for draw, so an error's effect is not mixed with another noise draw.
+    draw for draw, so an error's effect is not mixed with another noise draw. `tracking`
+    (sim.errors.TrackingErrors) gives the track ids and pixel errors in place of the landmark
+    ids and the white noise, which is still drawn, so that every later draw is the same.
 
     Outliers are false matches: the track id is kept, the pixels are random in the image.
     """
@@ -76,7 +80,12 @@ def observe_stereo(
         else:
             uv, u_right = true_rig.observe(p_true)
     uvv = np.column_stack([uv[:, 0], u_right, uv[:, 1]])
-    uvv += rng.normal(0.0, cam_cfg.image_noise_px, uvv.shape)
+    white = rng.normal(0.0, cam_cfg.image_noise_px, uvv.shape)
+    if tracking is None:
+        uvv += white
+    else:
+        ids, errors = tracking(ids)
+        uvv += errors
     bad = rng.random(len(ids)) < cam_cfg.outlier_fraction
     n_bad = int(bad.sum())
     if n_bad:

@@ -64,10 +64,15 @@ def test_a_readmitted_mismatch_that_wrecks_the_resolve_falls_back_to_the_first_m
     """denver_trail seed 116, stop 313: a mismatch re-admitted by the triangulation test (0.6 px
     of disparity at the current stop, its range error hides it) wrecked the re-solve (GTSAM
     called it indeterminate; 2 inliers were left). The matches the first solve kept give the
-    step, and it agrees with the truth within its covariance."""
-    from pancam_graph.config import load_scenario, resolve_scenario
+    step, and it agrees with the truth within its covariance. (Drawn as it was found: the
+    realistic profile's pixels at white noise, before its tracking errors.)"""
+    from pancam_graph.config import Scenario, load_scenario, resolve_scenario
 
-    scenario = load_scenario(resolve_scenario("denver_trail"))
+    bundled = load_scenario(resolve_scenario("denver_trail"))
+    data = bundled.model_dump()
+    data["errors"] = {"profile": "realistic", "stereo_tracking": "white"}
+    data["estimator"]["vo_sigma_scale"] = None
+    scenario = Scenario.model_validate(data)
     traverse, truth = simulate(scenario, 116)
     vo = StereoVO.for_traverse(traverse, scenario.estimator)
     result = vo.estimate(traverse.stops[312].stereo, traverse.stops[313].stereo)

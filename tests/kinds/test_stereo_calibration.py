@@ -220,7 +220,8 @@ def load_scenario_text(text: str):
 @pytest.mark.parametrize("seed", [2, 3])
 def test_estimated_the_realistic_calibration_leaves_the_sites_consistent_and_nearer_the_truth(seed):
     """short_trail under the realistic profile: trusting the calibration, vo_sites is over-confident
-    (ANEES 75 and 135 on these seeds, measured); estimating it brings the ANEES under 2, the
+    (ANEES 11 and 69 on these seeds, measured; 75 and 135 before the tracking errors, whose
+    VO steps claim more); estimating it brings the ANEES under 2, the
     unaligned ATE down, and the right camera's turn about the vertical within 3 sigma of the
     simulator's."""
     scenario = load_scenario(resolve_scenario("short_trail"))  # realistic, as bundled
@@ -228,7 +229,7 @@ def test_estimated_the_realistic_calibration_leaves_the_sites_consistent_and_nea
     estimated = run_scenario(scenario, RunOptions(seed=seed, configs=["vo_sites"])).configurations["vo_sites"]
     trusted = run_scenario(scenario.model_copy(update={"estimator": trusted_estimator}),
                            RunOptions(seed=seed, configs=["vo_sites"])).configurations["vo_sites"]
-    assert trusted.consistency.anees > 20.0
+    assert trusted.consistency.anees > 5.0
     assert estimated.consistency.anees < 2.0
     assert estimated.metrics.ate_unaligned_rmse_m < 0.6 * trusted.metrics.ate_unaligned_rmse_m
     turn = estimated.counters

@@ -1,7 +1,8 @@
 """The simulator's error profiles ([errors], sim/errors.py): the ideal profile is the simulator
 as it was; a stereo calibration error shows as the disparity error the pair's geometry predicts;
 the mast's readings are the true angles rounded; ties between sites are as many as the image
-matcher finds at that distance, each off by its matching error, and the rest new landmarks."""
+matcher finds at that distance, each off by its matching error, and the rest new landmarks; the
+navigation features err as the image front-end's do, and the VO claims what that does to it."""
 
 import json
 import tomllib
@@ -14,7 +15,7 @@ from pancam_graph.config import Scenario, SimulationErrors, load_scenario, resol
 from pancam_graph.geometry.rig import rig_preset
 from pancam_graph.graph.tie_matching import count as tie_count
 from pancam_graph.sim import simulate
-from pancam_graph.sim.errors import TrueRig, with_pointing_error
+from pancam_graph.sim.errors import TrackingErrors, TrueRig, with_pointing_error
 
 
 @pytest.fixture(scope="module")
@@ -61,6 +62,7 @@ def test_the_realistic_profile_takes_every_magnitude_from_its_table_unless_given
     errors = SimulationErrors.model_validate({"profile": "realistic", "boresight_sigma_deg": 0.05})
     assert errors.boresight_sigma_deg == 0.05 and errors.focal_scale_sigma == 0.0003
     assert errors.tie_matching == "measured" and errors.pan_tilt_resolution_deg == 0.013
+    assert errors.stereo_tracking == "measured"
 
 
 def test_a_right_camera_turned_about_the_vertical_biases_every_disparity_by_f_times_the_angle():
@@ -256,3 +258,95 @@ def test_the_truth_holds_the_true_angles_each_frame_was_taken_at(short_trail):
     assert len(true) > 1000
     assert np.median(true) < 0.5  # the pixel noise: 0.3 px per axis
     assert np.median(read) > 3.0
+
+
+def _along_tracks(frames: list[tuple[np.ndarray, np.ndarray]], lag: int) -> tuple[np.ndarray, np.ndarray]:
+    """The errors of every feature `lag` frames apart on one track: (before, after) rows."""
+    before, after = [], []
+    for (ids_a, errors_a), (ids_b, errors_b) in zip(frames[:-lag], frames[lag:], strict=True):
+        _, ia, ib = np.intersect1d(ids_a, ids_b, return_indices=True)
+        before.append(errors_a[ia])
+        after.append(errors_b[ib])
+    return np.concatenate(before), np.concatenate(after)
+
+
+def test_navigation_features_err_as_the_image_front_end_measured_against_the_renderers_depth():
+    """The figures measured on rendered short_trail seeds 0 and 5 and denver_trail seed 1
+    (scripts/vo_tracking_truth.py): 0.81-0.90 of the features that stay in view tracked on to the
+    next stop; disparity error 0.57-0.59 px, correlated 0.70-0.73 one stop on along a track, 0.54
+    at two, 0.42 at three, 0.17-0.19 at eight; the left pixel's error grows along the track,
+    column 0.31-0.34, 0.50-0.54, 0.88-0.92 and 1.69-1.71 px after 1, 2, 4 and 8 stops, row 0.11,
+    0.15, 0.22 and 0.42-0.44 px."""
+    tracking = TrackingErrors(np.random.default_rng(5))
+    landmarks = np.arange(20000)
+    frames = [tracking(landmarks) for _ in range(13)]  # (track ids, errors of [u_left, u_right, v])
+    survived = [np.isin(a, b).mean() for (a, _), (b, _) in zip(frames[:-1], frames[1:], strict=True)]
+    assert np.mean(survived) == pytest.approx(0.85, abs=0.01)
+    disparity = np.concatenate([errors[:, 0] - errors[:, 1] for _, errors in frames])
+    assert np.std(disparity) == pytest.approx(0.58, abs=0.01)
+    for lag, correlation in ((1, 0.70), (2, 0.54), (3, 0.42), (8, 0.19)):
+        a, b = _along_tracks(frames, lag)
+        assert np.corrcoef(a[:, 0] - a[:, 1], b[:, 0] - b[:, 1])[0, 1] == pytest.approx(correlation, abs=0.03), lag
+    for lag, column, row in ((1, 0.325, 0.11), (2, 0.52, 0.15), (4, 0.90, 0.22), (8, 1.70, 0.43)):
+        a, b = _along_tracks(frames, lag)
+        assert np.std(b[:, 0] - a[:, 0]) == pytest.approx(column, rel=0.08), lag
+        assert np.std(b[:, 2] - a[:, 2]) == pytest.approx(row, abs=0.04), lag
+    # a feature the last frame did not see starts a new track where it is found, and so does one
+    # whose track ended: the same landmark under a new track id
+    before, _ = tracking(landmarks[:100])
+    ids, errors = tracking(landmarks)
+    np.testing.assert_array_equal(errors[100:, [0, 2]], 0.0)
+    new = ids[:100] != before
+    assert 5 < new.sum() < 30 and np.all(ids[:100] % TrackingErrors.ID_STRIDE == landmarks[:100])
+    np.testing.assert_array_equal(errors[:100][new][:, [0, 2]], 0.0)
+    assert np.all(errors[:100][~new][:, [0, 2]] != 0.0)
+
+
+def test_measured_tracking_moves_the_navigation_pixels_alone():
+    """The same landmarks (under their track ids), odometry and panoramas as without it; every
+    navigation frame's pixels moved."""
+    short_trail = _short_trail(None)
+    ideal, _ = simulate(short_trail, 1)
+    tracked, _ = simulate(_with_errors(short_trail, stereo_tracking="measured"), 1)
+    for a, b in zip(ideal.stops, tracked.stops, strict=True):
+        np.testing.assert_array_equal(a.stereo.track_ids, b.stereo.track_ids % TrackingErrors.ID_STRIDE)
+        assert len(a.stereo) == 0 or np.abs(a.stereo.uvv - b.stereo.uvv).max() > 0.05
+        for fa, fb in zip(a.panorama, b.panorama, strict=True):
+            np.testing.assert_array_equal(fa.observations.uvv, fb.observations.uvv)
+
+
+def test_the_vo_claims_what_the_tracking_errors_do_over_a_site_spacing():
+    """Under the measured tracking, a chain of 30 VO steps (about a site spacing) errs by what
+    its composed covariance claims once the steps' sigmas are scaled (vo_sigma_scale): in
+    heading, forward and lateral its normalized error is near 1, where the unscaled steps claim
+    half of it or less. The drawn calibration's share is taken out through the steps'
+    sensitivity (the graph estimates it)."""
+    import gtsam
+
+    from pancam_graph.frontend.motion import VoMotions
+    from pancam_graph.geometry.calibration_error import NAMES
+    from pancam_graph.graph.tie_gate import RelativePose
+
+    scenario = _short_trail({"profile": "realistic"})
+    assert scenario.estimator.vo_sigma_scale is not None
+    unscaled = scenario.estimator.model_copy(update={"vo_sigma_scale": None})
+    normalized = {"scaled": [], "unscaled": []}
+    for seed in (0, 1, 2, 3):
+        traverse, truth = simulate(scenario, seed)
+        drawn = np.array([truth.kinds["stereo_calibration"][name] for name in NAMES])
+        for label, estimator in (("scaled", scenario.estimator), ("unscaled", unscaled)):
+            motions = VoMotions.estimate(traverse, estimator).motions
+            for a in range(0, len(motions) - 30, 10):  # overlapping chains
+                chain = motions[a + 1:a + 31]
+                if any(m is None or m.source != "vo" or m.calibration_sensitivity is None for m in chain):
+                    continue
+                relative = RelativePose.compose([(m.prev_T_curr, m.covariance) for m in chain],
+                                                [m.calibration_sensitivity for m in chain])
+                true = gtsam.Pose3(np.linalg.inv(truth.world_T_body[a]) @ truth.world_T_body[a + 30])
+                error = gtsam.Pose3.Logmap(true.between(relative.a_T_b)) - relative.calibration_sensitivity @ drawn
+                normalized[label].append(error / np.sqrt(np.diag(relative.covariance)))
+    rms = {label: np.sqrt(np.mean(np.square(z), axis=0)) for label, z in normalized.items()}
+    assert len(normalized["scaled"]) >= 25
+    heading_forward_lateral = [2, 3, 4]
+    assert np.all((rms["scaled"][heading_forward_lateral] > 0.5) & (rms["scaled"][heading_forward_lateral] < 1.4))
+    assert np.max(rms["unscaled"][heading_forward_lateral]) > 1.5
