@@ -354,7 +354,7 @@ VO_ERROR_MODELS: dict[str, dict] = {
     "real_images": {"vo_max_range_m": 40.0, "vo_translation_floor": 0.005,
                     "vo_rotation_floor_deg_per_m": 0.03, "vo_scale": {"direction_sigma": 0.005}},
 }
-SHARED_SCALE_MODELS = ("real_images",)
+SHARED_SCALE_MODELS = ("real_images",)  # the models that add vo_scale to configurations with vo
 
 # What tracking errors (the image front-end's, as sim/errors.TrackingErrors draws them) do to
 # the VO: its steps' errors are correlated from step to step (a feature's disparity error and

@@ -13,8 +13,16 @@ from ..geometry.geodesy import LocalFrame
 from ..geometry.rig import rig_preset
 from ..kinds import KINDS
 from ..records import GroundTruth, PanoramaFrame, SlipPrior, Stop, Traverse
-from . import errors as sim_errors
-from .errors import TrackingErrors, TrueRig, match_ties, with_pointing_error
+from .errors import (
+    CALIBRATION_STREAM,
+    POINTING_STREAM,
+    TIES_STREAM,
+    TRACKING_STREAM,
+    TrackingErrors,
+    TrueRig,
+    match_ties,
+    with_pointing_error,
+)
 from .sensors import LandmarkField, dead_reckoning, gps_fix, observe_hrc, observe_stereo
 from .world import dense_path, landmark_field, rover_poses, site_stops, stop_distances
 
@@ -52,10 +60,10 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
     at_stops = scenario.gps.enabled and scenario.gps.rate_hz is None
 
     errors = scenario.errors
-    true_rig = (TrueRig.draw(rig, errors, np.random.default_rng([seed, sim_errors.CALIBRATION_STREAM]))
+    true_rig = (TrueRig.draw(rig, errors, np.random.default_rng([seed, CALIBRATION_STREAM]))
                 if errors.calibration else None)
-    pointing_rng = np.random.default_rng([seed, sim_errors.POINTING_STREAM]) if errors.pan_tilt_resolution_deg else None
-    tracking = (TrackingErrors(np.random.default_rng([seed, sim_errors.TRACKING_STREAM]))
+    pointing_rng = np.random.default_rng([seed, POINTING_STREAM]) if errors.pan_tilt_resolution_deg else None
+    tracking = (TrackingErrors(np.random.default_rng([seed, TRACKING_STREAM]))
                 if errors.stereo_tracking == "measured" else None)
 
     mast_angles: dict[int, list[tuple[float, float]]] = {}  # GroundTruth.mast_angles
@@ -114,7 +122,7 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
     if errors.tie_matching == "measured":
         stops, fresh = match_ties(stops, poses[:, :3, 3], len(landmarks), scenario.estimator.sites.memory,
                                   rig.hrc.fx / rig.wac.fx if rig.hrc is not None else 1.0,
-                                  np.random.default_rng([seed, sim_errors.TIES_STREAM]))
+                                  np.random.default_rng([seed, TIES_STREAM]))
         landmarks = np.vstack([landmarks, landmarks[fresh]]) if fresh else landmarks
     if scenario.gps.enabled and scenario.gps.rate_hz is not None:
         fixes = _fixes_while_driving(scenario, path, stops, stop_s, frame, np.random.default_rng([seed, 2]))

@@ -198,10 +198,11 @@ class TrackingErrors:
         fading_sigma = DISPARITY_SIGMA_PX * np.sqrt(DISPARITY_FADING)
         new_sigma = DISPARITY_SIGMA_PX * np.sqrt(1.0 - DISPARITY_KEPT - DISPARITY_FADING)
 
+        # each landmark's place among the last frame's: seen there, its track goes on or ends
         at = np.clip(np.searchsorted(self.ids, ids), 0, max(len(self.ids) - 1, 0))
         seen = (self.ids[at] == ids) if len(self.ids) else np.zeros(len(ids), dtype=bool)
         tracked = seen & survives
-        track = np.where(seen, self.track[at] if len(self.ids) else 0, 0) + (seen & ~survives)
+        track = np.where(seen, self.track[at] + ~survives, 0) if len(self.ids) else np.zeros(len(ids), dtype=np.int64)
         state = np.column_stack([np.zeros((len(ids), 2)), np.asarray(DRIFT_SIGMA_PX) * n[:, 0:2],
                                  kept_sigma * n[:, 2], fading_sigma * n[:, 3]])
         old = self.state[at[tracked]]
