@@ -381,6 +381,9 @@ MOVED_KEYS = {
 }
 
 
+_Scale = Annotated[float, Field(gt=0.0, le=100.0)]
+
+
 class _EstimatorCore(_Strict):
     """Every constant of the estimator: what is written with the results is the whole story.
     A measurement kind with its own constants (`Kind.Settings`) adds them as a section named
@@ -401,7 +404,7 @@ class _EstimatorCore(_Strict):
     vo_translation_floor: float = Field(0.0, ge=0.0, lt=1.0, description="per-step translation error the pixel "
                                         "noise does not explain, as a fraction of the step (real images)")
     vo_rotation_floor_deg_per_m: float = Field(0.0, ge=0.0, lt=10.0, description="the same for rotation")
-    vo_sigma_scale: tuple[float, float, float, float, float, float] | None = Field(
+    vo_sigma_scale: tuple[_Scale, _Scale, _Scale, _Scale, _Scale, _Scale] | None = Field(
         None, description="each VO step's sigmas in the body's (roll, pitch, yaw, x, y, z) times these: what "
         "tracking errors correlated from step to step add over a chain of steps, which a step's own covariance "
         "cannot say (config.TRACKED_VO_SIGMA_SCALE where the scenario's [errors] stereo_tracking is measured); "

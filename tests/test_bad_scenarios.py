@@ -54,6 +54,9 @@ def _path(waypoints):
     (_set("origin", "h_m", math.nan), ["origin.h_m", "finite"]),
     (_set("estimator", "vo_error_model", [1.0]), ["estimator.vo_error_model", "pixel_noise", "real_images"]),
     (_set("estimator", "vo_error_model", {"a": 1}), ["estimator.vo_error_model", "pixel_noise"]),
+    (_set("estimator", "vo_sigma_scale", [1.0, 1.0, 0.0, 1.8, 1.65, 1.0]),
+     ["estimator.vo_sigma_scale.2", "greater than 0"]),  # a singular VO covariance, the field unnamed
+    (_set("estimator", "vo_sigma_scale", [1.0, 1.8]), ["estimator.vo_sigma_scale.2", "Field required"]),
     (_waypoint(math.inf), ["path.waypoints.1.0", "finite"]),
     (_waypoint(1e308), ["path.waypoints.1.0", "less than or equal to 1000000"]),
     (_set("path", "speed_mps", 1e308), ["path.speed_mps", "less than or equal to 10"]),
