@@ -4,7 +4,8 @@ with what was tracked before it kept."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 
 import numpy as np
@@ -33,11 +34,11 @@ def track_frames(stops: Sequence[Stop], read_pair: ReadPair, tracker: StereoTrac
     tracked: list[Stop] = []
     notes: list[str] = []
     moved: np.ndarray | None = None  # the body's dead-reckoned motion since the last tracked frame
-    for stop in stops:
+    for stop, reading in _read_ahead(stops, read_pair):
         step = stop.dead_reckoning
         moved = None if moved is None or step is None else moved @ step.prev_T_curr
         try:
-            pair = read_pair(stop.index)
+            pair = reading.result()
         except InputError as exc:
             if not skip_bad_frames:
                 partial = finish(tracked, notes) if tracked else None
@@ -51,6 +52,18 @@ def track_frames(stops: Sequence[Stop], read_pair: ReadPair, tracker: StereoTrac
         if progress is not None:
             progress("front-end", stop.index + 1, len(stops))
     return finish(tracked, notes)
+
+
+def _read_ahead(stops: Sequence[Stop], read_pair: ReadPair) -> Iterator[tuple[Stop, Future]]:
+    """Each stop with the reading of its pair, read on a thread of its own one stop ahead: the
+    next pair is decoded and rectified while this one is tracked (OpenCV leaves Python's lock
+    while it works). One reader, in stop order, so a source reads as it would alone."""
+    with ThreadPoolExecutor(max_workers=1) as reader:
+        readings = [reader.submit(read_pair, stop.index) for stop in stops[:1]]
+        for k, stop in enumerate(stops):
+            if k + 1 < len(stops):
+                readings.append(reader.submit(read_pair, stops[k + 1].index))
+            yield stop, readings.pop(0)
 
 
 def frame_ms(tracker: StereoTracker) -> np.ndarray:

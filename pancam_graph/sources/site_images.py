@@ -6,7 +6,8 @@ the traverse has an orbital orthoimage, its ground seen from above (frontend/den
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
@@ -127,9 +128,10 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
         m.orthoimage is not None for m in obs.traverse.measurements.get("orbital", ()))
     recent: list[SitePanorama] = []
     stops = list(stops)
-    for done, (stop, images) in enumerate(by_stop.items()):
+    for done, (stop, images, frames, skipped) in enumerate(_read_ahead(by_stop, read_pair, skip_bad_frames)):
+        report.skipped.extend(skipped)
         views = [PanoramaView(im.pan_rad, im.tilt_rad, rig.body_T_left(im.pan_rad, im.tilt_rad).matrix(), *pair)
-                 for im, pair in _readable(images, read_pair, "frame", skip_bad_frames, report)]
+                 for im, pair in frames]
         hrc_frames = hrc_images.get(stop, ()) if hrc_matcher is not None else ()
         focus = hrc_footprints(rig, views, [(im.pan_rad, im.tilt_rad) for im in hrc_frames]) if hrc_frames else None
         site = matcher(stop, images[0].site, views, focus)
@@ -158,6 +160,26 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
         if progress is not None:
             progress("site panoramas", done + 1, len(by_stop))
     return stops, report
+
+
+def _read_ahead(by_stop: dict[int, list], read_pair: ReadViewPair, skip_bad_frames: bool
+                ) -> Iterator[tuple[int, list, list, list[str]]]:
+    """Each site's stop and frames with the frames' pairs read and the notes of those skipped,
+    read on a thread of their own one site ahead: the next site's frames are decoded and
+    rectified while this site is matched (OpenCV leaves Python's lock while it works)."""
+
+    def read(images: list) -> tuple[list, list[str]]:
+        report = SiteReport()
+        return list(_readable(images, read_pair, "frame", skip_bad_frames, report)), report.skipped
+
+    sites = list(by_stop.items())
+    with ThreadPoolExecutor(max_workers=1) as reader:
+        readings = [reader.submit(read, images) for _, images in sites[:1]]
+        for k, (stop, images) in enumerate(sites):
+            if k + 1 < len(sites):
+                readings.append(reader.submit(read, sites[k + 1][1]))
+            frames, skipped = readings.pop(0).result()
+            yield stop, images, frames, skipped
 
 
 def _readable(images: list, read: Callable, what: str, skip_bad_frames: bool, report: SiteReport):
