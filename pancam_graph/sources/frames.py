@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
+from typing import TypeVar
 
 import numpy as np
 
@@ -18,6 +19,7 @@ from .registry import SourceData
 
 # Reads stop k's (left, right) grayscale pair, rectified; raises InputError naming the file.
 ReadPair = Callable[[int], tuple[np.ndarray, np.ndarray]]
+Item, Read = TypeVar("Item"), TypeVar("Read")
 
 
 @heap_for_image_work()  # images and their buffers from the heap (runtime/processes.py)
@@ -34,7 +36,7 @@ def track_frames(stops: Sequence[Stop], read_pair: ReadPair, tracker: StereoTrac
     tracked: list[Stop] = []
     notes: list[str] = []
     moved: np.ndarray | None = None  # the body's dead-reckoned motion since the last tracked frame
-    for stop, reading in _read_ahead(stops, read_pair):
+    for stop, reading in read_ahead(stops, lambda stop: read_pair(stop.index)):
         step = stop.dead_reckoning
         moved = None if moved is None or step is None else moved @ step.prev_T_curr
         try:
@@ -54,16 +56,17 @@ def track_frames(stops: Sequence[Stop], read_pair: ReadPair, tracker: StereoTrac
     return finish(tracked, notes)
 
 
-def _read_ahead(stops: Sequence[Stop], read_pair: ReadPair) -> Iterator[tuple[Stop, Future]]:
-    """Each stop with the reading of its pair, read on a thread of its own one stop ahead: the
-    next pair is decoded and rectified while this one is tracked (OpenCV leaves Python's lock
-    while it works). One reader, in stop order, so a source reads as it would alone."""
+def read_ahead(items: Sequence[Item], read: Callable[[Item], Read]) -> Iterator[tuple[Item, Future[Read]]]:
+    """Each item with the reading of it (`read(item)`, its exception included), read on a
+    thread of its own one item ahead: the next images are decoded and rectified while these are
+    worked on (OpenCV leaves Python's lock while it works). One reader, in order, so a source
+    reads as it would alone."""
     with ThreadPoolExecutor(max_workers=1) as reader:
-        readings = [reader.submit(read_pair, stop.index) for stop in stops[:1]]
-        for k, stop in enumerate(stops):
-            if k + 1 < len(stops):
-                readings.append(reader.submit(read_pair, stops[k + 1].index))
-            yield stop, readings.pop(0)
+        readings = [reader.submit(read, item) for item in items[:1]]
+        for k, item in enumerate(items):
+            if k + 1 < len(items):
+                readings.append(reader.submit(read, items[k + 1]))
+            yield item, readings.pop(0)
 
 
 def frame_ms(tracker: StereoTracker) -> np.ndarray:

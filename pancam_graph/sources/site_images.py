@@ -6,8 +6,7 @@ the traverse has an orbital orthoimage, its ground seen from above (frontend/den
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
@@ -24,6 +23,7 @@ from ..graph.tie_gate import RelativePose
 from ..kinds.stereo_calibration import StereoCalibration
 from ..records import HrcFrame, PanoramaFrame, StereoObservations, Stop
 from ..runtime.processes import heap_for_image_work
+from .frames import read_ahead
 
 if TYPE_CHECKING:
     from ..store.observation_folder import ObservationSet
@@ -128,7 +128,15 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
         m.orthoimage is not None for m in obs.traverse.measurements.get("orbital", ()))
     recent: list[SitePanorama] = []
     stops = list(stops)
-    for done, (stop, images, frames, skipped) in enumerate(_read_ahead(by_stop, read_pair, skip_bad_frames)):
+
+    def read_site(site: tuple[int, list]) -> tuple[list, list[str]]:
+        """The site's frames with their pairs, and the notes of those skipped."""
+        read = SiteReport()
+        return list(_readable(site[1], read_pair, "frame", skip_bad_frames, read)), read.skipped
+
+    # the next site's frames are read while this one is matched
+    for done, ((stop, images), reading) in enumerate(read_ahead(list(by_stop.items()), read_site)):
+        frames, skipped = reading.result()
         report.skipped.extend(skipped)
         views = [PanoramaView(im.pan_rad, im.tilt_rad, rig.body_T_left(im.pan_rad, im.tilt_rad).matrix(), *pair)
                  for im, pair in frames]
@@ -160,26 +168,6 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
         if progress is not None:
             progress("site panoramas", done + 1, len(by_stop))
     return stops, report
-
-
-def _read_ahead(by_stop: dict[int, list], read_pair: ReadViewPair, skip_bad_frames: bool
-                ) -> Iterator[tuple[int, list, list, list[str]]]:
-    """Each site's stop and frames with the frames' pairs read and the notes of those skipped,
-    read on a thread of their own one site ahead: the next site's frames are decoded and
-    rectified while this site is matched (OpenCV leaves Python's lock while it works)."""
-
-    def read(images: list) -> tuple[list, list[str]]:
-        report = SiteReport()
-        return list(_readable(images, read_pair, "frame", skip_bad_frames, report)), report.skipped
-
-    sites = list(by_stop.items())
-    with ThreadPoolExecutor(max_workers=1) as reader:
-        readings = [reader.submit(read, images) for _, images in sites[:1]]
-        for k, (stop, images) in enumerate(sites):
-            if k + 1 < len(sites):
-                readings.append(reader.submit(read, sites[k + 1][1]))
-            frames, skipped = readings.pop(0).result()
-            yield stop, images, frames, skipped
 
 
 def _readable(images: list, read: Callable, what: str, skip_bad_frames: bool, report: SiteReport):
