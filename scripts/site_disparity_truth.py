@@ -82,11 +82,7 @@ def main() -> None:
                 if BANDS_M[0][0] < z < BANDS_M[-1][1]:
                     rows.append((u_left, u_right, v, z))
     r = np.array(rows)
-    # the point under the left pixel, in the calibrated left camera: the drawn common focal error
-    # moved the left pixel by s (u - cx), taken out first
-    s = exact.left.fx / camera.fx - 1.0
-    u0, v0 = (camera.cx + (r[:, 0] - camera.cx) / (1 + s), camera.cy + (r[:, 2] - camera.cy) / (1 + s))
-    p = np.column_stack([(u0 - camera.cx) / camera.fx, (v0 - camera.cy) / camera.fy, np.ones(len(r))]) * r[:, 3:4]
+    p = exact.left_point(r[:, 0], r[:, 2], r[:, 3])  # the renderer's point under the left pixel
     _, u_right_exact = exact.observe(p)
     error = r[:, 1] - u_right_exact
     shift = u_right_exact - (r[:, 0] - camera.fx * baseline / r[:, 3])

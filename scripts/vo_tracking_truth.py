@@ -57,7 +57,6 @@ def main() -> None:
     rig, camera = tracked.traverse.rig, tracked.traverse.rig.wac
     drawn = tracked.truth.kinds.get("stereo_calibration")
     exact = TrueRig.of_state(rig, drawn or dict.fromkeys(NAMES, 0.0))
-    common = exact.left.fx / camera.fx - 1.0
     body_T_nav = tracked.traverse.body_T_nav().matrix()
 
     # per feature: stop, track, range, disparity error, and its point in the world
@@ -70,11 +69,7 @@ def main() -> None:
         z = np.array([cv2.getRectSubPix(depth, (1, 1), (float(u), float(v)))[0, 0] for u, _, v in uvv])
         keep = (z > RANGE_M[0]) & (z < RANGE_M[1])
         uvv, z = uvv[keep], z[keep]
-        # the point under the left pixel, in the calibrated left camera (the drawn common focal
-        # error moved the left pixel by s (u - c), taken out first)
-        u0 = camera.cx + (uvv[:, 0] - camera.cx) / (1 + common)
-        v0 = camera.cy + (uvv[:, 2] - camera.cy) / (1 + common)
-        p = np.column_stack([(u0 - camera.cx) / camera.fx, (v0 - camera.cy) / camera.fy, np.ones(len(z))]) * z[:, None]
+        p = exact.left_point(uvv[:, 0], uvv[:, 2], z)  # the renderer's point under the left pixel
         _, u_right = exact.observe(p)
         stops.append(np.full(len(z), k))
         tracks.append(stop.stereo.track_ids[keep])

@@ -94,6 +94,12 @@ class TrueRig:
                                             self.left.fx / calibrated.wac.fx - 1.0,
                                             self.baseline_m / calibrated.baseline_m - 1.0), strict=True))
 
+    def left_point(self, u: np.ndarray, v: np.ndarray, depth_m: np.ndarray) -> np.ndarray:
+        """(n, 3) left-camera points at camera depth `depth_m` that the true left camera sees at
+        pixels (u, v): what `observe` puts there, undone."""
+        left = self.left
+        return np.column_stack([(u - left.cx) / left.fx, (v - left.cy) / left.fy, np.ones(len(u))]) * depth_m[:, None]
+
     def observe(self, p_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(u, v) in the left image and u in the right one of left-camera points, through the
         true pair; in pixels of the calibrated (rectified) pair the estimator assumes."""

@@ -98,6 +98,8 @@ def test_a_drawn_pair_is_the_pair_its_state_says():
     assert np.abs(u_right - (uv[:, 0] - rig.wac.fx * rig.baseline_m / p[:, 2])).max() > 1.0
     np.testing.assert_allclose(uv_rebuilt, uv, atol=1e-9)
     np.testing.assert_allclose(u_right_rebuilt, u_right, atol=1e-9)
+    # and the point a true left pixel sees at a depth is the point that projects there
+    np.testing.assert_allclose(drawn.left_point(uv[:, 0], uv[:, 1], p[:, 2]), p, atol=1e-9)
 
 
 def test_mast_readings_are_the_true_angles_within_half_the_resolution():
