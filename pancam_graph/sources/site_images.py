@@ -34,6 +34,10 @@ TRACK_OFFSET = 1_000_000_000  # site track ids start here, apart from the naviga
 # calibration's share taken out: normalized RMS 2.5 in yaw and 2.3-2.5 in the horizontal
 # translation over 30-step chains (40 m) of rendered realistic short_trail seeds 0-9, 1.3 in roll
 # and pitch (docs/frontend.md). The tie prediction's standard deviations are scaled by it.
+# Measured against steps that claimed their pixel noise alone: a folder whose estimator widens
+# the steps too (vo_sigma_scale, realistic renders since 2026-11-29) has its prediction widened
+# by both, about 4.5 times in heading where 2.5 would do. Scaling by what vo_sigma_scale leaves
+# (about 1.4 there) is the mend; not made, as it changes which ties are verified.
 PREDICTION_SIGMA_SCALE = 2.5
 
 ReadViewPair = Callable[[object], tuple[np.ndarray, np.ndarray]]  # PanoramaImage -> rectified pair
