@@ -635,6 +635,10 @@ class _ScenarioCore(_Strict):
     name: str = Field(min_length=1, max_length=100, pattern=r"^[^\x00-\x1f/\\]+$")
     description: str = ""
     seed: int = Field(0, ge=0, lt=2**63)
+    noise_seed: int | None = Field(
+        None, ge=0, lt=2**63, description="another draw of the rover's measurement noise (pixels, tracking, ties, "
+        "odometry, GPS, the start survey) over the same world, path, sites, calibration and mast pointing: how much "
+        "one traverse's result owes to its noise (docs/simulation_errors.md); none: the seed's own")
     rig: Literal["exomars", "mer_navcam", "mer_pancam", "prototype"] = "exomars"
     origin: OriginConfig
     path: PathConfig

@@ -15,6 +15,7 @@ from ..kinds import KINDS
 from ..records import GroundTruth, PanoramaFrame, SlipPrior, Stop, Traverse
 from .errors import (
     CALIBRATION_STREAM,
+    NOISE_STREAM,
     POINTING_STREAM,
     TIES_STREAM,
     TRACKING_STREAM,
@@ -45,6 +46,11 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
     landmarks, terrain = landmark_field(path, scenario.terrain, rng, np.random.default_rng([seed, 3]))
     field = LandmarkField(landmarks)
     sites = set(site_stops(stop_s, scenario.sites, rng)) if scenario.sites.enabled else set()
+    # From here on the stream draws measurement noise; another noise seed draws it anew over the
+    # same world (the calibration's and the pointing's streams stay the seed's)
+    redraw: list[int] = [] if scenario.noise_seed is None else [scenario.noise_seed]
+    if redraw:
+        rng = np.random.default_rng([seed, NOISE_STREAM, *redraw])
 
     tilt = np.deg2rad(cam_cfg.traverse_tilt_deg)
     body_T_nav = rig.body_T_left(0.0, tilt)
@@ -63,7 +69,7 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
     true_rig = (TrueRig.draw(rig, errors, np.random.default_rng([seed, CALIBRATION_STREAM]))
                 if errors.calibration else None)
     pointing_rng = np.random.default_rng([seed, POINTING_STREAM]) if errors.pan_tilt_resolution_deg else None
-    tracking = (TrackingErrors(np.random.default_rng([seed, TRACKING_STREAM]))
+    tracking = (TrackingErrors(np.random.default_rng([seed, TRACKING_STREAM, *redraw]))
                 if errors.stereo_tracking == "measured" else None)
 
     mast_angles: dict[int, list[tuple[float, float]]] = {}  # GroundTruth.mast_angles
@@ -122,7 +128,7 @@ def simulate(scenario: Scenario, seed: int | None = None) -> tuple[Traverse, Gro
     if errors.tie_matching == "measured":
         stops, fresh = match_ties(stops, poses[:, :3, 3], len(landmarks), scenario.estimator.sites.memory,
                                   rig.hrc.fx / rig.wac.fx if rig.hrc is not None else 1.0,
-                                  np.random.default_rng([seed, TIES_STREAM]))
+                                  np.random.default_rng([seed, TIES_STREAM, *redraw]))
         landmarks = np.vstack([landmarks, landmarks[fresh]]) if fresh else landmarks
     if scenario.gps.enabled and scenario.gps.rate_hz is not None:
         fixes = _fixes_while_driving(scenario, path, stops, stop_s, frame, np.random.default_rng([seed, 2]))

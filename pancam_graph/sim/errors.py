@@ -28,6 +28,7 @@ from ..graph import tie_matching
 from ..records import HrcFrame, PanoramaFrame, StereoObservations, Stop
 
 CALIBRATION_STREAM, POINTING_STREAM, TIES_STREAM, TRACKING_STREAM = 31, 32, 33, 34
+NOISE_STREAM = 35  # the measurement noise of a scenario's noise_seed (sim/__init__.py)
 
 # The image front-end's navigation features against the renderer's depth (rendered short_trail
 # seeds 0 and 5, denver_trail seed 1, realistic profile, 120 stops each, about 75,000 features

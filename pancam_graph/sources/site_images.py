@@ -37,7 +37,9 @@ TRACK_OFFSET = 1_000_000_000  # site track ids start here, apart from the naviga
 # Measured against steps that claimed their pixel noise alone: a folder whose estimator widens
 # the steps too (vo_sigma_scale, realistic renders since 2026-11-29) has its prediction widened
 # by both, about 4.5 times in heading where 2.5 would do. Scaling by what vo_sigma_scale leaves
-# (about 1.4 there) is the mend; not made, as it changes which ties are verified.
+# (2.5 / 1.8 there) was tried and not kept: on rendered realistic short_trail 0-9 `vo_sites` closed
+# at 0.167 % RMS against 0.159 % (seed 1 0.121 -> 0.210, seed 3 0.091 -> 0.068; denver_trail 0 and
+# 1 0.142 -> 0.146, 0.118 -> 0.103), the wider gate losing nothing measurable.
 PREDICTION_SIGMA_SCALE = 2.5
 
 ReadViewPair = Callable[[object], tuple[np.ndarray, np.ndarray]]  # PanoramaImage -> rectified pair

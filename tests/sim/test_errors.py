@@ -352,3 +352,33 @@ def test_the_vo_claims_what_the_tracking_errors_do_over_a_site_spacing():
     heading_forward_lateral = [2, 3, 4]
     assert np.all((rms["scaled"][heading_forward_lateral] > 0.5) & (rms["scaled"][heading_forward_lateral] < 1.4))
     assert np.max(rms["unscaled"][heading_forward_lateral]) > 1.5
+
+
+def test_a_noise_seed_draws_the_measurements_anew_over_the_same_world():
+    """noise_seed: the same path, landmarks, sites, drawn calibration and mast angles, and another
+    draw of the pixels, whose errors about the truth are as large as the seed's own."""
+    scenario = _short_trail({"profile": "realistic"})
+    own, own_truth = simulate(scenario, 3)
+    again, again_truth = simulate(scenario.model_copy(update={"noise_seed": 7}), 3)
+    np.testing.assert_array_equal(own_truth.world_T_body, again_truth.world_T_body)
+    np.testing.assert_array_equal(own_truth.landmarks[:1000], again_truth.landmarks[:1000])
+    np.testing.assert_array_equal(own_truth.kinds["stereo_calibration"], again_truth.kinds["stereo_calibration"])
+    assert own_truth.mast_angles == again_truth.mast_angles
+    assert [s.site_id for s in own.stops] == [s.site_id for s in again.stops]
+    rig = own.rig
+
+    def pixel_errors(traverse, truth) -> np.ndarray:
+        """Each navigation view's column error about the true projection through the drawn pair."""
+        errors = []
+        for stop in traverse.stops[1:40]:
+            seen = stop.stereo
+            world_T_left = truth.world_T_body[stop.index] @ rig.body_T_left(0.0, traverse.traverse_tilt_rad).matrix()
+            p_cam = (truth.landmarks[seen.track_ids % 2**32] - world_T_left[:3, 3]) @ world_T_left[:3, :3]
+            errors.append(rig.wac.project(p_cam, distort=False)[:, 0] - seen.uvv[:, 0])
+        return np.concatenate(errors)
+
+    a, b = pixel_errors(own, own_truth), pixel_errors(again, again_truth)
+    assert len(a) > 500 and len(b) > 500
+    assert not np.array_equal(a[:100], b[:100])
+    spread_a, spread_b = (1.4826 * np.median(np.abs(x - np.median(x))) for x in (a, b))
+    assert 0.8 < spread_a / spread_b < 1.25
