@@ -2,7 +2,8 @@
 rectified WAC pair, the disparities sampled on a grid and triangulated into the body frame.
 
 The orbital DTM it is registered to has 1 m posts, so the pairs are matched at half resolution,
-which still samples the near ground far finer than the map (docs/performance.md).
+which still samples the near ground far finer than the map (docs/performance.md). A site's ground
+patch (for the orthoimage) matches the ground within 8 m at a quarter (ground_patch).
 
 Runs do not use it yet: on rendered sites it registers no better than the image front-end's
 tie points and its covariance is too small (docs/orbital.md, "From rendered images"); the
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -22,6 +24,8 @@ from ..geometry.rig import Camera, triangulate_rectified, triangulation_covarian
 from ..records import GroundPatch
 
 SCALE = 2  # images matched at 1/SCALE resolution
+NEAR_SCALE = 4  # a ground patch's near ground (within NEAR_M) at 1/NEAR_SCALE (_ground_passes)
+NEAR_M = 8.0
 GRID_PX = 6  # a point every GRID_PX pixels (at the matched resolution) in both directions
 SIGMA_PX = 1.0  # a disparity's error at full resolution: SGBM's subpixel estimate, half a matched pixel
 MIN_RANGE_M = 1.5
@@ -43,31 +47,40 @@ def _disparity(left: np.ndarray, right: np.ndarray, camera: Camera, baseline_m: 
                ) -> tuple[np.ndarray, int, np.ndarray]:
     """SGBM's disparity (at the matched resolution, in its pixels), the least disparity searched
     and the left image at that resolution."""
-    if left.dtype != np.uint8 or right.dtype != np.uint8 or left.ndim != 2 or left.shape != right.shape:
-        raise FrontendError(f"dense stereo needs two 8-bit grey images of one size, not {left.dtype} {left.shape} "
-                            f"and {right.dtype} {right.shape}")
+    _check_pair(left, right)
     small_l, small_r = (cv2.resize(im, None, fx=1 / SCALE, fy=1 / SCALE, interpolation=cv2.INTER_AREA)
                         for im in (left, right))
-    focal = camera.fx / SCALE
-    least = max(int(np.floor(focal * baseline_m / max_range_m)) - 1, 0)
-    span = int(np.ceil((focal * baseline_m / MIN_RANGE_M - least) / 16.0)) * 16
-    block = 5
-    matcher = cv2.StereoSGBM_create(minDisparity=least, numDisparities=span, blockSize=block,
-                                    P1=8 * block * block, P2=32 * block * block, disp12MaxDiff=1,
-                                    uniquenessRatio=10, speckleWindowSize=100, speckleRange=2,
-                                    mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+    least, matcher = _sgbm(camera.fx / SCALE, baseline_m, MIN_RANGE_M, max_range_m)
     return matcher.compute(small_l, small_r).astype(np.float32) / 16.0, least, small_l
 
 
+def _check_pair(left: np.ndarray, right: np.ndarray) -> None:
+    if left.dtype != np.uint8 or right.dtype != np.uint8 or left.ndim != 2 or left.shape != right.shape:
+        raise FrontendError(f"dense stereo needs two 8-bit grey images of one size, not {left.dtype} {left.shape} "
+                            f"and {right.dtype} {right.shape}")
+
+
+def _sgbm(focal_px: float, baseline_m: float, nearest_m: float, farthest_m: float) -> tuple[int, cv2.StereoSGBM]:
+    """The least disparity searched and OpenCV's semi-global matcher for ground from `nearest_m`
+    to `farthest_m` at that focal length."""
+    least = max(int(np.floor(focal_px * baseline_m / farthest_m)) - 1, 0)
+    span = int(np.ceil((focal_px * baseline_m / nearest_m - least) / 16.0)) * 16
+    block = 5
+    return least, cv2.StereoSGBM_create(minDisparity=least, numDisparities=span, blockSize=block,
+                                        P1=8 * block * block, P2=32 * block * block, disp12MaxDiff=1,
+                                        uniquenessRatio=10, speckleWindowSize=100, speckleRange=2,
+                                        mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+
+
 def _triangulated(disparity: np.ndarray, rows: np.ndarray, cols: np.ndarray, least: int, camera: Camera,
-                  baseline_m: float) -> np.ndarray:
-    """Points (N, 3), left camera frame, of the matched pixels (rows, cols) with a disparity;
-    NaN rows where there is none."""
+                  baseline_m: float, scale: int = SCALE) -> np.ndarray:
+    """Points (N, 3), left camera frame, of the pixels (rows, cols) of a disparity image matched
+    at 1/scale resolution; NaN rows where there is no disparity above `least`."""
     d = disparity[rows, cols]
-    # back to full-resolution pixels (pixel centres: u_full = SCALE (u + 0.5) - 0.5)
-    u = SCALE * (cols + 0.5) - 0.5
-    v = SCALE * (rows + 0.5) - 0.5
-    points = triangulate_rectified(u.ravel(), (u - SCALE * d).ravel(), v.ravel(), camera, baseline_m)
+    # back to full-resolution pixels (pixel centres: u_full = scale (u + 0.5) - 0.5)
+    u = scale * (cols + 0.5) - 0.5
+    v = scale * (rows + 0.5) - 0.5
+    points = triangulate_rectified(u.ravel(), (u - scale * d).ravel(), v.ravel(), camera, baseline_m)
     points[~(d > least).ravel()] = np.nan
     return points
 
@@ -105,31 +118,82 @@ def elevation_map(points: np.ndarray, covariances: np.ndarray, cell_m: float = C
     return points[median], covariances[median]
 
 
-def _on_the_ground(view, disparity: np.ndarray, least: int, small_left: np.ndarray, camera: Camera,
-                   baseline_m: float, max_range_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """One pair's matched pixels in the body frame (N, 3), and their grey levels, out to
+@dataclass(frozen=True)
+class _Matched:
+    """One pass of SGBM over a pair: its disparities (in its own pixels, NaN where none), the
+    left image at its resolution and that resolution's scale."""
+
+    disparity: np.ndarray
+    small_left: np.ndarray
+    scale: int
+
+
+def _ground_passes(left: np.ndarray, right: np.ndarray, camera: Camera, baseline_m: float, max_range_m: float
+                   ) -> tuple[_Matched, _Matched]:
+    """A pair matched twice for its ground: the whole range at 1/NEAR_SCALE resolution, then at
+    1/SCALE only the rows where that found ground beyond NEAR_M, over the disparities of ground
+    beyond NEAR_M / 2. Half-resolution SGBM down to 1.5 m was most of a site's ground patch, and
+    the near ground's pixels are far finer than a patch cell at either resolution. A far pixel
+    is kept where the coarse pass puts it beyond NEAR_M too and within two of its pixels (the
+    coarse pass's check on the fine one's narrower search), a near one where the coarse pass
+    puts it within NEAR_M."""
+
+    def matched(scale: int, nearest_m: float, rows: slice = slice(None)) -> _Matched:
+        small_l, small_r = (cv2.resize(im, None, fx=1 / scale, fy=1 / scale, interpolation=cv2.INTER_AREA)
+                            for im in (left, right))
+        least, matcher = _sgbm(camera.fx / scale, baseline_m, nearest_m, max_range_m)
+        disparity = np.full(small_l.shape, np.nan, np.float32)
+        found = matcher.compute(small_l[rows], small_r[rows]).astype(np.float32) / 16.0
+        found[~(found > least)] = np.nan
+        disparity[rows] = found
+        return _Matched(disparity, small_l, scale)
+
+    _check_pair(left, right)
+    near = matched(NEAR_SCALE, MIN_RANGE_M)
+    boundary = camera.fx * baseline_m / NEAR_M  # full-resolution disparity of ground at NEAR_M
+    near_full = NEAR_SCALE * near.disparity
+    beyond = np.flatnonzero(np.any(near_full < boundary, axis=1))
+    ratio = NEAR_SCALE // SCALE
+    if len(beyond):
+        pad = 8  # SGBM's block and its paths near the crop's edge
+        far = matched(SCALE, NEAR_M / 2, slice(max(beyond[0] * ratio - pad, 0), (beyond[-1] + 1) * ratio + pad))
+        coarse = np.repeat(np.repeat(near_full, ratio, axis=0), ratio, axis=1)
+        shape = far.disparity.shape
+        coarse = np.pad(coarse, ((0, shape[0] - coarse.shape[0]), (0, shape[1] - coarse.shape[1])),
+                        constant_values=np.nan)
+        agrees = (coarse < boundary) & (np.abs(SCALE * far.disparity - coarse) < 2.0 * NEAR_SCALE)
+        far = _Matched(np.where(agrees, far.disparity, np.nan), far.small_left, SCALE)
+    else:
+        far = _Matched(np.full(near.disparity.shape, np.nan, np.float32), near.small_left, NEAR_SCALE)
+    return far, _Matched(np.where(near_full >= boundary, near.disparity, np.nan), near.small_left, NEAR_SCALE)
+
+
+def _on_the_ground(view, matched: _Matched, camera: Camera, baseline_m: float, max_range_m: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """One pass's matched pixels in the body frame (N, 3), and their grey levels, out to
     `max_range_m`."""
-    rows, cols = np.nonzero(disparity > least)  # the matched pixels only: the others have no point
-    p_cam = _triangulated(disparity, rows, cols, least, camera, baseline_m)
+    rows, cols = np.nonzero(np.isfinite(matched.disparity))  # the matched pixels only
+    p_cam = _triangulated(matched.disparity, rows, cols, 0, camera, baseline_m, matched.scale)
     keep = (p_cam[:, 2] > MIN_RANGE_M) & (p_cam[:, 2] <= max_range_m)
     rotation, shift = view.body_T_camera[:3, :3], view.body_T_camera[:3, 3]
-    return p_cam[keep] @ rotation.T + shift, small_left[rows[keep], cols[keep]].astype(np.float64)
+    return p_cam[keep] @ rotation.T + shift, matched.small_left[rows[keep], cols[keep]].astype(np.float64)
 
 
 def ground_patch(views: Sequence, camera: Camera, baseline_m: float, max_range_m: float = 40.0,
                  cell_m: float = PATCH_CELL_M) -> GroundPatch | None:
-    """A site's ground from above: every matched pixel of every rectified pair (a quarter of the
-    full-resolution pixels) put on the ground by its disparity, and averaged per `cell_m` cell
-    of the body frame's horizontal grid, as an orbiter's pixel averages the ground under it.
-    None when no pair gives any."""
+    """A site's ground from above: every matched pixel of every rectified pair (_ground_passes:
+    at a quarter of the resolution within NEAR_M, at half beyond) put on the ground by its
+    disparity, and averaged per `cell_m` cell of the body frame's horizontal grid, as an
+    orbiter's pixel averages the ground under it. None when no pair gives any."""
     positions, greys = [], []
     # the next pair matched (OpenCV, without the GIL) while this one is put on the ground (numpy)
     with ThreadPoolExecutor(max_workers=1) as matcher:
-        matched = matcher.map(lambda v: _disparity(v.left, v.right, camera, baseline_m, max_range_m), views)
-        for view, (disparity, least, small_left) in zip(views, matched, strict=True):
-            placed, grey = _on_the_ground(view, disparity, least, small_left, camera, baseline_m, max_range_m)
-            positions.append(placed)
-            greys.append(grey)
+        matched = matcher.map(lambda v: _ground_passes(v.left, v.right, camera, baseline_m, max_range_m), views)
+        for view, passes in zip(views, matched, strict=True):
+            for one in passes:
+                placed, grey = _on_the_ground(view, one, camera, baseline_m, max_range_m)
+                positions.append(placed)
+                greys.append(grey)
     if not positions or not sum(len(p) for p in positions):
         return None
     points, grey = np.vstack(positions), np.concatenate(greys)
