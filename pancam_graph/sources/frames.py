@@ -4,10 +4,12 @@ with what was tracked before it kept."""
 
 from __future__ import annotations
 
+import queue
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
-from typing import TypeVar
+from typing import Generic, TypeVar
 
 import numpy as np
 
@@ -67,6 +69,59 @@ def read_ahead(items: Sequence[Item], read: Callable[[Item], Read]) -> Iterator[
             if k + 1 < len(items):
                 readings.append(reader.submit(read, items[k + 1]))
             yield item, readings.pop(0)
+
+
+class Ahead(Generic[Item]):
+    """An iterator's items made on a thread of its own, at most `depth` ahead of their use:
+    work that needs nothing of what the caller does meanwhile (a site's panorama matching while
+    the navigation frames are tracked; OpenCV leaves Python's lock while it works). Iterate it
+    once, in a `with` block: leaving the block stops the thread after the item it is making."""
+
+    _DONE = object()
+
+    def __init__(self, items: Iterator[Item], depth: int = 1):
+        self._queue: queue.Queue = queue.Queue(maxsize=depth)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._fill, args=(items,), name="ahead", daemon=True)
+        self._thread.start()
+
+    def _fill(self, items: Iterator[Item]) -> None:
+        try:
+            for item in items:
+                if not self._put((item, None)):
+                    return
+            self._put((self._DONE, None))
+        except BaseException as exc:  # handed to the caller, raised where it iterates
+            self._put((None, exc))
+        finally:
+            close = getattr(items, "close", None)
+            if close is not None:
+                close()
+
+    def _put(self, entry: tuple) -> bool:
+        while not self._stop.is_set():
+            try:
+                self._queue.put(entry, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def __iter__(self) -> Iterator[Item]:
+        while True:
+            item, exc = self._queue.get()
+            if exc is not None:
+                raise exc
+            if item is self._DONE:
+                return
+            yield item
+
+    def __enter__(self) -> Ahead[Item]:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self._stop.set()
+        self._thread.join()
 
 
 def frame_ms(tracker: StereoTracker) -> np.ndarray:

@@ -6,7 +6,7 @@ observation folder. `pancam-graph render` writes one."""
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -19,10 +19,11 @@ from ..formats.images import read_gray
 from ..frontend.motion import VoMotions
 from ..frontend.tracker import StageTimes, StereoTracker
 from ..records import Stop
+from ..runtime.processes import heap_for_image_work
 from ..solve.results import SourceInfo
-from .frames import median_frame_ms, odometry_camera_motion, track_frames
+from .frames import Ahead, median_frame_ms, odometry_camera_motion, track_frames
 from .registry import Source, SourceData, StereoFrames, frontend_for
-from .site_images import with_site_panoramas
+from .site_images import MatchedSite, matched_sites, uses_orthoimage, with_site_panoramas
 
 # Pixel sigma of a landmark's views when its tie points were matched across sites from images:
 # the matches' error against the renderer's truth has a median of 0.50 px and 96 % below 3 px.
@@ -107,14 +108,22 @@ def load(folder: Path, frontend: FrontendConfig | None = None,
         return SourceData(replace(obs.traverse, stops=tuple(stops)), truth, obs.estimator, obs.seed, info)
 
     camera_motion = odometry_camera_motion(obs.traverse) if frontend.odometry_aided else None
-    data = track_frames(obs.traverse.stops, read_pair, tracker, finish, skip_bad_frames, progress, camera_motion)
     if not sites or not any(p.camera == "wac" for p in obs.panorama_frames):
-        return data
-    return with_sites(data, obs, pairs, frontend, skip_bad_frames, progress)
+        return track_frames(obs.traverse.stops, read_pair, tracker, finish, skip_bad_frames, progress, camera_motion)
+    has_hrc = obs.traverse.rig.hrc is not None and any(p.camera == "hrc" for p in obs.panorama_frames)
+    # each site's panorama is matched on a thread of its own while the navigation frames are
+    # tracked and the VO estimated: only its ties need the VO (docs/performance.md)
+    matching = matched_sites(obs, len(obs.traverse.stops), pairs.read_view, frontend, skip_bad_frames, has_hrc,
+                             uses_orthoimage(obs, obs.estimator))
+    with heap_for_image_work(), Ahead(matching) as matched:
+        data = track_frames(obs.traverse.stops, read_pair, tracker, finish, skip_bad_frames, progress,
+                            camera_motion)
+        return with_sites(data, obs, pairs, frontend, skip_bad_frames, progress, matched)
 
 
 def with_sites(data: SourceData, obs: ObservationSet, pairs: FramePairs, frontend: FrontendConfig,
-               skip_bad_frames: bool, progress: Callable[[str, int, int], None] | None) -> SourceData:
+               skip_bad_frames: bool, progress: Callable[[str, int, int], None] | None,
+               matched: Iterable[MatchedSite] | None = None) -> SourceData:
     """The site panoramas' features and tie points (sources/site_images.py) added to the tracked
     stops. The ties are found to about 1 px (docs/frontend.md): unless the folder says otherwise,
     the estimator's landmark views get that sigma."""
@@ -133,7 +142,7 @@ def with_sites(data: SourceData, obs: ObservationSet, pairs: FramePairs, fronten
     vo = VoMotions.estimate(data.traverse, estimator)
     try:
         stops, report = with_site_panoramas(obs, list(data.traverse.stops), pairs.read_view, vo, frontend,
-                                            skip_bad_frames, progress, pairs.read_hrc if has_hrc else None)
+                                            skip_bad_frames, progress, pairs.read_hrc if has_hrc else None, matched)
     except InputError as exc:  # a panorama frame: every navigation frame's tracking is kept
         raise FrameError(f"site panorama: {exc} (--skip-bad-frames leaves the frame out)", len(data.traverse.stops),
                          data) from None

@@ -6,7 +6,7 @@ the traverse has an orbital orthoimage, its ground seen from above (frontend/den
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
@@ -21,7 +21,7 @@ from ..frontend.panorama import PanoramaMatcher, PanoramaView, SitePanorama
 from ..frontend.ties import TieMatcher, TieResult
 from ..graph.tie_gate import RelativePose
 from ..kinds.stereo_calibration import StereoCalibration
-from ..records import HrcFrame, PanoramaFrame, StereoObservations, Stop
+from ..records import GroundPatch, HrcFrame, PanoramaFrame, StereoObservations, Stop
 from ..runtime.processes import heap_for_image_work
 from .frames import read_ahead
 
@@ -109,31 +109,29 @@ def images_by_stop(obs: ObservationSet, camera: str = "wac") -> dict[int, list]:
     return dict(sorted(by_stop.items()))
 
 
-@heap_for_image_work()  # images and their buffers from the heap (runtime/processes.py)
-def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadViewPair, vo: VoMotions,
-                        frontend: FrontendConfig, skip_bad_frames: bool = False,
-                        progress: Callable[[str, int, int], None] | None = None,
-                        read_hrc: ReadHrc | None = None) -> tuple[list[Stop], SiteReport]:
-    """The stops with their site panoramas' observations (site ids set), and what was done;
-    with `read_hrc`, also the HRC frames' views of the site's features (its tie points
-    included). A panorama frame that cannot be read stops with the message naming it, or with
-    `skip_bad_frames` is left out of its panorama."""
-    report = SiteReport()
-    by_stop = {stop: images for stop, images in images_by_stop(obs).items() if stop < len(stops)}
-    if not by_stop:
-        return stops, report
+@dataclass(frozen=True)
+class MatchedSite:
+    """A site's panorama matched on its own (what needs no VO): its features and their links
+    across its frames, and its ground from above."""
+
+    stop: int
+    site: SitePanorama
+    skipped: tuple[str, ...]  # notes of the frames left out
+    ground: GroundPatch | None
+
+
+def matched_sites(obs: ObservationSet, n_stops: int, read_pair: ReadViewPair, frontend: FrontendConfig,
+                  skip_bad_frames: bool = False, hrc: bool = False, orthoimage: bool = False
+                  ) -> Iterator[MatchedSite]:
+    """Each site of the first `n_stops` stops matched in stop order, its track ids numbered on
+    from the last site's (one PanoramaMatcher); `hrc`: the features under the HRC frames'
+    footprints kept; `orthoimage`: with its ground patch (SGBM on every pair, seconds a site, so
+    only when it will be used). A frame that cannot be read raises InputError here, or with
+    `skip_bad_frames` is noted and left out."""
     rig = obs.traverse.rig
-    motions = vo.motions
     matcher = PanoramaMatcher(rig.wac, rig.baseline_m, frontend, first_id=TRACK_OFFSET)
-    ties = TieMatcher(rig, obs.traverse.image_noise_px, calibration_sigmas=calibration_sigmas(vo.estimator))
-    hrc_matcher = HrcMatcher(rig) if read_hrc is not None and rig.hrc is not None else None
-    hrc_images = images_by_stop(obs, "hrc")
-    # the ground from above, for the orbital kind to correlate with an orthoimage: SGBM on every
-    # pair, seconds a site, so only when it will be used
-    orthoimage = vo.estimator.orbital.use_orthoimage and any(
-        m.orthoimage is not None for m in obs.traverse.measurements.get("orbital", ()))
-    recent: list[SitePanorama] = []
-    stops = list(stops)
+    hrc_images = images_by_stop(obs, "hrc") if hrc else {}
+    by_stop = [(stop, images) for stop, images in images_by_stop(obs).items() if stop < n_stops]
 
     def read_site(site: tuple[int, list]) -> tuple[list, list[str]]:
         """The site's frames with their pairs, and the notes of those skipped."""
@@ -141,14 +139,52 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
         return list(_readable(site[1], read_pair, "frame", skip_bad_frames, read)), read.skipped
 
     # the next site's frames are read while this one is matched
-    for done, ((stop, images), reading) in enumerate(read_ahead(list(by_stop.items()), read_site)):
+    for (stop, images), reading in read_ahead(by_stop, read_site):
         frames, skipped = reading.result()
-        report.skipped.extend(skipped)
         views = [PanoramaView(im.pan_rad, im.tilt_rad, rig.body_T_left(im.pan_rad, im.tilt_rad).matrix(), *pair)
                  for im, pair in frames]
-        hrc_frames = hrc_images.get(stop, ()) if hrc_matcher is not None else ()
+        hrc_frames = hrc_images.get(stop, ())
         focus = hrc_footprints(rig, views, [(im.pan_rad, im.tilt_rad) for im in hrc_frames]) if hrc_frames else None
         site = matcher(stop, images[0].site, views, focus)
+        ground = ground_patch(views, rig.wac, rig.baseline_m) if orthoimage and views else None
+        yield MatchedSite(stop, site, tuple(skipped), ground)
+
+
+def uses_orthoimage(obs: ObservationSet, estimator: EstimatorConfig) -> bool:
+    """Whether the run correlates site ground patches with an orbital orthoimage."""
+    return estimator.orbital.use_orthoimage and any(
+        m.orthoimage is not None for m in obs.traverse.measurements.get("orbital", ()))
+
+
+@heap_for_image_work()  # images and their buffers from the heap (runtime/processes.py)
+def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadViewPair, vo: VoMotions,
+                        frontend: FrontendConfig, skip_bad_frames: bool = False,
+                        progress: Callable[[str, int, int], None] | None = None,
+                        read_hrc: ReadHrc | None = None, matched: Iterable[MatchedSite] | None = None
+                        ) -> tuple[list[Stop], SiteReport]:
+    """The stops with their site panoramas' observations (site ids set), and what was done;
+    with `read_hrc`, also the HRC frames' views of the site's features (its tie points
+    included). A panorama frame that cannot be read stops with the message naming it, or with
+    `skip_bad_frames` is left out of its panorama. `matched`: the sites as `matched_sites`
+    gives them for these arguments, already under way (image_folder matches them while the
+    navigation frames are tracked); by default matched here."""
+    report = SiteReport()
+    n_sites = sum(1 for stop in images_by_stop(obs) if stop < len(stops))
+    if not n_sites:
+        return stops, report
+    rig = obs.traverse.rig
+    motions = vo.motions
+    ties = TieMatcher(rig, obs.traverse.image_noise_px, calibration_sigmas=calibration_sigmas(vo.estimator))
+    hrc_matcher = HrcMatcher(rig) if read_hrc is not None and rig.hrc is not None else None
+    hrc_images = images_by_stop(obs, "hrc")
+    if matched is None:
+        matched = matched_sites(obs, len(stops), read_pair, frontend, skip_bad_frames, hrc_matcher is not None,
+                                uses_orthoimage(obs, vo.estimator))
+    recent: list[SitePanorama] = []
+    stops = list(stops)
+    for done, one in enumerate(matched):
+        stop, site = one.stop, one.site
+        report.skipped.extend(one.skipped)
         for earlier in reversed(recent):
             between = range(earlier.stop + 1, stop + 1)
             prediction = RelativePose.compose(
@@ -165,14 +201,13 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
             hrc = [hrc_matcher(site, im.pan_rad, im.tilt_rad, image) for im, image in
                    _readable(hrc_images.get(stop, ()), read_hrc, "HRC frame", skip_bad_frames, report)]
             report.hrc[stop] = hrc
-        ground = ground_patch(views, rig.wac, rig.baseline_m) if orthoimage and views else None
         stops[stop] = replace(stops[stop], site_id=site.site, panorama=tuple(
             PanoramaFrame(v.pan_rad, v.tilt_rad, v.observations) for v in site.views),
-            hrc=tuple(HrcFrame(m.pan_rad, m.tilt_rad, m.track_ids, m.uv) for m in hrc), ground=ground)
+            hrc=tuple(HrcFrame(m.pan_rad, m.tilt_rad, m.track_ids, m.uv) for m in hrc), ground=one.ground)
         recent = (recent + [site])[-vo.estimator.sites.memory:]
         report.sites.append(_without_images(site))
         if progress is not None:
-            progress("site panoramas", done + 1, len(by_stop))
+            progress("site panoramas", done + 1, n_sites)
     return stops, report
 
 
