@@ -181,6 +181,31 @@ def test_a_bad_panorama_frame_stops_with_its_name_and_keeps_the_tracking_or_is_l
     assert sum(len(s.panorama) for s in data.traverse.stops) == expected > 0
 
 
+def test_a_bad_hrc_frame_stops_with_its_name_or_is_left_out(sites, tmp_path):
+    """An HRC frame that cannot be read stops the run with the frame's name, the navigation
+    tracking kept; with skip_bad_frames it alone is left out of its site's HRC views."""
+    import shutil
+
+    from pancam_graph.errors import FrameError
+
+    folder = tmp_path / "copy"
+    shutil.copytree(sites[0], folder)
+    frames = (folder / "panorama_frames.csv").read_text().splitlines(keepends=True)
+    first, second = sorted({int(line.split(",")[0]) for line in frames[1:]})[:2]
+    # two sites' WAC frames and the first site's HRC frames (the test's time)
+    (folder / "panorama_frames.csv").write_text("".join(frames[:1] + [
+        line for line in frames[1:] if int(line.split(",")[0]) in (first, second)
+        and (line.split(",")[2] == "wac" or int(line.split(",")[0]) == first)]))
+    hrc = [f for f in read_observations(folder).panorama_frames if f.camera == "hrc"]
+    bad = hrc[3].left
+    bad.write_bytes(bad.read_bytes()[:3000])
+    with pytest.raises(FrameError, match=rf"site panorama: .*{bad.name}: truncated PNG"):
+        image_folder.load(folder)
+    data = image_folder.load(folder, skip_bad_frames=True)
+    assert any(bad.name in note for note in data.info.notes)
+    assert [len(s.hrc) for s in data.traverse.stops if s.hrc] == [len(hrc) - 1]
+
+
 def test_a_pair_with_too_few_strong_ties_is_verified_again_with_the_weaker_peaks(sites):
     # On denver_trail the sites 51.8 m apart verify 8 ties at NCC 0.8 and 19 at 0.7, all within
     # 3 px of the truth. Here, on the views that tied the first two sites, the strong threshold is
