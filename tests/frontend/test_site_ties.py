@@ -199,8 +199,9 @@ def test_a_bad_hrc_frame_stops_with_its_name_or_is_left_out(sites, tmp_path):
     hrc = [f for f in read_observations(folder).panorama_frames if f.camera == "hrc"]
     bad = hrc[3].left
     bad.write_bytes(bad.read_bytes()[:3000])
-    with pytest.raises(FrameError, match=rf"site panorama: .*{bad.name}: truncated PNG"):
+    with pytest.raises(FrameError, match=rf"site panorama: .*{bad.name}: truncated PNG") as stopped:
         image_folder.load(folder)
+    assert len(stopped.value.partial.traverse.stops) == len(sites[1].traverse.stops)  # all tracked, kept
     data = image_folder.load(folder, skip_bad_frames=True)
     assert any(bad.name in note for note in data.info.notes)
     assert [len(s.hrc) for s in data.traverse.stops if s.hrc] == [len(hrc) - 1]
