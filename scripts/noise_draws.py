@@ -10,8 +10,8 @@ draws: median, 10th-90th percentile, and how often two draws agree within a fact
 `--against` run (say an image run of the same scenario and seed, whose world, calibration and
 pointing are these) is placed among the draws: its percentile and its ratio to their median.
 Draws already in DIR are read, not run again. 2026-11-29 (docs/simulation_errors.md, "One seed,
-many noise draws"): denver_trail seed 0, 30 draws, `vo_sites` median 0.053 %, 10th-90th
-0.033-0.143 %, two draws within 1.5 of each other 0.38 of the time.
+many noise draws"): denver_trail seed 0, 30 draws, `vo_sites` median 0.048 %, 10th-90th
+0.019-0.084 %, two draws within 1.5 of each other 0.38 of the time.
 """
 
 from __future__ import annotations

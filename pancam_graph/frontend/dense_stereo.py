@@ -129,14 +129,14 @@ class _Matched:
 
 
 def _ground_passes(left: np.ndarray, right: np.ndarray, camera: Camera, baseline_m: float, max_range_m: float
-                   ) -> tuple[_Matched, _Matched]:
+                   ) -> list[_Matched]:
     """A pair matched twice for its ground: the whole range at 1/NEAR_SCALE resolution, then at
     1/SCALE only the rows where that found ground beyond NEAR_M, over the disparities of ground
     beyond NEAR_M / 2. Half-resolution SGBM down to 1.5 m was most of a site's ground patch, and
     the near ground's pixels are far finer than a patch cell at either resolution. A far pixel
     is kept where the coarse pass puts it beyond NEAR_M too and within two of its pixels (the
     coarse pass's check on the fine one's narrower search), a near one where the coarse pass
-    puts it within NEAR_M."""
+    puts it within NEAR_M. The near pass, then the far one where there is ground beyond NEAR_M."""
 
     def matched(scale: int, nearest_m: float, rows: slice = slice(None)) -> _Matched:
         small_l, small_r = (cv2.resize(im, None, fx=1 / scale, fy=1 / scale, interpolation=cv2.INTER_AREA)
@@ -152,20 +152,17 @@ def _ground_passes(left: np.ndarray, right: np.ndarray, camera: Camera, baseline
     near = matched(NEAR_SCALE, MIN_RANGE_M)
     boundary = camera.fx * baseline_m / NEAR_M  # full-resolution disparity of ground at NEAR_M
     near_full = NEAR_SCALE * near.disparity
+    passes = [_Matched(np.where(near_full >= boundary, near.disparity, np.nan), near.small_left, NEAR_SCALE)]
     beyond = np.flatnonzero(np.any(near_full < boundary, axis=1))
-    ratio = NEAR_SCALE // SCALE
-    if len(beyond):
-        pad = 8  # SGBM's block and its paths near the crop's edge
-        far = matched(SCALE, NEAR_M / 2, slice(max(beyond[0] * ratio - pad, 0), (beyond[-1] + 1) * ratio + pad))
-        coarse = np.repeat(np.repeat(near_full, ratio, axis=0), ratio, axis=1)
-        shape = far.disparity.shape
-        coarse = np.pad(coarse, ((0, shape[0] - coarse.shape[0]), (0, shape[1] - coarse.shape[1])),
-                        constant_values=np.nan)
-        agrees = (coarse < boundary) & (np.abs(SCALE * far.disparity - coarse) < 2.0 * NEAR_SCALE)
-        far = _Matched(np.where(agrees, far.disparity, np.nan), far.small_left, SCALE)
-    else:
-        far = _Matched(np.full(near.disparity.shape, np.nan, np.float32), near.small_left, NEAR_SCALE)
-    return far, _Matched(np.where(near_full >= boundary, near.disparity, np.nan), near.small_left, NEAR_SCALE)
+    if not len(beyond):
+        return passes
+    ratio, pad = NEAR_SCALE // SCALE, 8  # pad: SGBM's block and its paths near the crop's edge
+    far = matched(SCALE, NEAR_M / 2, slice(max(beyond[0] * ratio - pad, 0), (beyond[-1] + 1) * ratio + pad))
+    coarse = np.repeat(np.repeat(near_full, ratio, axis=0), ratio, axis=1)
+    shape = far.disparity.shape
+    coarse = np.pad(coarse, ((0, shape[0] - coarse.shape[0]), (0, shape[1] - coarse.shape[1])), constant_values=np.nan)
+    agrees = (coarse < boundary) & (np.abs(SCALE * far.disparity - coarse) < 2.0 * NEAR_SCALE)
+    return [*passes, _Matched(np.where(agrees, far.disparity, np.nan), far.small_left, SCALE)]
 
 
 def _on_the_ground(view, matched: _Matched, camera: Camera, baseline_m: float, max_range_m: float

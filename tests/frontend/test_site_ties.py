@@ -3,12 +3,15 @@ the mast angles, tie points between sites 30-40 m apart and the WAC features in 
 found from the images, each checked against the renderer's truth, and the back-end's
 `vo_sites` and `vo_sites_hrc` on them."""
 
+import shutil
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from pancam_graph.config import FrontendConfig, Scenario
+from pancam_graph.errors import FrameError
 from pancam_graph.frontend.motion import VoMotions
 from pancam_graph.frontend.panorama import PanoramaMatcher, PanoramaView
 from pancam_graph.frontend.ties import TieMatcher, TieSettings
@@ -157,26 +160,38 @@ def test_vo_sites_from_images(sites):
         assert np.mean(nees) < 11.34 and np.max(nees) < 16.27, c.name
 
 
-def test_a_bad_panorama_frame_stops_with_its_name_and_keeps_the_tracking_or_is_left_out(sites, tmp_path):
-    import shutil
-
-    from pancam_graph.errors import FrameError
-
+def _first_two_sites(sites, tmp_path, hrc: bool) -> tuple[Path, list[int]]:
+    """A copy of the strip's folder with the first two sites' WAC frames only (one site pair to
+    tie instead of three: the test's time) and, with `hrc`, the first site's HRC frames; and the
+    two sites' stops."""
     folder = tmp_path / "copy"
     shutil.copytree(sites[0], folder)
-    # the first two sites' WAC frames only (one site pair to tie instead of three, and no HRC
-    # frames to match: the test's time)
     frames = (folder / "panorama_frames.csv").read_text().splitlines(keepends=True)
     two_sites = sorted({int(line.split(",")[0]) for line in frames[1:]})[:2]
-    (folder / "panorama_frames.csv").write_text("".join(frames[:1] + [
-        line for line in frames[1:] if int(line.split(",")[0]) in two_sites and line.split(",")[2] == "wac"]))
-    bad = read_observations(folder).panorama_frames[0].left
+
+    def kept(line: str) -> bool:
+        stop, _, camera = line.split(",")[:3]
+        return int(stop) in two_sites and (camera == "wac" or (hrc and int(stop) == two_sites[0]))
+
+    (folder / "panorama_frames.csv").write_text("".join(frames[:1] + [line for line in frames[1:] if kept(line)]))
+    return folder, two_sites
+
+
+def _truncated_stops_the_run_or_is_skipped(folder: Path, bad: Path, sites):
+    """`bad` truncated: loading stops with its name and every navigation stop's tracking kept;
+    with skip_bad_frames it loads, noting the frame. The data of that load."""
     bad.write_bytes(bad.read_bytes()[:3000])
     with pytest.raises(FrameError, match=rf"site panorama: .*{bad.name}: truncated PNG") as stopped:
         image_folder.load(folder)
     assert len(stopped.value.partial.traverse.stops) == len(sites[1].traverse.stops)  # all tracked, kept
     data = image_folder.load(folder, skip_bad_frames=True)
     assert any(bad.name in note for note in data.info.notes)
+    return data
+
+
+def test_a_bad_panorama_frame_stops_with_its_name_and_keeps_the_tracking_or_is_left_out(sites, tmp_path):
+    folder, two_sites = _first_two_sites(sites, tmp_path, hrc=False)
+    data = _truncated_stops_the_run_or_is_skipped(folder, read_observations(folder).panorama_frames[0].left, sites)
     expected = sum(len(s.panorama) for k, s in enumerate(sites[3]) if k in two_sites) - 1
     assert sum(len(s.panorama) for s in data.traverse.stops) == expected > 0
 
@@ -184,26 +199,9 @@ def test_a_bad_panorama_frame_stops_with_its_name_and_keeps_the_tracking_or_is_l
 def test_a_bad_hrc_frame_stops_with_its_name_or_is_left_out(sites, tmp_path):
     """An HRC frame that cannot be read stops the run with the frame's name, the navigation
     tracking kept; with skip_bad_frames it alone is left out of its site's HRC views."""
-    import shutil
-
-    from pancam_graph.errors import FrameError
-
-    folder = tmp_path / "copy"
-    shutil.copytree(sites[0], folder)
-    frames = (folder / "panorama_frames.csv").read_text().splitlines(keepends=True)
-    first, second = sorted({int(line.split(",")[0]) for line in frames[1:]})[:2]
-    # two sites' WAC frames and the first site's HRC frames (the test's time)
-    (folder / "panorama_frames.csv").write_text("".join(frames[:1] + [
-        line for line in frames[1:] if int(line.split(",")[0]) in (first, second)
-        and (line.split(",")[2] == "wac" or int(line.split(",")[0]) == first)]))
+    folder, _ = _first_two_sites(sites, tmp_path, hrc=True)
     hrc = [f for f in read_observations(folder).panorama_frames if f.camera == "hrc"]
-    bad = hrc[3].left
-    bad.write_bytes(bad.read_bytes()[:3000])
-    with pytest.raises(FrameError, match=rf"site panorama: .*{bad.name}: truncated PNG") as stopped:
-        image_folder.load(folder)
-    assert len(stopped.value.partial.traverse.stops) == len(sites[1].traverse.stops)  # all tracked, kept
-    data = image_folder.load(folder, skip_bad_frames=True)
-    assert any(bad.name in note for note in data.info.notes)
+    data = _truncated_stops_the_run_or_is_skipped(folder, hrc[3].left, sites)
     assert [len(s.hrc) for s in data.traverse.stops if s.hrc] == [len(hrc) - 1]
 
 

@@ -361,6 +361,7 @@ def test_a_noise_seed_draws_the_measurements_anew_over_the_same_world():
     own, own_truth = simulate(scenario, 3)
     again, again_truth = simulate(scenario.model_copy(update={"noise_seed": 7}), 3)
     np.testing.assert_array_equal(own_truth.world_T_body, again_truth.world_T_body)
+    # the field's landmarks (measured ties append their own fresh ones after them, a draw of the ties)
     np.testing.assert_array_equal(own_truth.landmarks[:1000], again_truth.landmarks[:1000])
     np.testing.assert_array_equal(own_truth.kinds["stereo_calibration"], again_truth.kinds["stereo_calibration"])
     assert own_truth.mast_angles == again_truth.mast_angles
