@@ -106,6 +106,8 @@ class HrcMatcher:
             inside = ((p_cam[:, 2] > s.min_range_m) & (p_h[:, 2] > s.min_range_m)
                       & (uv_h[:, 0] >= margin) & (uv_h[:, 0] <= hrc.width - 1 - margin)
                       & (uv_h[:, 1] >= margin) & (uv_h[:, 1] <= hrc.height - 1 - margin))
+            if not inside.any():  # most views lie outside the frame: no float copy of their image
+                continue
             left = view.left.astype(np.float32)
             n = view.body_T_camera[:3, :3].T @ np.array([0.0, 0.0, 1.0])  # the body's up, in the camera
             for j in np.flatnonzero(inside):

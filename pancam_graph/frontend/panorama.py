@@ -186,9 +186,9 @@ class PanoramaMatcher:
         p1, good = self._tracker.flow(warped, b.left, start.astype(np.float32), predicted[inside], levels=1)
         # the feature of b nearest to each flow end point
         b_uv = b.observations.uvv[:, [0, 2]]
-        distance = np.linalg.norm(p1[:, None, :] - b_uv[None, :, :], axis=2)
-        nearest = np.argmin(distance, axis=1)
-        good &= distance[np.arange(len(p1)), nearest] < LINK_PX
+        distance, nearest = cKDTree(b_uv).query(p1)
+        nearest = np.minimum(nearest, len(b_uv) - 1)  # a flow end point that is no number has none
+        good &= distance < LINK_PX
         # and the two frames' disparities agree with one depth (b's is a's point seen from b)
         expected = cam.fx * self.baseline_m / q[inside][:, 2]
         b_disparity = b.observations.uvv[nearest, 0] - b.observations.uvv[nearest, 1]

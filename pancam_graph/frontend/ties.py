@@ -80,6 +80,19 @@ class Tie:
     ncc: float
 
 
+@dataclass(frozen=True)
+class _Peak:
+    """A's feature found in b's left image by correlation, before its stereo match."""
+
+    track: int
+    a_view: int
+    a_uvv: np.ndarray
+    b_view: int
+    uv: np.ndarray
+    disparity_guess: float
+    ncc: float
+
+
 @dataclass
 class TieResult:
     ties: list[Tie] = field(default_factory=list)
@@ -109,12 +122,9 @@ class TieMatcher:
         ground = _Ground(points)
         candidates = self._candidates(a, b, points, prediction)
         result.candidates = len(candidates)
-        found = []
-        for track, a_view, a_index, b_view, radius_m in candidates:
-            match = self._match(a, b, track, a_view, a_index, b_view, radius_m, points[track].p_body, ground,
-                                prediction)
-            if match is not None:
-                found.append(match)
+        peaks = [self._match(a, b, track, a_view, a_index, b_view, radius_m, points[track].p_body, ground,
+                             prediction) for track, a_view, a_index, b_view, radius_m in candidates]
+        found = self._stereo(b, [peak for peak in peaks if peak is not None])
         strong = [m for m in found if m.ncc >= self.s.min_ncc]
         result.matches = strong
         result.ties = self.verify(strong, points, a, b, prediction, result)
@@ -157,13 +167,16 @@ class TieMatcher:
         # each point in b's frame, and its uncertainty there: the relative pose's and a's triangulation's
         # (not the calibration's: widening the search by it lost half of the ties of rendered
         # short_trail seed 1, drawn 1.3 sigma off, to ambiguous peaks and the search's limit)
-        p_b, radius = np.zeros((len(picked), 3)), np.zeros(len(picked))
-        h_pose, h_point = np.zeros((3, 6), order="F"), np.zeros((3, 3), order="F")
-        for k, track in enumerate(tracks):
-            point = points[int(track)]
-            p_b[k] = prediction.a_T_b.transformTo(point.p_body, h_pose, h_point)
-            cov = h_pose @ prediction.covariance @ h_pose.T + h_point @ point.cov_body @ h_point.T
-            radius[k] = 3.0 * np.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0))
+        # Pose3.transformTo for all at once: q = R^T (p - t), d q / d pose = [skew(q), -I] (GTSAM's
+        # [rotation, translation] tangent), d q / d p = R^T
+        rotation, shift = prediction.a_T_b.rotation().matrix(), prediction.a_T_b.translation()
+        p_b = (np.array([points[int(t)].p_body for t in tracks]) - shift) @ rotation
+        h_pose = np.zeros((len(p_b), 3, 6))
+        h_pose[:, :, :3] = _skews(p_b)
+        h_pose[:, :, 3:] = -np.eye(3)
+        cov_body = np.array([points[int(t)].cov_body for t in tracks])
+        cov = h_pose @ prediction.covariance @ np.transpose(h_pose, (0, 2, 1)) + rotation.T @ cov_body @ rotation
+        radius = 3.0 * np.sqrt(np.maximum(np.linalg.eigvalsh(cov[:, :2, :2])[:, -1], 0.0))
         radius = np.clip(radius, s.min_search_m, None)
         best_view = np.full(len(p_b), -1)
         best_room = np.zeros(len(p_b))
@@ -188,7 +201,7 @@ class TieMatcher:
     # -- matching ------------------------------------------------------------------------------------
 
     def _match(self, a: SitePanorama, b: SitePanorama, track, a_view, a_index, b_view, radius_m, p_a, ground,
-               prediction: RelativePose):
+               prediction: RelativePose) -> _Peak | None:
         s = self.s
         va, vb = a.views[a_view], b.views[b_view]
         # The orthoimages are laid on the ground where a's ray meets its neighbours' plane, not at
@@ -222,41 +235,54 @@ class TieMatcher:
         on_ground = p_a + ((x + dx - search) * e1 + (y + dy - search) * e2) * s.cell_m
         q = np.linalg.inv(camera_b_in_a) @ np.append(on_ground, 1.0)
         uv = self.camera.project(q[:3][None], distort=False)[0]
-        u_right = self._stereo(vb, uv, self.camera.fx * self.baseline_m / q[2])
-        if u_right is None:
-            return None
-        return Tie(track, a_view, va.observations.uvv[a_index].copy(), b_view, np.array([uv[0], u_right, uv[1]]),
-                   float(best))
+        return _Peak(track, a_view, va.observations.uvv[a_index].copy(), b_view, uv,
+                     self.camera.fx * self.baseline_m / q[2], float(best))
 
     def _ortho(self, image, frame_T_camera, centre, e1, e2, half):
         """The ground plane (through centre, spanned by e1, e2; frame coordinates) resampled
         from the image of a camera at frame_T_camera: (2 half + 1)^2 cells, each the mean of
         samples^2 pixels; None when it leaves the image."""
         s, cam = self.s, self.camera
-        g = ((np.arange(-half * s.samples, (half + 1) * s.samples) + 0.5) / s.samples - 0.5) * s.cell_m
+        n = 2 * half + 1
+        # sample (i, j) of the grid lies at x = step i + first along e1, y = step j + first along
+        # e2, and in the camera at R (centre + x e1 + y e2) + t: a plane, so the pixels are a
+        # homography of (i, j), warped as one (OpenCV rounds the positions to 1/32 px as remap does)
+        step = s.cell_m / s.samples
+        first = (0.5 - half * s.samples - 0.5 * s.samples) * step
         camera_T = np.linalg.inv(frame_T_camera)
         rotation, shift = camera_T[:3, :3], camera_T[:3, 3]
-        # the grid point (x along e1, y along e2) in the camera, R (centre + x e1 + y e2) + t, one
-        # axis at a time: no (n, n, 3) arrays (the window's are 400 x 400 samples)
-        c, a1, a2 = rotation @ centre + shift, rotation @ e1, rotation @ e2
-        qx, qy, qz = (c[k] + g[None, :] * a1[k] + g[:, None] * a2[k] for k in range(3))
-        if qz.min() <= 0.5:
+        a1, a2 = rotation @ e1, rotation @ e2
+        plane = np.column_stack([step * a1, step * a2, rotation @ centre + shift + first * (a1 + a2)])
+        last = n * s.samples - 1
+        corners = plane @ np.array([[0, last, 0, last], [0, 0, last, last], [1, 1, 1, 1]], float)
+        if corners[2].min() <= 0.5:  # the depth is linear over the grid: least at a corner
             return None
-        u = (cam.fx * qx / qz + cam.cx).astype(np.float32)
-        v = (cam.fy * qy / qz + cam.cy).astype(np.float32)
+        u = cam.fx * corners[0] / corners[2] + cam.cx  # and so are the pixels' extremes
+        v = cam.fy * corners[1] / corners[2] + cam.cy
         if u.min() < 0 or v.min() < 0 or u.max() > cam.width - 1 or v.max() > cam.height - 1:
             return None
-        fine = cv2.remap(image, u, v, cv2.INTER_LINEAR).astype(np.float32)
-        n = 2 * half + 1
+        fine = cv2.warpPerspective(image, cam.matrix() @ plane, (last + 1, last + 1),
+                                   flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP).astype(np.float32)
         return cv2.resize(fine, (n, n), interpolation=cv2.INTER_AREA)
 
-    def _stereo(self, view, uv, disparity_guess) -> float | None:
-        """The right image's column of left pixel uv: the tracker's stereo optical flow (same row,
-        disparity in range, forward-backward checked) from the predicted disparity."""
-        left = np.float32([uv])
-        right, ok = self._tracker.flow(view.left, view.right, left, left - np.float32([disparity_guess, 0.0]),
-                                       levels=2, accept=lambda right_uv: self._tracker.stereo_ok(left, right_uv))
-        return float(right[0, 0]) if ok[0] else None
+    def _stereo(self, b: SitePanorama, peaks: list[_Peak]) -> list[Tie]:
+        """The peaks found in b's right images, in their order: the tracker's stereo optical flow
+        (same row, disparity in range, forward-backward checked) from the predicted disparity.
+        One flow call per view: Lucas-Kanade follows each point on its own, so the columns are
+        those of one call per point, at a fraction of the calls' fixed cost."""
+        right_u = np.full(len(peaks), np.nan)
+        views = np.array([peak.b_view for peak in peaks], int)
+        for b_view in np.unique(views):
+            index = np.flatnonzero(views == b_view)
+            left = np.float32([peaks[k].uv for k in index])
+            shift = np.zeros((len(index), 2), np.float32)
+            shift[:, 0] = [peaks[k].disparity_guess for k in index]
+            view = b.views[int(b_view)]
+            right, ok = self._tracker.flow(view.left, view.right, left, left - shift, levels=2,
+                                           accept=lambda right_uv, left=left: self._tracker.stereo_ok(left, right_uv))
+            right_u[index[ok]] = right[ok, 0]
+        return [Tie(peak.track, peak.a_view, peak.a_uvv, peak.b_view, np.array([peak.uv[0], float(u), peak.uv[1]]),
+                    peak.ncc) for peak, u in zip(peaks, right_u, strict=True) if np.isfinite(u)]
 
     # -- verification --------------------------------------------------------------------------------
 
@@ -413,7 +439,7 @@ def _refine(motion, p, cov_p, q, cov_q, iterations: int = 5) -> tuple[np.ndarray
         moved = p @ r.T + motion[:3, 3]
         weights = np.linalg.inv(r @ cov_p @ r.T + cov_q)
         jac = np.zeros((len(p), 3, 6))
-        jac[:, :, :3] = -np.array([_skew(x) for x in moved])
+        jac[:, :, :3] = -_skews(moved)
         jac[:, :, 3:] = np.eye(3)
         jt_w = np.transpose(jac, (0, 2, 1)) @ weights
         information = (jt_w @ jac).sum(axis=0) + 1e-12 * np.eye(6)
@@ -434,8 +460,12 @@ def _mahalanobis2(motion, p, cov_p, q, cov_q) -> np.ndarray:
     return np.einsum("ni,ni->n", diff, np.linalg.solve(cov, diff[..., None])[..., 0])
 
 
-def _skew(x: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -x[2], x[1]], [x[2], 0.0, -x[0]], [-x[1], x[0], 0.0]])
+def _skews(x: np.ndarray) -> np.ndarray:
+    """The cross-product matrix [x]x of each row of x (n x 3): (n, 3, 3)."""
+    out = np.zeros((len(x), 3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -x[:, 2], x[:, 1], -x[:, 0]
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = x[:, 2], -x[:, 1], x[:, 0]
+    return out
 
 
 def _inliers(motion, p, cov_p, q, cov_q) -> np.ndarray:

@@ -118,36 +118,41 @@ class MatchedSite:
     site: SitePanorama
     skipped: tuple[str, ...]  # notes of the frames left out
     ground: GroundPatch | None
+    hrc_frames: tuple[tuple[object, np.ndarray], ...] = ()  # (PanoramaImage, grey image) of each HRC frame read
 
 
 def matched_sites(obs: ObservationSet, n_stops: int, read_pair: ReadViewPair, frontend: FrontendConfig,
-                  skip_bad_frames: bool = False, hrc: bool = False, orthoimage: bool = False
+                  skip_bad_frames: bool = False, read_hrc: ReadHrc | None = None, orthoimage: bool = False
                   ) -> Iterator[MatchedSite]:
     """Each site of the first `n_stops` stops matched in stop order, its track ids numbered on
-    from the last site's (one PanoramaMatcher); `hrc`: the features under the HRC frames'
-    footprints kept; `orthoimage`: with its ground patch (SGBM on every pair, seconds a site, so
-    only when it will be used). A frame that cannot be read raises InputError here, or with
-    `skip_bad_frames` is noted and left out."""
+    from the last site's (one PanoramaMatcher); with `read_hrc`: its HRC frames read and the
+    features under their footprints kept; `orthoimage`: with its ground patch (SGBM on every
+    pair, seconds a site, so only when it will be used). A frame that cannot be read raises
+    InputError here, or with `skip_bad_frames` is noted and left out."""
     rig = obs.traverse.rig
     matcher = PanoramaMatcher(rig.wac, rig.baseline_m, frontend, first_id=TRACK_OFFSET)
-    hrc_images = images_by_stop(obs, "hrc") if hrc else {}
+    hrc_images = images_by_stop(obs, "hrc") if read_hrc is not None else {}
     by_stop = [(stop, images) for stop, images in images_by_stop(obs).items() if stop < n_stops]
 
-    def read_site(site: tuple[int, list]) -> tuple[list, list[str]]:
-        """The site's frames with their pairs, and the notes of those skipped."""
+    def read_site(site: tuple[int, list]) -> tuple[list, list, list[str]]:
+        """The site's frames with their pairs, its HRC frames with their images, and the notes
+        of those skipped."""
         read = SiteReport()
-        return list(_readable(site[1], read_pair, "frame", skip_bad_frames, read)), read.skipped
+        frames = list(_readable(site[1], read_pair, "frame", skip_bad_frames, read))
+        hrc = list(_readable(hrc_images.get(site[0], ()), read_hrc, "HRC frame", skip_bad_frames, read))
+        return frames, hrc, read.skipped
 
     # the next site's frames are read while this one is matched
     for (stop, images), reading in read_ahead(by_stop, read_site):
-        frames, skipped = reading.result()
+        frames, hrc_frames, skipped = reading.result()
         views = [PanoramaView(im.pan_rad, im.tilt_rad, rig.body_T_left(im.pan_rad, im.tilt_rad).matrix(), *pair)
                  for im, pair in frames]
-        hrc_frames = hrc_images.get(stop, ())
-        focus = hrc_footprints(rig, views, [(im.pan_rad, im.tilt_rad) for im in hrc_frames]) if hrc_frames else None
+        # the footprints of every HRC frame taken, read or not: a frame left out keeps the site as it was
+        taken = hrc_images.get(stop, ())
+        focus = hrc_footprints(rig, views, [(im.pan_rad, im.tilt_rad) for im in taken]) if taken else None
         site = matcher(stop, images[0].site, views, focus)
         ground = ground_patch(views, rig.wac, rig.baseline_m) if orthoimage and views else None
-        yield MatchedSite(stop, site, tuple(skipped), ground)
+        yield MatchedSite(stop, site, tuple(skipped), ground, tuple(hrc_frames))
 
 
 def uses_orthoimage(obs: ObservationSet, estimator: EstimatorConfig) -> bool:
@@ -176,10 +181,9 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
     motions = vo.motions
     ties = TieMatcher(rig, obs.traverse.image_noise_px, calibration_sigmas=calibration_sigmas(vo.estimator))
     hrc_matcher = HrcMatcher(rig) if read_hrc is not None and rig.hrc is not None else None
-    hrc_images = images_by_stop(obs, "hrc")
     if matched is None:
-        matched = matched_sites(obs, len(stops), read_pair, frontend, skip_bad_frames, hrc_matcher is not None,
-                                uses_orthoimage(obs, vo.estimator))
+        matched = matched_sites(obs, len(stops), read_pair, frontend, skip_bad_frames,
+                                read_hrc if hrc_matcher is not None else None, uses_orthoimage(obs, vo.estimator))
     recent: list[SitePanorama] = []
     stops = list(stops)
     for done, one in enumerate(matched):
@@ -198,8 +202,7 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
             report.pairs.append(SitePairTies(earlier.stop, stop, distance, prediction, result))
         hrc = []
         if hrc_matcher is not None:
-            hrc = [hrc_matcher(site, im.pan_rad, im.tilt_rad, image) for im, image in
-                   _readable(hrc_images.get(stop, ()), read_hrc, "HRC frame", skip_bad_frames, report)]
+            hrc = [hrc_matcher(site, im.pan_rad, im.tilt_rad, image) for im, image in one.hrc_frames]
             report.hrc[stop] = hrc
         stops[stop] = replace(stops[stop], site_id=site.site, panorama=tuple(
             PanoramaFrame(v.pan_rad, v.tilt_rad, v.observations) for v in site.views),
