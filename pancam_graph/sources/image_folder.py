@@ -112,9 +112,8 @@ def load(folder: Path, frontend: FrontendConfig | None = None,
         return track_frames(obs.traverse.stops, read_pair, tracker, finish, skip_bad_frames, progress, camera_motion)
     has_hrc = obs.traverse.rig.hrc is not None and any(p.camera == "hrc" for p in obs.panorama_frames)
     # each site's panorama is matched on a thread of its own while the navigation frames are
-    # tracked and the VO estimated: only its ties need the VO. Up to three sites ahead (about
-    # 60 MB of images each): one ahead left that thread waiting through most of the tracking and
-    # the VO's core idle (docs/performance.md)
+    # tracked and the VO estimated: only its ties need the VO. Three sites ahead: one left that
+    # thread waiting and the VO's core idle (docs/performance.md)
     matching = matched_sites(obs, len(obs.traverse.stops), pairs.read_view, frontend, skip_bad_frames,
                              pairs.read_hrc if has_hrc else None, uses_orthoimage(obs, obs.estimator))
     with heap_for_image_work(), Ahead(matching, depth=3) as matched:
