@@ -147,7 +147,8 @@ def matched_sites(obs: ObservationSet, n_stops: int, read_pair: ReadViewPair, fr
         frames, hrc_frames, skipped = reading.result()
         views = [PanoramaView(im.pan_rad, im.tilt_rad, rig.body_T_left(im.pan_rad, im.tilt_rad).matrix(), *pair)
                  for im, pair in frames]
-        # the footprints of every HRC frame taken, read or not: a frame left out keeps the site as it was
+        # every HRC frame's footprint, read or not: the features a site keeps do not depend on
+        # which of its HRC frames could be read
         taken = hrc_images.get(stop, ())
         focus = hrc_footprints(rig, views, [(im.pan_rad, im.tilt_rad) for im in taken]) if taken else None
         site = matcher(stop, images[0].site, views, focus)
