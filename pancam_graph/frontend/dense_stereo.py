@@ -37,21 +37,11 @@ def dense_points(left: np.ndarray, right: np.ndarray, camera: Camera, baseline_m
                  max_range_m: float = 40.0) -> np.ndarray:
     """Points (N, 3) in the rectified left camera's frame from one rectified pair, out to
     `max_range_m` along the optical axis."""
-    disparity, least, _ = _disparity(left, right, camera, baseline_m, max_range_m)
-    rows, cols = np.mgrid[GRID_PX // 2:disparity.shape[0]:GRID_PX, GRID_PX // 2:disparity.shape[1]:GRID_PX]
-    points = _triangulated(disparity, rows, cols, least, camera, baseline_m)
-    return points[(points[:, 2] > MIN_RANGE_M) & (points[:, 2] <= max_range_m)]
-
-
-def _disparity(left: np.ndarray, right: np.ndarray, camera: Camera, baseline_m: float, max_range_m: float
-               ) -> tuple[np.ndarray, int, np.ndarray]:
-    """SGBM's disparity (at the matched resolution, in its pixels), the least disparity searched
-    and the left image at that resolution."""
     _check_pair(left, right)
-    small_l, small_r = (cv2.resize(im, None, fx=1 / SCALE, fy=1 / SCALE, interpolation=cv2.INTER_AREA)
-                        for im in (left, right))
-    least, matcher = _sgbm(camera.fx / SCALE, baseline_m, MIN_RANGE_M, max_range_m)
-    return matcher.compute(small_l, small_r).astype(np.float32) / 16.0, least, small_l
+    disparity = _matched(left, right, camera, baseline_m, SCALE, MIN_RANGE_M, max_range_m).disparity
+    rows, cols = np.mgrid[GRID_PX // 2:disparity.shape[0]:GRID_PX, GRID_PX // 2:disparity.shape[1]:GRID_PX]
+    points = _triangulated(disparity, rows, cols, camera, baseline_m)
+    return points[(points[:, 2] > MIN_RANGE_M) & (points[:, 2] <= max_range_m)]
 
 
 def _check_pair(left: np.ndarray, right: np.ndarray) -> None:
@@ -72,16 +62,16 @@ def _sgbm(focal_px: float, baseline_m: float, nearest_m: float, farthest_m: floa
                                         mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
 
 
-def _triangulated(disparity: np.ndarray, rows: np.ndarray, cols: np.ndarray, least: int, camera: Camera,
-                  baseline_m: float, scale: int = SCALE) -> np.ndarray:
+def _triangulated(disparity: np.ndarray, rows: np.ndarray, cols: np.ndarray, camera: Camera, baseline_m: float,
+                  scale: int = SCALE) -> np.ndarray:
     """Points (N, 3), left camera frame, of the pixels (rows, cols) of a disparity image matched
-    at 1/scale resolution; NaN rows where there is no disparity above `least`."""
+    at 1/scale resolution (_Matched's); NaN rows where it has none."""
     d = disparity[rows, cols]
     # back to full-resolution pixels (pixel centres: u_full = scale (u + 0.5) - 0.5)
     u = scale * (cols + 0.5) - 0.5
     v = scale * (rows + 0.5) - 0.5
     points = triangulate_rectified(u.ravel(), (u - scale * d).ravel(), v.ravel(), camera, baseline_m)
-    points[~(d > least).ravel()] = np.nan
+    points[~(d > 0).ravel()] = np.nan  # NaN where SGBM found none (_matched)
     return points
 
 
@@ -128,6 +118,20 @@ class _Matched:
     scale: int
 
 
+def _matched(left: np.ndarray, right: np.ndarray, camera: Camera, baseline_m: float, scale: int, nearest_m: float,
+             farthest_m: float, rows: slice = slice(None)) -> _Matched:
+    """SGBM over a pair at 1/scale resolution for ground from `nearest_m` to `farthest_m`, on
+    `rows` (of that resolution) only."""
+    small_l, small_r = (cv2.resize(im, None, fx=1 / scale, fy=1 / scale, interpolation=cv2.INTER_AREA)
+                        for im in (left, right))
+    least, matcher = _sgbm(camera.fx / scale, baseline_m, nearest_m, farthest_m)
+    disparity = np.full(small_l.shape, np.nan, np.float32)
+    found = matcher.compute(small_l[rows], small_r[rows]).astype(np.float32) / 16.0
+    found[~(found > least)] = np.nan
+    disparity[rows] = found
+    return _Matched(disparity, small_l, scale)
+
+
 def _ground_passes(left: np.ndarray, right: np.ndarray, camera: Camera, baseline_m: float, max_range_m: float
                    ) -> list[_Matched]:
     """A pair matched twice for its ground: the whole range at 1/NEAR_SCALE resolution, then at
@@ -138,18 +142,8 @@ def _ground_passes(left: np.ndarray, right: np.ndarray, camera: Camera, baseline
     coarse pass's check on the fine one's narrower search), a near one where the coarse pass
     puts it within NEAR_M. The near pass, then the far one where there is ground beyond NEAR_M."""
 
-    def matched(scale: int, nearest_m: float, rows: slice = slice(None)) -> _Matched:
-        small_l, small_r = (cv2.resize(im, None, fx=1 / scale, fy=1 / scale, interpolation=cv2.INTER_AREA)
-                            for im in (left, right))
-        least, matcher = _sgbm(camera.fx / scale, baseline_m, nearest_m, max_range_m)
-        disparity = np.full(small_l.shape, np.nan, np.float32)
-        found = matcher.compute(small_l[rows], small_r[rows]).astype(np.float32) / 16.0
-        found[~(found > least)] = np.nan
-        disparity[rows] = found
-        return _Matched(disparity, small_l, scale)
-
     _check_pair(left, right)
-    near = matched(NEAR_SCALE, MIN_RANGE_M)
+    near = _matched(left, right, camera, baseline_m, NEAR_SCALE, MIN_RANGE_M, max_range_m)
     boundary = camera.fx * baseline_m / NEAR_M  # full-resolution disparity of ground at NEAR_M
     near_full = NEAR_SCALE * near.disparity
     passes = [_Matched(np.where(near_full >= boundary, near.disparity, np.nan), near.small_left, NEAR_SCALE)]
@@ -157,7 +151,8 @@ def _ground_passes(left: np.ndarray, right: np.ndarray, camera: Camera, baseline
     if not len(beyond):
         return passes
     ratio, pad = NEAR_SCALE // SCALE, 8  # pad: SGBM's block and its paths near the crop's edge
-    far = matched(SCALE, NEAR_M / 2, slice(max(beyond[0] * ratio - pad, 0), (beyond[-1] + 1) * ratio + pad))
+    far = _matched(left, right, camera, baseline_m, SCALE, NEAR_M / 2, max_range_m,
+                   slice(max(beyond[0] * ratio - pad, 0), (beyond[-1] + 1) * ratio + pad))
     coarse = np.repeat(np.repeat(near_full, ratio, axis=0), ratio, axis=1)
     shape = far.disparity.shape
     coarse = np.pad(coarse, ((0, shape[0] - coarse.shape[0]), (0, shape[1] - coarse.shape[1])), constant_values=np.nan)
@@ -170,7 +165,7 @@ def _on_the_ground(view, matched: _Matched, camera: Camera, baseline_m: float, m
     """One pass's matched pixels in the body frame (N, 3), and their grey levels, out to
     `max_range_m`."""
     rows, cols = np.nonzero(np.isfinite(matched.disparity))  # the matched pixels only
-    p_cam = _triangulated(matched.disparity, rows, cols, 0, camera, baseline_m, matched.scale)
+    p_cam = _triangulated(matched.disparity, rows, cols, camera, baseline_m, matched.scale)
     keep = (p_cam[:, 2] > MIN_RANGE_M) & (p_cam[:, 2] <= max_range_m)
     rotation, shift = view.body_T_camera[:3, :3], view.body_T_camera[:3, 3]
     return p_cam[keep] @ rotation.T + shift, matched.small_left[rows[keep], cols[keep]].astype(np.float64)

@@ -137,10 +137,10 @@ def matched_sites(obs: ObservationSet, n_stops: int, read_pair: ReadViewPair, fr
     def read_site(site: tuple[int, list]) -> tuple[list, list, list[str]]:
         """The site's frames with their pairs, its HRC frames with their images, and the notes
         of those skipped."""
-        read = SiteReport()
-        frames = list(_readable(site[1], read_pair, "frame", skip_bad_frames, read))
-        hrc = list(_readable(hrc_images.get(site[0], ()), read_hrc, "HRC frame", skip_bad_frames, read))
-        return frames, hrc, read.skipped
+        skipped: list[str] = []
+        frames = list(_readable(site[1], read_pair, "frame", skip_bad_frames, skipped))
+        hrc = list(_readable(hrc_images.get(site[0], ()), read_hrc, "HRC frame", skip_bad_frames, skipped))
+        return frames, hrc, skipped
 
     # the next site's frames are read while this one is matched
     for (stop, images), reading in read_ahead(by_stop, read_site):
@@ -215,16 +215,16 @@ def with_site_panoramas(obs: ObservationSet, stops: list[Stop], read_pair: ReadV
     return stops, report
 
 
-def _readable(images: list, read: Callable, what: str, skip_bad_frames: bool, report: SiteReport):
+def _readable(images: list, read: Callable, what: str, skip_bad_frames: bool, skipped: list[str]):
     """(frame, what `read` made of it) for each frame; one that cannot be read stops with its
-    message or, with `skip_bad_frames`, is noted in the report and left out."""
+    message or, with `skip_bad_frames`, is noted in `skipped` and left out."""
     for im in images:
         try:
             data = read(im)
         except InputError as exc:
             if not skip_bad_frames:
                 raise
-            report.skipped.append(f"site {im.site} {what} skipped: {exc}")
+            skipped.append(f"site {im.site} {what} skipped: {exc}")
             continue
         yield im, data
 
