@@ -54,6 +54,19 @@ class RelinearizeThresholds:
         return thresholds
 
 
+@dataclass(frozen=True)
+class RobustWeights:
+    """The weight each robust factor of the window gets from its kernel: at iSAM2's linearization
+    point (the weight the solve uses: GTSAM's Robust model weighs a factor by its residual where it
+    was linearized) and at the current estimate (the weight it deserves). A stereo tie's whitened
+    residual moves by several sigma for a centimetre between its pose's and its landmark's
+    linearization points, so under a relinearization threshold of 0.1 m the two disagree
+    (docs/performance.md, "Robust weights at stale linearization points")."""
+
+    at_linearization: np.ndarray  # (N,)
+    at_estimate: np.ndarray  # (N,)
+
+
 class Smoother:
     """Collect new factors and values, update iSAM2 once, clear: GTSAM's incremental loop.
 
@@ -345,6 +358,25 @@ class Smoother:
             names = ", ".join(gtsam.Symbol(k).string() for k in keys)
             raise GraphError(f"joint marginal covariance of {names} failed: {exc}") from None
         return np.block([[np.atleast_2d(joint.at(a, b)) for b in keys] for a in keys])
+
+    def robust_weights(self) -> RobustWeights:
+        """Every robust factor's kernel weight in the window, at the linearization point and at
+        the estimate (RobustWeights)."""
+        try:
+            estimate = self.isam.calculateEstimate()
+            graph = self.isam.getFactors()
+            at_linearization, at_estimate = [], []
+            for i in range(graph.size()):
+                factor = graph.at(i)
+                model = factor.noiseModel() if isinstance(factor, gtsam.NoiseModelFactor) else None
+                if not isinstance(model, gtsam.noiseModel.Robust):
+                    continue
+                for values, out in ((self._linearization_point, at_linearization), (estimate, at_estimate)):
+                    residual = np.linalg.norm(model.noise().whiten(factor.unwhitenedError(values)))
+                    out.append(model.robust().weight(residual))
+        except RuntimeError as exc:
+            raise GraphError(f"robust weights of the window's factors failed: {exc}") from None
+        return RobustWeights(np.array(at_linearization), np.array(at_estimate))
 
     def window_estimate(self) -> gtsam.Values:
         """The window's current estimate, back-substituted in full (the per-stop queries stop
