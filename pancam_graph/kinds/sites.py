@@ -265,13 +265,17 @@ class Sites(Kind):
                 self._add_observations(site, track, gated=site is not earlier)
             self._add_observations(current, track, gated=False)
             added += 1
-        # Landmarks already in the graph (tied earlier) seen again from here, unless they left
-        # the window (those in it are those with a reference); a landmark that did is forgotten
-        # (no factor will touch it again).
+        # Landmarks already in the graph (tied earlier) seen again from here, unless they or the
+        # site they are gated against left the window (those in it are those with a reference); a
+        # landmark that did is forgotten (no factor will touch it again). A landmark leaves with
+        # its first site, except one tied as that site was leaving (Smoother.insert): it can
+        # outlive the site.
+        live = self.loc.smoother.live
+        self.references = {t: r for t, r in self.references.items() if live(L(t)) and live(X(r.stop))}
         tied_now = set(tracks)
         for track in sorted(t for t in current.stereo.keys() if t in self.references and t not in tied_now):
             self._add_observations(current, track, gated=True)
-        self.references = {t: r for t, r in self.references.items() if self.loc.smoother.live(L(t))}
+        self.references = {t: r for t, r in self.references.items() if live(L(t))}
         self._last_viewed_from = {t: p for t, p in self._last_viewed_from.items() if t in self.references}
 
         self.rejected_ties += rejected
