@@ -21,7 +21,7 @@ import argparse
 
 import numpy as np
 
-from pancam_graph.config import DEFAULT_CONFIGURATIONS, load_scenario, resolve_scenario
+from pancam_graph.config import load_scenario, resolve_scenario
 from pancam_graph.frontend.motion import motion_between
 from pancam_graph.frontend.stereo_vo import StereoVO
 from pancam_graph.sim import simulate
@@ -47,7 +47,7 @@ def main() -> None:
         estimator = estimator.model_copy(update={"sites": estimator.sites.model_copy(update={"kernel": args.kernel})})
     traverse, _ = simulate(scenario, args.seed)
     vo = StereoVO.for_traverse(traverse, estimator)
-    localizer = Localizer(traverse, DEFAULT_CONFIGURATIONS[args.config], estimator, seed=args.seed)
+    localizer = Localizer(traverse, estimator.configurations[args.config], estimator, seed=args.seed)
     motion, next_print = None, args.every_m
     print(f"{scenario.name} seed {args.seed}, {args.config}, relinearize_translation_m "
           f"{estimator.relinearize_translation_m:g}, sites' kernel {estimator.sites.kernel}")

@@ -237,6 +237,17 @@ def triangulate_rectified(u_left, u_right, v, camera: Camera, baseline_m: float)
     return np.column_stack([x, y, z])
 
 
+def project_rectified(points: np.ndarray, camera: Camera, baseline_m: float) -> np.ndarray:
+    """(u_left, u_right, v) (N, 3) of points (N, 3) in the left camera frame through the rectified
+    pair (triangulate_rectified's inverse; GTSAM's StereoCamera.project2); NaN behind the camera."""
+    points = np.asarray(points, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inverse_depth = np.where(points[:, 2] > 0, 1.0 / points[:, 2], np.nan)
+    u_left = camera.fx * points[:, 0] * inverse_depth + camera.cx
+    return np.column_stack([u_left, u_left - camera.fx * baseline_m * inverse_depth,
+                            camera.fy * points[:, 1] * inverse_depth + camera.cy])
+
+
 def triangulation_jacobian(points: np.ndarray, baseline_m: float, fx: float, fy: float | None = None) -> np.ndarray:
     """d(X, Y, Z) / d(u_left, u_right, v) of eq. (2.28) at left-camera points (N, 3): the dissertation's
     (3.2) with the elevation row kept. With disparity d = B fx / Z:

@@ -49,8 +49,16 @@ def stereo_tie(sigma_px: float, tie_sigma_px: float) -> gtsam.noiseModel.Base:
     13.6-18 of 6 at 50 m; tests/graph/test_tie_matching.py)."""
     if tie_sigma_px == 0.0:
         return stereo_pixels(sigma_px)
-    shared = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
-    return gtsam.noiseModel.Gaussian.Covariance(sigma_px**2 * np.eye(3) + tie_sigma_px**2 * shared)
+    return gtsam.noiseModel.Gaussian.Covariance(stereo_tie_covariance(sigma_px, tie_sigma_px))
+
+
+def stereo_tie_covariance(sigma_px: float, tie_sigma_px: float | np.ndarray) -> np.ndarray:
+    """stereo_tie's covariance (px^2): (3, 3), or (N, 3, 3) for N matcher's errors."""
+    tie_variance = np.asarray(tie_sigma_px, dtype=float) ** 2
+    return sigma_px**2 * np.eye(3) + tie_variance[..., None, None] * _BOTH_EYES_U
+
+
+_BOTH_EYES_U = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # what the matcher's error moves
 
 
 def image_pixels(sigma_px: float) -> gtsam.noiseModel.Base:

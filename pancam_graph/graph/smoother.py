@@ -113,6 +113,10 @@ class Smoother:
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
         self._new_rebuild: dict[int, Rebuild] = {}
+        self._new_tracked: list[int] = []  # positions among the new factors whose iSAM2 index is kept
+        self._tracked: dict[tuple[int, int], int] = {}  # ticket (update, position) -> iSAM2 factor index
+        self._remove: list[int] = []  # iSAM2 factor indices the next update removes
+        self._replaced: list[tuple[int, int]] = []  # and their tickets
         # every update's wall time and the variables it relinearized, summed: a step reads what its
         # updates added (a list an update grew with the traverse)
         self.update_ms_sum = 0.0
@@ -133,15 +137,33 @@ class Smoother:
         self._linearization_point = isam.getLinearizationPoint()  # see the held linearization point, above
         return isam
 
-    def add(self, factor: gtsam.NonlinearFactor, rebuild: Rebuild | None = None) -> None:
+    def add(self, factor: gtsam.NonlinearFactor, rebuild: Rebuild | None = None,
+            tracked: bool = False) -> tuple[int, int] | None:
         """Collect a factor; a Python CustomFactor needs `rebuild`, (function, arguments) that
-        make it again, to survive a checkpoint."""
+        make it again, to survive a checkpoint. `tracked`: a factor that may be replaced later
+        (`replace`): its ticket is returned."""
         self._in_window(*factor.keys())
+        position = self._new_factors.size()
         if isinstance(factor, gtsam.CustomFactor):
             if rebuild is None:
                 raise GraphError("a CustomFactor needs its rebuild recipe to be checkpointed")
-            self._new_rebuild[self._new_factors.size()] = rebuild
+            self._new_rebuild[position] = rebuild
         self._new_factors.add(factor)
+        if not tracked:
+            return None
+        self._new_tracked.append(position)
+        return (self.log.update_count, position)
+
+    def replace(self, ticket: tuple[int, int], factor: gtsam.NonlinearFactor,
+                rebuild: Rebuild | None = None) -> tuple[int, int] | None:
+        """Take a tracked factor out in the next update and put `factor` in its place."""
+        self._remove.append(self._tracked.pop(ticket))
+        self._replaced.append(ticket)
+        return self.add(factor, rebuild, tracked=True)
+
+    def forget(self, ticket: tuple[int, int]) -> None:
+        """A tracked factor that left the window with its variables."""
+        self._tracked.pop(ticket, None)
 
     def insert(self, key: int, value, shared: bool = False, leaves_with: int | None = None) -> None:
         """A new variable and its initial value. `shared`: one that factors all along the traverse
@@ -169,7 +191,7 @@ class Smoother:
         self._freeze(leaving)
         start = time.perf_counter()
         try:
-            self.isam.update(self._new_factors, self._new_values, stamps)
+            self.isam.update(self._new_factors, self._new_values, stamps, self._remove)
         except (RuntimeError, ValueError) as exc:  # GTSAM's exceptions arrive as either
             if self.factorization != "CHOLESKY":
                 raise GraphError(f"iSAM2 update failed {context}: {exc}") from None
@@ -177,17 +199,23 @@ class Smoother:
             self._replay()
             self._freeze(leaving)  # as QR's iSAM2 has them
             try:
-                self.isam.update(self._new_factors, self._new_values, stamps)
+                self.isam.update(self._new_factors, self._new_values, stamps, self._remove)
             except (RuntimeError, ValueError) as exc:
                 raise GraphError(f"iSAM2 update failed {context}: {exc}") from None
+        if self._new_tracked:
+            indices = self.isam.getISAM2Result().getNewFactorsIndices()
+            for position in self._new_tracked:
+                self._tracked[(self.log.update_count, position)] = indices[position]
         self._back_substitute()
         elapsed = (time.perf_counter() - start) * 1e3
         self.frozen.write_full()  # no replay will freeze these again now
         self._left_covariances.write_full()
-        self.log.append(self._new_factors, self._new_values, stamps, self._new_rebuild)
+        self.log.append(self._new_factors, self._new_values, stamps, self._new_rebuild, self._remove, self._replaced)
         self._new_factors = gtsam.NonlinearFactorGraph()
         self._new_values = gtsam.Values()
         self._new_rebuild = {}
+        self._new_tracked = []
+        self._remove, self._replaced = [], []
         self.update_ms_sum += elapsed
         self.relinearized_sum += self.isam.getISAM2Result().getVariablesRelinearized()
         return elapsed
@@ -288,7 +316,7 @@ class Smoother:
         self.isam = self._new_isam()
         for update in self.log:
             try:
-                self.isam.update(update.factors, update.values, update.stamps)
+                self.isam.update(update.factors, update.values, update.stamps, update.removed)
                 self._back_substitute()
             except (RuntimeError, ValueError) as exc:
                 raise GraphError(f"rebuilding iSAM2 by replaying its updates failed: {exc}") from None
@@ -468,7 +496,7 @@ class Smoother:
         inserted, stamps)."""
         step = None
         factors, inserted, stamps = gtsam.NonlinearFactorGraph(), [], {}
-        for update in self.log:
+        for update in self.log.kept():
             # an update may insert only landmarks, stamped with their anchor's (earlier) clock
             now = max([*update.stamps.values(), *([] if step is None else [step])], default=None)
             if now != step and (factors.size() or inserted):

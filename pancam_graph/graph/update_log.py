@@ -11,6 +11,7 @@ log does.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import pickle
 import shutil
@@ -43,6 +44,9 @@ class Update:
     values: gtsam.Values
     stamps: dict[int, float]
     rebuild: dict[int, Rebuild]
+    removed: list[int] = dataclasses.field(default_factory=list)  # iSAM2 factor indices it removed
+    # the same factors as (update, position among its new factors): the graph without them
+    replaced: list[tuple[int, int]] = dataclasses.field(default_factory=list)
 
 
 class _Updates:
@@ -61,13 +65,14 @@ class _Updates:
                     plain.add(update.factors.at(i))
             values.insert(update.values)
         values, scalars = picklable(values)
-        shapes = [(u.factors.size(), u.rebuild, list(u.values.keys()), u.stamps) for u in self.updates]
+        shapes = [(u.factors.size(), u.rebuild, list(u.values.keys()), u.stamps, u.removed, u.replaced)
+                  for u in self.updates]
         return {"plain": plain, "values": values, "scalars": scalars, "shapes": shapes}
 
     def __setstate__(self, state: dict) -> None:
         plain, values = state["plain"], with_scalars(state["values"], state["scalars"])
         self.updates, taken = [], 0
-        for count, rebuild, keys, stamps in state["shapes"]:
+        for count, rebuild, keys, stamps, removed, replaced in state["shapes"]:
             factors = gtsam.NonlinearFactorGraph()
             for i in range(count):
                 if i in rebuild:
@@ -76,7 +81,7 @@ class _Updates:
                 else:
                     factors.add(plain.at(taken))
                     taken += 1
-            self.updates.append(Update(factors, subset(values, keys), stamps, rebuild))
+            self.updates.append(Update(factors, subset(values, keys), stamps, rebuild, removed, replaced))
 
 
 class UpdateLog:
@@ -92,8 +97,9 @@ class UpdateLog:
         self.update_count = 0
 
     def append(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, stamps: dict[int, float],
-               rebuild: dict[int, Rebuild]) -> None:
-        self.tail.append(Update(factors, values, stamps, rebuild))
+               rebuild: dict[int, Rebuild], removed: list[int] | None = None,
+               replaced: list[tuple[int, int]] | None = None) -> None:
+        self.tail.append(Update(factors, values, stamps, rebuild, list(removed or []), list(replaced or [])))
         self.factor_count += factors.size()
         self.update_count += 1
         if len(self.tail) >= CHUNK_UPDATES:
@@ -105,11 +111,25 @@ class UpdateLog:
         yield from self.tail
 
     def all_factors(self) -> gtsam.NonlinearFactorGraph:
-        """Every factor ever added, in order (the whole traverse's graph: it all comes into memory)."""
+        """Every factor ever added and not replaced, in order (the whole traverse's graph: it all
+        comes into memory)."""
         graph = gtsam.NonlinearFactorGraph()
-        for update in self:
+        for update in self.kept():
             graph.push_back(update.factors)
         return graph
+
+    def kept(self) -> Iterator[Update]:
+        """The updates with the factors a later update replaced taken out of them (the graph as
+        it stands: for the batch polish and the bound, which build it anew)."""
+        replaced = {ticket for update in self for ticket in update.replaced}
+        for number, update in enumerate(self):
+            if any(ticket[0] == number for ticket in replaced):
+                factors = gtsam.NonlinearFactorGraph()
+                for position in range(update.factors.size()):
+                    if (number, position) not in replaced:
+                        factors.add(update.factors.at(position))
+                update = dataclasses.replace(update, factors=factors)
+            yield update
 
     def keep_in(self, folder: Path) -> None:
         """Write this log's files to `folder` from now on (a run's checkpoint, which refers to

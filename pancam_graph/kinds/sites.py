@@ -8,6 +8,7 @@ bearing-range factor from the site that first triangulated it.
 
 from __future__ import annotations
 
+import dataclasses
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 from typing import Literal
@@ -16,6 +17,7 @@ import gtsam
 import numpy as np
 from pydantic import Field
 
+from ..geometry.rig import project_rectified
 from ..graph import factors, noise, tie_gate, tie_matching
 from ..graph.keys import L, X
 from ..graph.tie_gate import RelativePose, SitePoint
@@ -93,6 +95,21 @@ class TrackIds:
         self._latest, self._filed = state["latest"], [mapped(filed) for filed in state["filed"]]
 
 
+MIN_TIE_WEIGHT = 1e-4  # a tie weighed at the estimate keeps at least this (its sigmas 100 times over)
+
+
+@dataclass(frozen=True)
+class _WeighedTie:
+    """A site's stereo view of a landmark weighed at the estimate (Sites.weigh_at_estimate)."""
+
+    stop: int
+    track: int
+    mount: np.ndarray  # body_T_left, 4x4
+    uvv: np.ndarray
+    tie_sigma_px: float
+    weight: float
+
+
 class SitesSettings(Section):
     """[estimator.sites]"""
 
@@ -104,6 +121,9 @@ class SitesSettings(Section):
     anchor_sigma_m: float = Field(3.0, gt=0.0, description="bearing-range anchor of a new landmark from its first "
                                   "site, along and across the line of sight")
     kernel: Literal["huber", "cauchy", "none"] = "huber"
+    weights: Literal["linearization", "estimate"] = Field(
+        "linearization", description="where the kernel weighs a tie: where iSAM2 linearized it (GTSAM's Robust "
+        "model), or at the estimate after each site (a Gaussian tie replaced when its weight moves)")
     tie_error: Literal["pixel_noise", "measured"] | None = Field(
         None, description="a landmark's views at a later site: pixel_noise, weighted as sigma_px alone; measured, "
         "with the image matcher's measured error at that distance from the site before, the same in both eyes "
@@ -116,7 +136,7 @@ class Sites(Kind):
     cost = 3.0
     stop_records = frozenset({"panorama"})
     step_counters = {"new_landmarks": 0, "rejected_ties": 0}
-    counter_defaults = {"landmarks": 0, "rejected_tie_points": 0, "rejected_tie_views": 0}
+    counter_defaults = {"landmarks": 0, "rejected_tie_points": 0, "rejected_tie_views": 0, "reweighed_ties": 0}
     Settings = SitesSettings
 
     records = "site panoramas"
@@ -144,6 +164,11 @@ class Sites(Kind):
         kernel_k = est.kernel_k(settings.kernel)
         self.kernel = (settings.kernel, kernel_k)
         self.measured_tie_error = settings.tie_error == "measured"
+        self.weigh_at_estimate = settings.weights == "estimate" and settings.kernel != "none"
+        self._m_estimator = (noise.robust(settings.kernel, noise.stereo_pixels(1.0), kernel_k).robust()
+                             if self.weigh_at_estimate else None)
+        self._weighed: dict[tuple[int, int], _WeighedTie] = {}  # ticket -> a tie weighed at the estimate
+        self.reweighed = 0
         # per landmark in the window, where the last site that viewed it was (its tie error grows
         # with the distance from there)
         self._last_viewed_from: dict[int, np.ndarray] = {}
@@ -232,6 +257,8 @@ class Sites(Kind):
         return d2 <= tie_gate.AGREEMENT_GATE
 
     def _add_site(self, stop: Stop) -> tuple[int, int]:
+        if self.weigh_at_estimate:
+            self._reweigh()
         current = self._collect(stop)
         recent = [site for site in self.sites[-self.memory:] if self.loc.smoother.live(X(site.stop))]
         candidates: dict[int, SiteObservations] = {}
@@ -298,7 +325,10 @@ class Sites(Kind):
         tie_sigma_px = self._tie_sigma_px(site, track, len(stereo) + hrc_views)
         build = self.loc.site_stereo_factor
         model = noise.robust(self.kernel[0], noise.stereo_tie(self.sigma_px, tie_sigma_px), self.kernel[1])
-        for mount, uvv in stereo:
+        for mount, uvv in stereo if self.weigh_at_estimate else ():
+            self._add_weighed(_WeighedTie(site.stop, track, mount.matrix(), np.asarray(uvv, dtype=float),
+                                          tie_sigma_px, 1.0))
+        for mount, uvv in stereo if not self.weigh_at_estimate else ():
             if build is None:
                 self.loc.smoother.add(factors.stereo(site.stop, track, uvv, self.stereo_calibration, mount, model))
             else:  # a kind's factor with its shared variables (a Python CustomFactor: its recipe too)
@@ -311,6 +341,65 @@ class Sites(Kind):
             self._last_viewed_from[track] = self.site_pose(site.stop).translation()
         if self.hrc is not None:
             self.hrc.add_views(site, track, self.site_pose(site.stop), tie_sigma_px)
+
+    def _add_weighed(self, tie: _WeighedTie, ticket: tuple[int, int] | None = None) -> None:
+        """A tie as a Gaussian factor whose sigmas carry its weight; in place of `ticket`'s."""
+        scale = 1.0 / np.sqrt(tie.weight)
+        build = self.loc.site_stereo_factor
+        if build is None:
+            factor = factors.stereo(tie.stop, tie.track, tie.uvv, self.stereo_calibration, gtsam.Pose3(tie.mount),
+                                    noise.stereo_tie(self.sigma_px * scale, tie.tie_sigma_px * scale))
+            rebuild = None
+        else:
+            arguments = (X(tie.stop), L(tie.track), tie.uvv, self.camera, tie.mount,
+                         ("none", None, self.sigma_px * scale, tie.tie_sigma_px * scale))
+            factor, rebuild = build(*arguments), (build, arguments)
+        smoother = self.loc.smoother
+        if ticket is None:
+            ticket = smoother.add(factor, rebuild, tracked=True)
+        else:
+            ticket = smoother.replace(ticket, factor, rebuild)
+        self._weighed[ticket] = tie
+
+    def _reweigh(self) -> None:
+        """Each tie in the window weighed by the kernel at the estimate; a tie whose weight moved by
+        more than 0.1 replaced, in this update, by one with the new weight: iteratively reweighted
+        least squares, one step a site, which iSAM2's linearization points do not bend."""
+        smoother = self.loc.smoother
+        for ticket, tie in list(self._weighed.items()):
+            if not (smoother.live(X(tie.stop)) and smoother.live(L(tie.track))):
+                del self._weighed[ticket]
+                smoother.forget(ticket)
+        if not self._weighed:
+            return
+        tickets, ties = list(self._weighed), list(self._weighed.values())
+        residuals = self._residuals_at_estimate(ties)
+        for ticket, tie, residual in zip(tickets, ties, residuals, strict=True):
+            weight = max(float(self._m_estimator.weight(residual)), MIN_TIE_WEIGHT)
+            if abs(weight - tie.weight) > 0.1:
+                del self._weighed[ticket]
+                self._add_weighed(dataclasses.replace(tie, weight=weight), ticket)
+                self.reweighed += 1
+
+    def _residuals_at_estimate(self, ties: list[_WeighedTie]) -> np.ndarray:
+        """The ties' whitened residual norms at unit weight, at the current estimate: each landmark
+        projected through its view's mount from its site's pose, against the measured pixels as
+        the calibrated pair would have seen them (Host.site_stereo_pixels)."""
+        smoother = self.loc.smoother
+        estimate = smoother.window_estimate()
+        world_T_body = np.tile(np.eye(4), (len(ties), 1, 1))
+        world_T_body[:, :3, :] = smoother.stacked(estimate, [X(t.stop) for t in ties], 12).reshape(-1, 3, 4)
+        points = smoother.stacked(estimate, [L(t.track) for t in ties], 3)
+        world_T_left = world_T_body @ np.array([t.mount for t in ties])
+        rotation, translation = world_T_left[:, :3, :3], world_T_left[:, :3, 3]
+        in_left = np.einsum("nji,nj->ni", rotation, points - translation)
+        measured = np.array([t.uvv for t in ties])
+        if self.loc.site_stereo_pixels is not None:
+            measured = self.loc.site_stereo_pixels(measured)
+        error = project_rectified(in_left, self.rig.wac, self.rig.baseline_m) - measured
+        covariance = noise.stereo_tie_covariance(self.sigma_px, np.array([t.tie_sigma_px for t in ties]))
+        squared = np.einsum("ni,ni->n", error, np.linalg.solve(covariance, error[:, :, None])[:, :, 0])
+        return np.where(np.isfinite(squared), np.sqrt(np.abs(squared)), np.inf)  # behind the camera: no weight
 
     def _tie_sigma_px(self, site: SiteObservations, track: int, views: int) -> float:
         """The matching error (px per axis, 1 sigma) of each of the site's `views` of a landmark an
@@ -336,4 +425,4 @@ class Sites(Kind):
 
     def counters(self) -> dict:
         return {"landmarks": len(self.landmark_ids), "rejected_tie_points": self.rejected_ties,
-                "rejected_tie_views": self.rejected_tie_views}
+                "rejected_tie_views": self.rejected_tie_views, "reweighed_ties": self.reweighed}

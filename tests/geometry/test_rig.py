@@ -1,8 +1,9 @@
 import cv2
+import gtsam
 import numpy as np
 import pytest
 
-from pancam_graph.geometry.rig import Camera, rig_preset, triangulate_rectified
+from pancam_graph.geometry.rig import Camera, project_rectified, rig_preset, triangulate_rectified
 
 
 def test_projection_matches_hand_computed_pixels():
@@ -76,3 +77,17 @@ def test_triangulation_inverts_projection():
     uv = cam.project(p, distort=False)
     u_right = uv[:, 0] - cam.fx * rig.baseline_m / p[:, 2]
     np.testing.assert_allclose(triangulate_rectified(uv[:, 0], u_right, uv[:, 1], cam, 0.5), p, rtol=1e-10)
+
+
+def test_rectified_projection_is_gtsams_stereo_camera_and_undoes_triangulation():
+    rig = rig_preset("exomars")
+    cam, baseline = rig.wac, rig.baseline_m
+    rng = np.random.default_rng(3)
+    points = rng.uniform([-5.0, -3.0, 1.5], [5.0, 3.0, 40.0], size=(50, 3))
+    uvv = project_rectified(points, cam, baseline)
+    stereo = gtsam.StereoCamera(gtsam.Pose3(), rig.stereo_calibration())
+    for p, row in zip(points, uvv, strict=True):
+        expected = stereo.project2(p)
+        np.testing.assert_allclose(row, [expected.uL(), expected.uR(), expected.v()], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(triangulate_rectified(*uvv.T, cam, baseline), points, rtol=1e-12)
+    assert np.isnan(project_rectified(np.array([[1.0, 0.0, -2.0]]), cam, baseline)).all()  # behind

@@ -7,10 +7,10 @@ import pickle
 import gtsam
 import numpy as np
 import pytest
+from stepping import traverse_with_motions
 
 from pancam_graph.config import EstimatorConfig, load_scenario, resolve_scenario
 from pancam_graph.errors import GraphError
-from pancam_graph.frontend.motion import motion_between
 from pancam_graph.frontend.stereo_vo import StereoVO
 from pancam_graph.frontend.vo_ahead import VoAhead
 from pancam_graph.graph import frozen, update_log
@@ -18,20 +18,13 @@ from pancam_graph.graph.keys import L, X, subset
 from pancam_graph.graph.smoother import RelinearizeThresholds, Smoother
 from pancam_graph.kinds.sites import TrackIds
 from pancam_graph.runtime import spill
-from pancam_graph.sim import simulate
 from pancam_graph.solve.localizer import Localizer, smoother_for
 
 WINDOW_M = 60.0  # short_trail is 214 m, with sites about every 40 m
 
 
 def _traverse(scenario, seed=2):
-    traverse, truth = simulate(scenario, seed)
-    vo = StereoVO.for_traverse(traverse, scenario.estimator)
-    motions, last = [None], None
-    for k in range(1, len(traverse.stops)):
-        last = motion_between(vo, traverse.stops[k - 1], traverse.stops[k], last, traverse.wheel_slip)
-        motions.append(last)
-    return traverse, truth, motions
+    return traverse_with_motions(scenario, seed)
 
 
 @pytest.fixture(scope="module")
