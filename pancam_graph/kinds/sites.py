@@ -387,9 +387,12 @@ class Sites(Kind):
         the calibrated pair would have seen them (Host.site_stereo_pixels)."""
         smoother = self.loc.smoother
         estimate = smoother.window_estimate()
+        # each site's pose and each landmark looked up once (a few sites, thousands of views)
+        stops, at_stop = np.unique([t.stop for t in ties], return_inverse=True)
+        tracks, of_track = np.unique([t.track for t in ties], return_inverse=True)
         world_T_body = np.tile(np.eye(4), (len(ties), 1, 1))
-        world_T_body[:, :3, :] = smoother.stacked(estimate, [X(t.stop) for t in ties], 12).reshape(-1, 3, 4)
-        points = smoother.stacked(estimate, [L(t.track) for t in ties], 3)
+        world_T_body[:, :3, :] = smoother.stacked(estimate, [X(int(k)) for k in stops], 12).reshape(-1, 3, 4)[at_stop]
+        points = smoother.stacked(estimate, [L(int(t)) for t in tracks], 3)[of_track]
         world_T_left = world_T_body @ np.array([t.mount for t in ties])
         rotation, translation = world_T_left[:, :3, :3], world_T_left[:, :3, 3]
         in_left = np.einsum("nji,nj->ni", rotation, points - translation)
