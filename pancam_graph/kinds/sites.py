@@ -123,7 +123,7 @@ class SitesSettings(Section):
     kernel: Literal["huber", "cauchy", "none"] = "huber"
     weights: Literal["linearization", "estimate"] = Field(
         "linearization", description="where the kernel weighs a tie: where iSAM2 linearized it (GTSAM's Robust "
-        "model), or at the estimate after each site (a Gaussian tie replaced when its weight moves)")
+        "model), or at the estimate, again at every site (a Gaussian tie replaced when its weight moves by 0.1)")
     tie_error: Literal["pixel_noise", "measured"] | None = Field(
         None, description="a landmark's views at a later site: pixel_noise, weighted as sigma_px alone; measured, "
         "with the image matcher's measured error at that distance from the site before, the same in both eyes "
@@ -325,11 +325,11 @@ class Sites(Kind):
         tie_sigma_px = self._tie_sigma_px(site, track, len(stereo) + hrc_views)
         build = self.loc.site_stereo_factor
         model = noise.robust(self.kernel[0], noise.stereo_tie(self.sigma_px, tie_sigma_px), self.kernel[1])
-        for mount, uvv in stereo if self.weigh_at_estimate else ():
-            self._add_weighed(_WeighedTie(site.stop, track, mount.matrix(), np.asarray(uvv, dtype=float),
-                                          tie_sigma_px, 1.0))
-        for mount, uvv in stereo if not self.weigh_at_estimate else ():
-            if build is None:
+        for mount, uvv in stereo:
+            if self.weigh_at_estimate:  # full weight until the next site weighs it (_reweigh)
+                self._add_weighed(_WeighedTie(site.stop, track, mount.matrix(), np.asarray(uvv, dtype=float),
+                                              tie_sigma_px, 1.0))
+            elif build is None:
                 self.loc.smoother.add(factors.stereo(site.stop, track, uvv, self.stereo_calibration, mount, model))
             else:  # a kind's factor with its shared variables (a Python CustomFactor: its recipe too)
                 arguments = (X(site.stop), L(track), np.asarray(uvv, dtype=float), self.camera, mount.matrix(),
