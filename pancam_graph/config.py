@@ -419,7 +419,9 @@ class _EstimatorCore(_Strict):
                                             "rotation moved this far from its linearization point")
     relinearize_translation_m: float = Field(0.1, gt=0.0, description="... or whose position, or a landmark "
                                              "whose position, moved this far (GPS moves whole stretches of "
-                                             "poses by centimetres: a 5 cm threshold relinearized hundreds a stop)")
+                                             "poses by centimetres: a 5 cm threshold relinearized hundreds a stop; "
+                                             "a tie's robust weight is taken where its pose and landmark were "
+                                             "linearized unless [estimator.sites] weights = \"estimate\")")
     relinearize_scalar: float = Field(0.05, gt=0.0, description="... or a scalar (wheel slip, VO scale) this far")
     relinearize_calibration: float = Field(2e-5, gt=0.0, description="... or a term of the stereo pair's "
                                            "calibration error this far (a tenth of its prior's rotation sigma): "
