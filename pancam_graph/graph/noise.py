@@ -41,6 +41,9 @@ def stereo_pixels(sigma_px: float) -> gtsam.noiseModel.Base:
     return gtsam.noiseModel.Isotropic.Sigma(3, sigma_px)
 
 
+_BOTH_EYES_U = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # what the matcher's error moves
+
+
 def stereo_tie(sigma_px: float, tie_sigma_px: float) -> gtsam.noiseModel.Base:
     """(u_left, u_right, v) noise of a tie's stereo view at the later of two sites: the pixel
     noise of each of the three and the matcher's error (`tie_sigma_px` per axis), which moves
@@ -57,8 +60,6 @@ def stereo_tie_covariance(sigma_px: float, tie_sigma_px: float | np.ndarray) -> 
     tie_variance = np.asarray(tie_sigma_px, dtype=float) ** 2
     return sigma_px**2 * np.eye(3) + tie_variance[..., None, None] * _BOTH_EYES_U
 
-
-_BOTH_EYES_U = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # what the matcher's error moves
 
 
 def image_pixels(sigma_px: float) -> gtsam.noiseModel.Base:

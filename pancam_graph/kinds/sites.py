@@ -302,7 +302,6 @@ class Sites(Kind):
         tied_now = set(tracks)
         for track in sorted(t for t in current.stereo.keys() if t in self.references and t not in tied_now):
             self._add_observations(current, track, gated=True)
-        self.references = {t: r for t, r in self.references.items() if live(L(t))}
         self._last_viewed_from = {t: p for t, p in self._last_viewed_from.items() if t in self.references}
 
         self.rejected_ties += rejected
@@ -323,18 +322,13 @@ class Sites(Kind):
                 stereo = ()
         hrc_views = len(site.hrc.get(track, ())) if self.hrc is not None else 0
         tie_sigma_px = self._tie_sigma_px(site, track, len(stereo) + hrc_views)
-        build = self.loc.site_stereo_factor
-        model = noise.robust(self.kernel[0], noise.stereo_tie(self.sigma_px, tie_sigma_px), self.kernel[1])
         for mount, uvv in stereo:
+            uvv = np.asarray(uvv, dtype=float)
             if self.weigh_at_estimate:  # full weight until the next site weighs it (_reweigh)
-                self._add_weighed(_WeighedTie(site.stop, track, mount.matrix(), np.asarray(uvv, dtype=float),
-                                              tie_sigma_px, 1.0))
-            elif build is None:
-                self.loc.smoother.add(factors.stereo(site.stop, track, uvv, self.stereo_calibration, mount, model))
-            else:  # a kind's factor with its shared variables (a Python CustomFactor: its recipe too)
-                arguments = (X(site.stop), L(track), np.asarray(uvv, dtype=float), self.camera, mount.matrix(),
-                             (*self.kernel, self.sigma_px, tie_sigma_px))
-                self.loc.smoother.add(build(*arguments), rebuild=(build, arguments))
+                self._add_weighed(_WeighedTie(site.stop, track, mount.matrix(), uvv, tie_sigma_px, 1.0))
+            else:
+                self.loc.smoother.add(*self._tie_factor(site.stop, track, mount.matrix(), uvv,
+                                                        (*self.kernel, self.sigma_px, tie_sigma_px)))
         if stereo:
             self._view_tracks.append(track)
             self._view_stops.append(site.stop)
@@ -342,18 +336,25 @@ class Sites(Kind):
         if self.hrc is not None:
             self.hrc.add_views(site, track, self.site_pose(site.stop), tie_sigma_px)
 
+    def _tie_factor(self, stop: int, track: int, mount: np.ndarray, uvv: np.ndarray,
+                    model: tuple[str, float | None, float, float]):
+        """A site's stereo view (u_left, u_right, v) of a landmark through the mount body_T_left
+        (4x4) as a factor, with `model` = (kernel, k, sigma_px, tie_sigma_px), and its recipe: the
+        kind's that builds the sites' stereo factors with its shared variables (a Python
+        CustomFactor, made again from the recipe at a checkpoint), or GTSAM's (no recipe)."""
+        build = self.loc.site_stereo_factor
+        if build is None:
+            kernel, k, sigma_px, tie_sigma_px = model
+            noise_model = noise.robust(kernel, noise.stereo_tie(sigma_px, tie_sigma_px), k)
+            return factors.stereo(stop, track, uvv, self.stereo_calibration, gtsam.Pose3(mount), noise_model), None
+        arguments = (X(stop), L(track), uvv, self.camera, mount, model)
+        return build(*arguments), (build, arguments)
+
     def _add_weighed(self, tie: _WeighedTie, ticket: tuple[int, int] | None = None) -> None:
         """A tie as a Gaussian factor whose sigmas carry its weight; in place of `ticket`'s."""
         scale = 1.0 / np.sqrt(tie.weight)
-        build = self.loc.site_stereo_factor
-        if build is None:
-            factor = factors.stereo(tie.stop, tie.track, tie.uvv, self.stereo_calibration, gtsam.Pose3(tie.mount),
-                                    noise.stereo_tie(self.sigma_px * scale, tie.tie_sigma_px * scale))
-            rebuild = None
-        else:
-            arguments = (X(tie.stop), L(tie.track), tie.uvv, self.camera, tie.mount,
-                         ("none", None, self.sigma_px * scale, tie.tie_sigma_px * scale))
-            factor, rebuild = build(*arguments), (build, arguments)
+        factor, rebuild = self._tie_factor(tie.stop, tie.track, tie.mount, tie.uvv,
+                                           ("none", None, self.sigma_px * scale, tie.tie_sigma_px * scale))
         smoother = self.loc.smoother
         if ticket is None:
             ticket = smoother.add(factor, rebuild, tracked=True)
