@@ -16,6 +16,7 @@ import os
 import pickle
 import shutil
 import tempfile
+from collections import defaultdict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -121,12 +122,15 @@ class UpdateLog:
     def kept(self) -> Iterator[Update]:
         """The updates with the factors a later update replaced taken out of them (the graph as
         it stands: for the batch polish and the bound, which build it anew)."""
-        replaced = {ticket for update in self for ticket in update.replaced}
+        replaced: defaultdict[int, set[int]] = defaultdict(set)  # update -> its positions replaced later
+        for update in self:
+            for number, position in update.replaced:
+                replaced[number].add(position)
         for number, update in enumerate(self):
-            if any(ticket[0] == number for ticket in replaced):
+            if number in replaced:
                 factors = gtsam.NonlinearFactorGraph()
                 for position in range(update.factors.size()):
-                    if (number, position) not in replaced:
+                    if position not in replaced[number]:
                         factors.add(update.factors.at(position))
                 update = dataclasses.replace(update, factors=factors)
             yield update
