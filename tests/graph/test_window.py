@@ -361,7 +361,7 @@ def test_released_solver_lets_isam2_go():
 def test_a_landmark_that_outlives_its_gating_site_takes_no_more_views():
     """A landmark tied as its first site was leaving the window stays after it (Smoother.insert):
     a later site's view of it cannot be gated against a site that has no marginal any more, and
-    is left out (realistic short_trail seed 1 with a 60 m window: the run stopped at stop 154
+    is left out (realistic short_trail seed 1 with a 60 m window: the run stopped at stop 83 of 142
     with "x38 left the smoother's window" before)."""
     scenario = load_scenario(resolve_scenario("short_trail"))
     traverse, truth, motions = _traverse(scenario, seed=1)
