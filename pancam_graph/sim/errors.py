@@ -132,26 +132,30 @@ def match_ties(stops: list[Stop], positions: np.ndarray, n_landmarks: int, memor
     earlier site saw becomes a new one (a fresh id). Returns the stops and, per fresh id from
     n_landmarks on, the landmark it is (the truth's)."""
     fresh: list[int] = []
-    carried: dict[int, set[int]] = {}  # site stop -> the ids its views carry
+    carried: dict[int, set[int]] = {}  # the last `memory` site stops -> the ids their views carry
+    seen_before: set[int] = set()  # every id an earlier site's views carry, kept as it grows: formed
+    # again at each site, it grew as the square of the sites (9 s of mars_traverse's 10 km)
     out = list(stops)
     for k, stop in enumerate(stops):
         if stop.site_id is None or not (stop.panorama or stop.hrc):
             continue
         ids = _site_ids(stop)
-        seen_before = set().union(*carried.values()) if carried else set()
         matched: dict[int, np.ndarray] = {}
         for a in sorted(carried, key=lambda s: -s)[:memory]:
-            shared = sorted(set(ids.tolist()) & carried[a] - matched.keys())
+            shared = sorted((set(ids.tolist()) & carried[a]) - matched.keys())
             distance = float(np.linalg.norm(positions[k] - positions[a]))
             n = min(len(shared), int(rng.poisson(tie_matching.count(distance))))
             for landmark in rng.choice(np.array(shared, dtype=np.int64), n, replace=False) if n else ():
                 matched[int(landmark)] = _tie_error(distance, rng)
         remap = {}
-        for landmark in sorted(set(ids.tolist()) & seen_before - matched.keys()):
+        for landmark in sorted((set(ids.tolist()) & seen_before) - matched.keys()):  # not a copy of seen_before
             remap[landmark] = n_landmarks + len(fresh)
             fresh.append(landmark)
         out[k] = _with_ties(stop, remap, matched, hrc_scale)
         carried[k] = {remap.get(int(i), int(i)) for i in ids}
+        seen_before |= carried[k]
+        if len(carried) > memory:
+            del carried[min(carried)]
     return out, fresh
 
 

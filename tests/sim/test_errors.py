@@ -14,8 +14,9 @@ import pytest
 from pancam_graph.config import Scenario, SimulationErrors, load_scenario, resolve_scenario
 from pancam_graph.geometry.rig import rig_preset
 from pancam_graph.graph.tie_matching import count as tie_count
+from pancam_graph.records import PanoramaFrame, StereoObservations, Stop
 from pancam_graph.sim import simulate
-from pancam_graph.sim.errors import TrackingErrors, TrueRig, with_pointing_error
+from pancam_graph.sim.errors import TrackingErrors, TrueRig, match_ties, with_pointing_error
 
 
 @pytest.fixture(scope="module")
@@ -157,6 +158,31 @@ def test_ties_are_as_many_as_the_matcher_finds_and_the_rest_are_new_landmarks(sh
     assert all(np.ptp(np.array(v), axis=0).max() < 1e-9 for v in by_tie.values())
     median = np.median([np.hypot(*v[0]) for v in by_tie.values()])
     assert 0.1 < median < 1.5  # the measured matching error: a median of 0.45 px
+
+
+def _site(index: int, ids: np.ndarray) -> Stop:
+    observations = StereoObservations(ids.astype(np.int64), np.tile([500.0, 480.0, 400.0], (len(ids), 1)))
+    return Stop(index, float(index), observations, site_id=index, panorama=(PanoramaFrame(0.0, 0.0, observations),))
+
+
+@pytest.mark.parametrize("memory", [1, 2])
+def test_a_site_ties_only_to_the_sites_it_remembers_and_renames_what_older_ones_saw(memory):
+    # A sees 0-199, B 200-399, C 0-99 and 200-299, 10 m apart: C may tie what B saw, and what
+    # A saw only when it remembers two sites; otherwise those are new landmarks (fresh ids).
+    stops = [_site(0, np.arange(200)), _site(1, np.arange(200, 400)),
+             _site(2, np.r_[np.arange(100), np.arange(200, 300)])]
+    positions = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [20.0, 0.0, 0.0]])
+    out, fresh = match_ties(stops, positions, 400, memory, 1.0, np.random.default_rng(5))
+    c = out[2].panorama[0].observations.track_ids
+    seen_by_a, seen_by_b = c[:100], c[100:]
+    assert (seen_by_b < 400).sum() > 50  # about 130 drawn, all 100 shared kept
+    renamed = seen_by_a[seen_by_a >= 400]
+    assert sorted(np.asarray(fresh)[renamed - 400]) == sorted(set(range(100)) - set(seen_by_a.tolist()))
+    if memory == 1:
+        assert len(renamed) == 100
+    else:
+        assert (seen_by_a < 400).sum() > 50
+    np.testing.assert_array_equal(out[0].panorama[0].observations.track_ids, np.arange(200))  # nothing before A
 
 
 def test_an_error_changes_what_it_should_and_leaves_every_other_draw_in_place(short_trail):
