@@ -191,7 +191,7 @@ class Smoother:
         self._freeze(leaving)
         start = time.perf_counter()
         try:
-            self.isam.update(self._new_factors, self._new_values, stamps, self._remove)
+            self._update_and_solve(stamps)
         except (RuntimeError, ValueError) as exc:  # GTSAM's exceptions arrive as either
             if self.factorization != "CHOLESKY":
                 raise GraphError(f"iSAM2 update failed {context}: {exc}") from None
@@ -199,14 +199,13 @@ class Smoother:
             self._replay()
             self._freeze(leaving)  # as QR's iSAM2 has them
             try:
-                self.isam.update(self._new_factors, self._new_values, stamps, self._remove)
+                self._update_and_solve(stamps)
             except (RuntimeError, ValueError) as exc:
                 raise GraphError(f"iSAM2 update failed {context}: {exc}") from None
         if self._new_tracked:
             indices = self.isam.getISAM2Result().getNewFactorsIndices()
             for position in self._new_tracked:
                 self._tracked[(self.log.update_count, position)] = indices[position]
-        self._back_substitute()
         elapsed = (time.perf_counter() - start) * 1e3
         self.frozen.write_full()  # no replay will freeze these again now
         self._left_covariances.write_full()
@@ -219,6 +218,12 @@ class Smoother:
         self.update_ms_sum += elapsed
         self.relinearized_sum += self.isam.getISAM2Result().getVariablesRelinearized()
         return elapsed
+
+    def _update_and_solve(self, stamps: dict[int, float]) -> None:
+        """The collected factors and values into iSAM2, and its back-substitution: a Cholesky
+        factor that is indeterminate fails in either (GTSAM throws from the solve too)."""
+        self.isam.update(self._new_factors, self._new_values, stamps, self._remove)
+        self._back_substitute()
 
     def _stamp(self) -> float:
         """The clock in steps of half the window: variables leave in batches, one step's

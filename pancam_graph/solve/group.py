@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import EstimatorConfig
+from ..errors import GraphError
 from ..evaluation.consistency import PointsByTrack, consistency, crlb_position_covariances, nees_along_run
 from ..evaluation.gps_check import evaluate_against_gps, holdout_score, nees_against_gps
 from ..evaluation.metrics import compare
@@ -160,8 +161,14 @@ def _step_through(traverse: Traverse, state: RunState, feed: MotionFeed, listene
     for k in range(state.next_stop, len(traverse.stops)):
         stop = traverse.stops[k] if records is None else records.attach(k, traverse.stops[k])
         motion, dead_reckoning = feed.at(k, stop)
-        now = {name: localizer.step(stop, motion if localizer.uses_vo else dead_reckoning)
-               for name, localizer in state.localizers.items()}
+        now = {}
+        for name, localizer in state.localizers.items():
+            try:
+                now[name] = localizer.step(stop, motion if localizer.uses_vo else dead_reckoning)
+            except GraphError as exc:  # which of the group's configurations it was
+                raise GraphError(f"{name}: {exc}") from None
+            except RuntimeError as exc:  # GTSAM's, from a call outside the smoother's update
+                raise GraphError(f"{name}: at stop {k}: {exc}") from exc
         for listener in listeners:
             listener.step(stop, motion, now)
     state.next_stop = len(traverse.stops)

@@ -204,13 +204,13 @@ def test_a_site_that_leaves_the_window_at_the_next_site_is_not_searched_for_ties
     assert _position_rmse(narrow, truth) < 0.3  # m
 
 
-def _chain(factorization: str, n: int = 200) -> Smoother:
+def _chain(factorization: str, n: int = 200, step_sigma_m: float = 1e-6) -> Smoother:
     """A drive of n 1 m steps with micrometre step noise and nothing absolute but the start:
     its uncertainty grows ~1e10 times the step's, past what Cholesky's Hessian can hold."""
     smoother = Smoother(RelinearizeThresholds(0.02, 0.1, 0.05, 2e-5), relinearize_skip=1, window_m=np.inf,
                         wildfire_threshold=0.001,
                         factorization=factorization)
-    noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-7] * 3 + [1e-6] * 3))
+    noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.1 * step_sigma_m] * 3 + [step_sigma_m] * 3))
     smoother.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)))
     smoother.insert(X(0), gtsam.Pose3())
     smoother.update()
@@ -232,6 +232,25 @@ def test_a_failing_cholesky_goes_on_as_qr_to_qr_s_estimate():
     assert smoother_for(EstimatorConfig(), with_gps=True).factorization == "CHOLESKY"
     assert smoother_for(EstimatorConfig(), with_gps=False).factorization == "QR"
     assert smoother_for(EstimatorConfig(factorization="qr"), with_gps=True).factorization == "QR"
+
+
+def test_a_cholesky_found_indeterminate_in_the_back_substitution_goes_on_as_qr(monkeypatch):
+    """GTSAM may find a factor indeterminate only when it solves it (getDelta, after the update
+    went through: a 100 km mission's `vo_sites` did): with Cholesky, the same fallback to QR as
+    a failure in the update."""
+    qr = _chain("QR", n=30, step_sigma_m=0.01)
+    solve = Smoother._back_substitute
+
+    def indeterminate_once_at_update_20(smoother: Smoother) -> None:
+        if smoother.factorization == "CHOLESKY" and smoother.log.update_count == 20:
+            raise RuntimeError("Indeterminate linear system detected while working near variable x20")
+        solve(smoother)
+
+    monkeypatch.setattr(Smoother, "_back_substitute", indeterminate_once_at_update_20)
+    cholesky = _chain("CHOLESKY", n=30, step_sigma_m=0.01)
+    assert cholesky.factorization == "QR"
+    for k in (1, 20, 29):
+        np.testing.assert_array_equal(cholesky.pose(X(k)).matrix(), qr.pose(X(k)).matrix())
 
 
 def test_the_bound_through_the_window_is_each_stops_information_as_it_left(short_scenario, trail, monkeypatch):
