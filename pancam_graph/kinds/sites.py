@@ -123,7 +123,9 @@ class SitesSettings(Section):
     kernel: Literal["huber", "cauchy", "none"] = "huber"
     weights: Literal["linearization", "estimate"] = Field(
         "linearization", description="where the kernel weighs a tie: where iSAM2 linearized it (GTSAM's Robust "
-        "model), or at the estimate, again at every site (a Gaussian tie replaced when its weight moves by 0.1)")
+        "model), or at the estimate, again at every site (a Gaussian tie replaced when its weight moves by 0.1; "
+        "consistent where the first is cautious, but with relinearize_translation_m = 1 it diverged on a 100 km "
+        "mission: docs/performance.md)")
     tie_error: Literal["pixel_noise", "measured"] | None = Field(
         None, description="a landmark's views at a later site: pixel_noise, weighted as sigma_px alone; measured, "
         "with the image matcher's measured error at that distance from the site before, the same in both eyes "
