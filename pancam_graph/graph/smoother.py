@@ -220,8 +220,8 @@ class Smoother:
         return elapsed
 
     def _update_and_solve(self, stamps: dict[int, float]) -> None:
-        """The collected factors and values into iSAM2, and its back-substitution: a Cholesky
-        factor that is indeterminate fails in either (GTSAM throws from the solve too)."""
+        """The collected factors and values into iSAM2, and its back-substitution: an
+        indeterminate system fails in either (GTSAM throws from the solve too)."""
         self.isam.update(self._new_factors, self._new_values, stamps, self._remove)
         self._back_substitute()
 
