@@ -191,7 +191,7 @@ class Smoother:
         self._freeze(leaving)
         start = time.perf_counter()
         try:
-            self._update_and_solve(stamps)
+            self._update_and_solve(self._new_factors, self._new_values, stamps, self._remove)
         except (RuntimeError, ValueError) as exc:  # GTSAM's exceptions arrive as either
             if self.factorization != "CHOLESKY":
                 raise GraphError(f"iSAM2 update failed {context}: {exc}") from None
@@ -199,7 +199,7 @@ class Smoother:
             self._replay()
             self._freeze(leaving)  # as QR's iSAM2 has them
             try:
-                self._update_and_solve(stamps)
+                self._update_and_solve(self._new_factors, self._new_values, stamps, self._remove)
             except (RuntimeError, ValueError) as exc:
                 raise GraphError(f"iSAM2 update failed {context}: {exc}") from None
         if self._new_tracked:
@@ -219,10 +219,11 @@ class Smoother:
         self.relinearized_sum += self.isam.getISAM2Result().getVariablesRelinearized()
         return elapsed
 
-    def _update_and_solve(self, stamps: dict[int, float]) -> None:
-        """The collected factors and values into iSAM2, and its back-substitution: an
-        indeterminate system fails in either (GTSAM throws from the solve too)."""
-        self.isam.update(self._new_factors, self._new_values, stamps, self._remove)
+    def _update_and_solve(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, stamps: dict[int, float],
+                          removed: list[int]) -> None:
+        """One iSAM2 update and its back-substitution (as every update, and every replayed one,
+        is solved): an indeterminate system fails in either (GTSAM throws from the solve too)."""
+        self.isam.update(factors, values, stamps, removed)
         self._back_substitute()
 
     def _stamp(self) -> float:
@@ -321,8 +322,7 @@ class Smoother:
         self.isam = self._new_isam()
         for update in self.log:
             try:
-                self.isam.update(update.factors, update.values, update.stamps, update.removed)
-                self._back_substitute()
+                self._update_and_solve(update.factors, update.values, update.stamps, update.removed)
             except (RuntimeError, ValueError) as exc:
                 raise GraphError(f"rebuilding iSAM2 by replaying its updates failed: {exc}") from None
 

@@ -140,15 +140,16 @@ def match_ties(stops: list[Stop], positions: np.ndarray, n_landmarks: int, memor
         if stop.site_id is None or not (stop.panorama or stop.hrc):
             continue
         ids = _site_ids(stop)
+        id_set = set(ids.tolist())
         matched: dict[int, np.ndarray] = {}
-        for a in sorted(carried, key=lambda s: -s)[:memory]:
-            shared = sorted((set(ids.tolist()) & carried[a]) - matched.keys())
+        for a in sorted(carried, reverse=True):  # the remembered sites, nearest first
+            shared = sorted((id_set & carried[a]) - matched.keys())
             distance = float(np.linalg.norm(positions[k] - positions[a]))
             n = min(len(shared), int(rng.poisson(tie_matching.count(distance))))
             for landmark in rng.choice(np.array(shared, dtype=np.int64), n, replace=False) if n else ():
                 matched[int(landmark)] = _tie_error(distance, rng)
         remap = {}
-        for landmark in sorted((set(ids.tolist()) & seen_before) - matched.keys()):  # not a copy of seen_before
+        for landmark in sorted((id_set & seen_before) - matched.keys()):  # not a copy of seen_before
             remap[landmark] = n_landmarks + len(fresh)
             fresh.append(landmark)
         out[k] = _with_ties(stop, remap, matched, hrc_scale)
