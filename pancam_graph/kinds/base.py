@@ -2,8 +2,9 @@
 
 A kind owns its factor builder, its gate, its counters and the metrics it reports. The localizer
 calls, for every stop: `pose_times` (measurements between the previous stop and this one that
-need a pose of their own), `add` (this stop's factors, before the update), `after_update`; and
-`counters` once at the end.
+need a pose of their own), `update_before` (why the estimate must be updated first, or None),
+`add` (this stop's factors, before the update), `after_update` (checks against the updated
+estimate; why it must be updated again, or None); and `counters` once at the end.
 
 A kind whose measurements are not part of every traverse's stops (a sun sensor, say) also
 declares, all optional:
@@ -207,8 +208,10 @@ class Kind:
     def add(self, stop: Stop, counts: StepCounts) -> None:
         """This stop's factors (before the stop's update)."""
 
-    def after_update(self, stop: Stop, counts: StepCounts) -> None:
-        """Checks against the updated estimate."""
+    def after_update(self, stop: Stop, counts: StepCounts) -> str | None:
+        """Checks against the updated estimate; why it must be updated again (factors this kind
+        replaced, weighed at it), or None. The localizer makes that update before the next kind's."""
+        return None
 
     def true_values(self, truth: GroundTruth, values: gtsam.Values) -> bool:
         """Insert the true values of this kind's own variables (for the CRLB); False when unknown."""

@@ -123,9 +123,9 @@ class SitesSettings(Section):
     kernel: Literal["huber", "cauchy", "none"] = "huber"
     weights: Literal["linearization", "estimate"] = Field(
         "linearization", description="where the kernel weighs a tie: where iSAM2 linearized it (GTSAM's Robust "
-        "model), or at the estimate, again at every site (a Gaussian tie replaced when its weight moves by 0.1; "
-        "consistent where the first is cautious, but with relinearize_translation_m = 1 it diverged on a 100 km "
-        "mission: docs/performance.md)")
+        "model), or at the estimate, after every site's update (a Gaussian tie replaced when its weight moves by "
+        "0.1; consistent where the first is cautious, but it diverged 31 km into a 100 km mission, where the "
+        "first did not: docs/performance.md)")
     tie_error: Literal["pixel_noise", "measured"] | None = Field(
         None, description="a landmark's views at a later site: pixel_noise, weighted as sigma_px alone; measured, "
         "with the image matcher's measured error at that distance from the site before, the same in both eyes "
@@ -258,9 +258,12 @@ class Sites(Kind):
         d2 = tie_gate.disagreement2(reference.point, seen, self._relative(reference.stop, stop))
         return d2 <= tie_gate.AGREEMENT_GATE
 
+    def after_update(self, stop: Stop, counts) -> str | None:
+        if stop.is_site and self.weigh_at_estimate and self._reweigh():
+            return "its ties weighed at the estimate"
+        return None
+
     def _add_site(self, stop: Stop) -> tuple[int, int]:
-        if self.weigh_at_estimate:
-            self._reweigh()
         current = self._collect(stop)
         recent = [site for site in self.sites[-self.memory:] if self.loc.smoother.live(X(site.stop))]
         candidates: dict[int, SiteObservations] = {}
@@ -326,7 +329,7 @@ class Sites(Kind):
         tie_sigma_px = self._tie_sigma_px(site, track, len(stereo) + hrc_views)
         for mount, uvv in stereo:
             uvv = np.asarray(uvv, dtype=float)
-            if self.weigh_at_estimate:  # full weight until the next site weighs it (_reweigh)
+            if self.weigh_at_estimate:  # full weight for the site's update, then weighed (after_update)
                 self._add_weighed(_WeighedTie(site.stop, track, mount.matrix(), uvv, tie_sigma_px, 1.0))
             else:
                 self.loc.smoother.add(*self._tie_factor(site.stop, track, mount.matrix(), uvv,
@@ -364,25 +367,30 @@ class Sites(Kind):
             ticket = smoother.replace(ticket, factor, rebuild)
         self._weighed[ticket] = tie
 
-    def _reweigh(self) -> None:
-        """Each tie in the window weighed by the kernel at the estimate; a tie whose weight moved by
-        more than 0.1 replaced, in this update, by one with the new weight: iteratively reweighted
-        least squares, one step a site, which iSAM2's linearization points do not bend."""
+    def _reweigh(self) -> bool:
+        """Each tie in the window weighed by the kernel at the estimate, after its site's update;
+        one whose weight moved by more than 0.1 replaced by one with the new weight: iteratively
+        reweighted least squares, one step a site, which iSAM2's linearization points do not bend.
+        Weighed only at the next site instead, false ties 60-70 sigma out pulled at full weight
+        until then, and a 100 km mission diverged (docs/performance.md). Whether any was replaced
+        (the replacements wait for an update)."""
         smoother = self.loc.smoother
         for ticket, tie in list(self._weighed.items()):
             if not (smoother.live(X(tie.stop)) and smoother.live(L(tie.track))):
                 del self._weighed[ticket]
                 smoother.forget(ticket)
         if not self._weighed:
-            return
+            return False
         tickets, ties = list(self._weighed), list(self._weighed.values())
         residuals = self._residuals_at_estimate(ties)
+        replaced_before = self.reweighed
         for ticket, tie, residual in zip(tickets, ties, residuals, strict=True):
             weight = max(float(self._m_estimator.weight(residual)), MIN_TIE_WEIGHT)
             if abs(weight - tie.weight) > 0.1:
                 del self._weighed[ticket]
                 self._add_weighed(dataclasses.replace(tie, weight=weight), ticket)
                 self.reweighed += 1
+        return self.reweighed > replaced_before
 
     def _residuals_at_estimate(self, ties: list[_WeighedTie]) -> np.ndarray:
         """The ties' whitened residual norms at unit weight, at the current estimate: each landmark

@@ -126,7 +126,7 @@ class Localizer:
 
     def step(self, stop: Stop, motion: Motion | None) -> StepResult:
         k = stop.index
-        # what this stop's updates add (a site stop takes two)
+        # what this stop's updates add (a site stop takes two, three with its ties weighed at the estimate)
         ms_before, relinearized_before = self.smoother.update_ms_sum, self.smoother.relinearized_sum
         if motion is None:
             self.smoother.add(factors.start_prior(self.traverse.start_world_T_body, self.traverse.start_sigmas))
@@ -145,7 +145,9 @@ class Localizer:
             kind.add(stop, counts)
         self.smoother.update(context=f"at stop {k}")
         for kind in self.kinds.values():
-            kind.after_update(stop, counts)
+            why = kind.after_update(stop, counts)
+            if why is not None:
+                self.smoother.update(context=f"at stop {k}, {why}")
         self.previous_stop = stop
         self._keys_at.clear()
         ms = self.smoother.update_ms_sum - ms_before
