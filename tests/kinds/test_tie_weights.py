@@ -66,8 +66,7 @@ def test_ties_weighed_at_the_estimate_reach_the_robust_batch_solution(realistic_
 def test_a_false_tie_is_weighed_down_in_its_own_site_s_step(realistic_trail):
     """After every site's step, no tie still at full weight lies far out at the estimate: each is
     weighed right after the update that brought it in. Weighed only at the next site, false ties
-    pulled at full weight until then (37-383 sigma out on this trail) and a 100 km mission
-    diverged (docs/performance.md)."""
+    pulled at full weight until then (37-383 sigma out on this trail)."""
     scenario, traverse, motions = realistic_trail
     settings = scenario.estimator.sites.model_copy(update={"weights": "estimate"})
     estimator = scenario.estimator.model_copy(update={"sites": settings})
