@@ -383,14 +383,15 @@ class Sites(Kind):
             return False
         tickets, ties = list(self._weighed), list(self._weighed.values())
         residuals = self._residuals_at_estimate(ties)
-        replaced_before = self.reweighed
+        replaced = 0
         for ticket, tie, residual in zip(tickets, ties, residuals, strict=True):
             weight = max(float(self._m_estimator.weight(residual)), MIN_TIE_WEIGHT)
             if abs(weight - tie.weight) > 0.1:
                 del self._weighed[ticket]
                 self._add_weighed(dataclasses.replace(tie, weight=weight), ticket)
-                self.reweighed += 1
-        return self.reweighed > replaced_before
+                replaced += 1
+        self.reweighed += replaced
+        return replaced > 0
 
     def _residuals_at_estimate(self, ties: list[_WeighedTie]) -> np.ndarray:
         """The ties' whitened residual norms at unit weight, at the current estimate: each landmark

@@ -26,10 +26,15 @@ def realistic_trail():
     return scenario, traverse, motions
 
 
-def _solved(scenario, traverse, motions, weights: str) -> Localizer:
+def _localizer(scenario, traverse, weights: str, **estimator_updates) -> Localizer:
+    """vo_sites with the sites' ties weighed as `weights` says."""
     settings = scenario.estimator.sites.model_copy(update={"weights": weights})
-    estimator = scenario.estimator.model_copy(update={"sites": settings})
-    localizer = Localizer(traverse, estimator.configurations["vo_sites"], estimator, seed=1)
+    estimator = scenario.estimator.model_copy(update={"sites": settings, **estimator_updates})
+    return Localizer(traverse, estimator.configurations["vo_sites"], estimator, seed=1)
+
+
+def _solved(scenario, traverse, motions, weights: str) -> Localizer:
+    localizer = _localizer(scenario, traverse, weights)
     for stop, motion in zip(traverse.stops, motions, strict=True):
         localizer.step(stop, motion)
     return localizer
@@ -66,11 +71,9 @@ def test_ties_weighed_at_the_estimate_reach_the_robust_batch_solution(realistic_
 def test_a_false_tie_is_weighed_down_in_its_own_site_s_step(realistic_trail):
     """After every site's step, no tie still at full weight lies far out at the estimate: each is
     weighed right after the update that brought it in. Weighed only at the next site, false ties
-    pulled at full weight until then (37-383 sigma out on this trail)."""
+    pulled at full weight until then (28-383 sigma out on this trail)."""
     scenario, traverse, motions = realistic_trail
-    settings = scenario.estimator.sites.model_copy(update={"weights": "estimate"})
-    estimator = scenario.estimator.model_copy(update={"sites": settings})
-    localizer = Localizer(traverse, estimator.configurations["vo_sites"], estimator, seed=1)
+    localizer = _localizer(scenario, traverse, "estimate")
     sites = localizer.kinds["sites"]
     down_weighted = 0
     for stop, motion in zip(traverse.stops, motions, strict=True):
@@ -91,12 +94,10 @@ def test_a_run_with_ties_weighed_at_the_estimate_resumes_exactly(realistic_trail
     the log's graph holds each tie once, at its last weight."""
     scenario, traverse, motions = realistic_trail
     monkeypatch.setattr(update_log, "CHUNK_UPDATES", 16)
-    settings = scenario.estimator.sites.model_copy(update={"weights": "estimate"})
-    estimator = scenario.estimator.model_copy(update={"sites": settings, "window_m": 60.0})
     steps = list(zip(traverse.stops, motions, strict=True))
 
     def localizer():
-        return Localizer(traverse, estimator.configurations["vo_sites"], estimator, seed=1)
+        return _localizer(scenario, traverse, "estimate", window_m=60.0)
 
     whole = localizer()
     for stop, motion in steps:
